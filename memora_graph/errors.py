@@ -1,0 +1,21 @@
+"""Errors a user sees. Each names what is at fault (file, row, column, bank, query)."""
+
+
+class MemoraError(Exception):
+    """Base class: the CLI turns these into `Error: ...` and exit code 1."""
+
+
+class DataError(MemoraError):
+    """Malformed input data; the message names the file, row and column."""
+
+
+class StoreError(MemoraError):
+    """A Kùzu failure translated into words a user understands."""
+
+
+class QueryError(MemoraError):
+    """A named query that does not exist, or whose parameters do not match."""
+
+
+class BankError(MemoraError):
+    """A bank directory that is missing, damaged or incomplete."""
