@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import http.client
 import importlib
 import ipaddress
 import json
@@ -643,8 +644,8 @@ class OpenAIBackend(Backend):
                     raise ModelServerError(f"{url}: {reason}", url=url) from None
             except (TimeoutError, socket.timeout):
                 failure = ModelServerError(f"{url}: no reply within {opts.timeout_s:g} s (timeout_s)", url=url)
-            except (ConnectionError, urllib.error.ContentTooShortError, OSError) as exc:
-                # http.client.RemoteDisconnected and resets: the server dropped the connection.
+            except (ConnectionError, OSError, http.client.HTTPException) as exc:
+                # Resets, http.client.RemoteDisconnected, IncompleteRead: the server dropped the connection.
                 failure = ModelServerError(f"{url}: the server closed the connection: {exc}", url=url)
             if attempt >= opts.max_retries:
                 if opts.max_retries:
