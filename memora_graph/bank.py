@@ -1,0 +1,118 @@
+"""A memory bank: a directory with one Kùzu database per participant and a manifest.
+
+Memory is personal: one file per person means a build of one participant never locks
+another's memory, and forgetting a person is deleting one file. The manifest records what a
+build wrote (videos, record counts); opening a participant checks the database against it,
+because Kùzu can open a damaged file and return wrong values.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import polars as pl
+
+from memora_graph.errors import BankError
+from memora_graph.store import Store
+
+MANIFEST = "manifest.json"
+FORMAT = 1
+_PID = re.compile(r"^P\d{2}$")
+CHECKED_COUNTS = ("segments", "entity_records", "state_events", "places")
+
+
+class Bank:
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    # -- manifest ----------------------------------------------------------------------
+    @property
+    def manifest_path(self) -> Path:
+        return self.path / MANIFEST
+
+    def exists(self) -> bool:
+        return self.manifest_path.exists()
+
+    def manifest(self) -> dict:
+        if not self.exists():
+            if self.path.is_dir() and any(self.path.glob("*.kuzu")):
+                raise BankError(f"{self.path}: has databases but no {MANIFEST}; not a complete memora bank")
+            raise BankError(f"{self.path}: no memory bank here (no {MANIFEST}). Build one with `memora build {self.path}`.")
+        try:
+            data = json.loads(self.manifest_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise BankError(f"{self.manifest_path}: damaged manifest ({exc})") from exc
+        if data.get("format") != FORMAT:
+            raise BankError(f"{self.manifest_path}: unknown bank format {data.get('format')!r}")
+        return data
+
+    def init(self, mode: str, embed_model: str, consolidated: bool) -> dict:
+        if self.exists():
+            data = self.manifest()
+            if data["mode"] != mode:
+                raise BankError(f"{self.path}: is a '{data['mode']}' bank; cannot add a '{mode}' build to it. Use another directory.")
+            if data["embed_model"] != embed_model:
+                raise BankError(f"{self.path}: embeddings are from {data['embed_model']}, not {embed_model}. Use another directory.")
+            return data
+        self.path.mkdir(parents=True, exist_ok=True)
+        data = {"format": FORMAT, "mode": mode, "embed_model": embed_model, "consolidated": consolidated, "participants": {}}
+        self.write_manifest(data)
+        return data
+
+    def write_manifest(self, data: dict) -> None:
+        tmp = self.manifest_path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
+        os.replace(tmp, self.manifest_path)  # atomic: never a half-written manifest
+
+    def record_participant(self, participant: str, videos: list[str], counts: dict) -> None:
+        data = self.manifest()
+        data["participants"][participant] = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": counts}
+        self.write_manifest(data)
+
+    # -- participants ------------------------------------------------------------------
+    def participants(self) -> list[str]:
+        return sorted(self.manifest()["participants"])
+
+    def db_path(self, participant: str) -> Path:
+        if not _PID.match(participant):
+            raise BankError(f"participant must look like P01, not {participant!r}")
+        return self.path / f"{participant}.kuzu"
+
+    def open(self, participant: str, read_only: bool = True, check: bool = True) -> Store:
+        data = self.manifest()
+        if participant not in data["participants"]:
+            known = ", ".join(sorted(data["participants"])) or "none"
+            raise BankError(f"{self.path}: participant {participant} is not in this bank (has: {known})")
+        store = Store(self.db_path(participant), read_only=read_only)
+        if check:
+            try:
+                self.verify(participant, store, data["participants"][participant]["counts"])
+            except BaseException:
+                store.close()
+                raise
+        return store
+
+    def verify(self, participant: str, store: Store, expected: dict) -> None:
+        try:
+            got = {k: int(v or 0) for k, v in store.run("store_counts", participant=participant).to_dicts()[0].items()}
+        except Exception as exc:
+            raise BankError(f"{self.db_path(participant)}: cannot read the database ({exc}); it is damaged. Delete it and rebuild {participant}.") from exc
+        diff = {k: (expected.get(k), got.get(k)) for k in CHECKED_COUNTS if expected.get(k) != got.get(k)}
+        if diff:
+            detail = ", ".join(f"{k} manifest={a} database={b}" for k, (a, b) in diff.items())
+            raise BankError(
+                f"{self.db_path(participant)}: does not match {MANIFEST} ({detail}). The database is damaged or a build "
+                f"was interrupted; run `memora build {self.path} --participants {participant}` to resume."
+            )
+
+    def run_each(self, name: str, participants: list[str] | None = None, **params) -> pl.DataFrame:
+        """Run a named query over each participant's database and concatenate the frames."""
+        frames = []
+        for p in participants or self.participants():
+            with self.open(p) as store:
+                df = store.run(name, participant=p, **params)
+            frames.append(df.with_columns(pl.lit(p).alias("participant")).select(["participant", *df.columns]) if "participant" not in df.columns else df)
+        return pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame()

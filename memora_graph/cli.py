@@ -1,0 +1,256 @@
+"""The `memora` command line: parse, call the library, render. No logic lives here."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+
+import click
+import polars as pl
+
+from memora_graph.errors import MemoraError
+from memora_graph.output import output_options, render
+
+
+class _Group(click.Group):
+    """Turns every MemoraError into `Error: ...` and exit code 1, never a traceback."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except MemoraError as exc:
+            raise click.ClickException(str(exc)) from exc
+
+
+def _parse_value(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _params(pairs) -> dict:
+    return {k: _parse_value(v) for k, v in pairs}
+
+
+param_option = click.option(
+    "-p", "--param", "params", type=(str, str), multiple=True, metavar="NAME VALUE",
+    help="Bind $NAME to VALUE (JSON if it parses, else a string). Repeatable.",
+)
+
+
+@click.group(cls=_Group)
+@click.version_option(package_name="memora-graph")
+def main():
+    """memora: build, explore and evaluate embodied action memory graphs.
+
+    \b
+    Quick start:
+      memora build banks/epic                 # all 18 participants from the bundled annotations
+      memora stats banks/epic
+      memora run banks/epic object_history -p participant P01 -p object plate
+      memora query banks/epic "MATCH (e:Entity) WHERE e.participant = 'P01' RETURN e.name LIMIT 5"
+    """
+
+
+@main.command()
+@click.argument("bank", type=click.Path(file_okay=False))
+@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
+@click.option("--annotations", type=click.Path(exists=True, dir_okay=False), help="EPIC-style CSV (default: the bundled subset).")
+@click.option("--mode", type=click.Choice(["edited", "raw"]), default="edited", show_default=True,
+              help="'raw' stores one record per observation, unedited (baselines, compression figure).")
+@click.option("--backend", type=click.Choice(["offline"]), default="offline", show_default=True,
+              help="Memory processors: 'offline' is the deterministic CPU policy.")
+@click.option("--embed-model", default=None, help="sentence-transformers model name or path (default: bundled all-MiniLM-L6-v2).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def build(bank, participants, annotations, mode, backend, embed_model, quiet):
+    """Build (or resume) a memory bank from action annotations.
+
+    Re-running the same command continues where a killed build stopped: finished videos
+    are kept and nothing is written twice.
+
+    \b
+    Examples:
+      memora build banks/epic
+      memora build banks/p01 --participants P01,P02
+      memora build banks/raw --mode raw --participants P01
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from memora_graph.form.build import decision_shares
+    from memora_graph.pipeline import build_bank
+
+    pids = None if participants.strip().lower() == "all" else [p.strip() for p in participants.split(",") if p.strip()]
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                        disable=quiet, transient=False)
+    task = {}
+
+    def on_plan(plan):
+        task["id"] = progress.add_task("building", total=sum(len(v) for v in plan.values()))
+
+    def on_video(p, video, n):
+        progress.update(task["id"], advance=1, description=f"{p} {video}")
+
+    with progress:
+        result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video)
+    rows = []
+    for r in result.participants:
+        shares = decision_shares(r.decisions)
+        rows.append({
+            "participant": r.participant, "videos": r.counts.get("videos"), "built": r.videos_built,
+            "segments": r.counts.get("segments"), "entities": r.counts.get("entities"),
+            "state_events": r.counts.get("state_events"), "places": r.counts.get("places"),
+            "NOOP%": shares["NOOP"], "UPDATE%": shares["UPDATE"], "ADD%": shares["ADD"], "DELETE%": shares["DELETE"],
+            "compression": round(r.compression, 1), "seconds": round(r.timings.total, 1),
+        })
+    click.echo(render(pl.DataFrame(rows)))
+    t = result.timings
+    click.echo(f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s "
+               f"(perception {t.perception:.1f} s, editor {t.editor:.1f} s, embedding {t.embedding:.1f} s, "
+               f"graph {t.graph:.1f} s)")
+
+
+@main.command()
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.argument("cypher")
+@param_option
+@click.option("--participant", help="Only this participant's database (default: every participant, concatenated).")
+@click.option("--write", is_flag=True, help="Allow writes (the default is read-only).")
+@output_options
+def query(bank, cypher, params, participant, write, fmt):
+    """Run ad-hoc Cypher over a bank (read-only unless --write).
+
+    \b
+    Examples:
+      memora query banks/epic "MATCH (p:Place) WHERE p.participant = \\$participant RETURN p.name, p.turn_count" -p participant P01
+      memora query banks/epic "MATCH (e:Entity) RETURN e.participant, count(*) AS n" --csv
+    """
+    from memora_graph.bank import Bank
+
+    b = Bank(bank)
+    bound = _params(params)
+    pids = [participant] if participant else ([bound["participant"]] if "participant" in bound else b.participants())
+    frames = []
+    for p in pids:
+        with b.open(p, read_only=not write) as store:
+            frames.append(store.query(cypher, bound))
+    click.echo(render(pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame(), fmt))
+
+
+@main.command("queries")
+@output_options
+def list_queries(fmt):
+    """List the named queries with their parameters and descriptions.
+
+    \b
+    Example:
+      memora queries
+    """
+    from memora_graph.queries import load_queries
+
+    rows = [{"name": q.name, "params": ", ".join(q.params), "description": q.description}
+            for q in load_queries().values() if not q.name.startswith("_")]
+    click.echo(render(pl.DataFrame(rows), fmt))
+
+
+@main.command()
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.argument("name")
+@param_option
+@output_options
+def run(bank, name, params, fmt):
+    """Run a named query (see `memora queries`).
+
+    Without `-p participant`, a participant-scoped query runs over every participant.
+
+    \b
+    Examples:
+      memora run banks/epic object_history -p participant P01 -p object plate
+      memora run banks/epic places_most_used --json
+    """
+    from memora_graph.bank import Bank
+    from memora_graph.queries import get_query
+
+    q = get_query(name)
+    bound = _params(params)
+    b = Bank(bank)
+    if "participant" in q.params and "participant" not in bound:
+        df = b.run_each(name, **bound)
+    else:
+        pid = bound.get("participant") or b.participants()[0]
+        with b.open(pid) as store:
+            df = store.run(q, **bound)
+    click.echo(render(df, fmt))
+
+
+@main.command()
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.option("--participant", help="One participant (default: all).")
+@output_options
+def stats(bank, participant, fmt):
+    """Counts per store, entity compression and the editor's decision mix.
+
+    Compression = entity observations without editing (state events) / entity records after
+    editing, as in the paper's "Active memory formation in Entity Memory".
+
+    \b
+    Examples:
+      memora stats banks/epic
+      memora stats banks/epic --participant P01 --json
+    """
+    from memora_graph.stats import bank_stats
+
+    df = bank_stats(bank, [participant] if participant else None)
+    click.echo(render(df, fmt))
+    if fmt == "table" and df.height > 1:
+        ratios = [r for r in df["compression"].to_list() if r]
+        click.echo(f"compression: median {statistics.median(ratios):.1f}x, min {min(ratios):.1f}x, max {max(ratios):.1f}x")
+
+
+@main.group()
+def perf():
+    """Benchmarks that print their figures (not timed tests)."""
+
+
+@perf.command("build")
+@click.option("--bank", "bank_dir", type=click.Path(file_okay=False), help="Where to build (default: a temporary directory).")
+@click.option("--participants", default="all", show_default=True)
+def perf_build(bank_dir, participants):
+    """Build the bundled annotations from scratch and print the time split and segments/s.
+
+    \b
+    Example:
+      memora perf build
+    """
+    import tempfile
+
+    from memora_graph.pipeline import build_bank
+
+    pids = None if participants == "all" else participants.split(",")
+    with tempfile.TemporaryDirectory() as tmp:
+        res = build_bank(bank_dir or f"{tmp}/bank", pids)
+    t = res.timings
+    total = res.wall_seconds
+    graph_share = 100 * (t.perception + t.editor + t.graph) / total if total else 0
+    click.echo(f"participants {len(res.participants)}  segments {res.segments}  actions loaded in {res.load_seconds:.1f} s")
+    click.echo(f"wall {total:.1f} s | load {res.load_seconds:.1f} | model load {res.model_seconds:.1f} | perception {t.perception:.1f} "
+               f"| editor {t.editor:.1f} | embedding {t.embedding:.1f} | graph writes {t.graph:.1f}")
+    click.echo(f"segments/s {res.segments / total:.0f}  graph work (all but embedding and model load) "
+               f"{t.perception + t.editor + t.graph + res.load_seconds:.1f} s = "
+               f"{100 * (t.perception + t.editor + t.graph + res.load_seconds) / total:.0f}% of wall")
+    del graph_share
+
+
+def _register_optional_groups() -> None:
+    try:
+        from memora_graph.bench.cli import bench_group
+    except ImportError:
+        return
+    main.add_command(bench_group, "bench")
+
+
+_register_optional_groups()
+
+if __name__ == "__main__":
+    sys.exit(main())

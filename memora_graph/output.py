@@ -1,0 +1,52 @@
+"""One renderer for every reading command: table, csv, json or ndjson of a polars frame."""
+
+from __future__ import annotations
+
+import json
+
+import click
+import polars as pl
+
+FORMATS = ("table", "csv", "json", "nl")
+
+
+def output_options(f):
+    """--table (default) / --csv / --json / --nl, as one `fmt` argument."""
+    for name, help_ in reversed([
+        ("table", "Render a table (default)."), ("csv", "Comma-separated values."),
+        ("json", "A JSON array of objects."), ("nl", "Newline-delimited JSON, one object per line."),
+    ]):
+        f = click.option(f"--{name}", "fmt", flag_value=name, default=name == "table", help=help_)(f)
+    return f
+
+
+def _jsonable(df: pl.DataFrame) -> list[dict]:
+    drop = [c for c, t in df.schema.items() if isinstance(t, pl.Array)]  # embeddings: not for humans
+    return df.drop(drop).to_dicts()
+
+
+def render(df: pl.DataFrame, fmt: str = "table") -> str:
+    if fmt == "csv":
+        flat = df.with_columns([pl.col(c).cast(pl.String) if isinstance(t, (pl.List, pl.Array, pl.Struct)) else pl.col(c)
+                                for c, t in df.schema.items()]) if df.width else df
+        return flat.write_csv()
+    if fmt == "json":
+        return json.dumps(_jsonable(df), indent=2, default=str)
+    if fmt == "nl":
+        return "\n".join(json.dumps(r, default=str) for r in _jsonable(df))
+    if df.is_empty():
+        return "(no rows)"
+    import io
+
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = _jsonable(df)
+    table = Table(show_lines=False)
+    for c in rows[0]:
+        table.add_column(c, overflow="fold")
+    for row in rows:
+        table.add_row(*["" if v is None else str(v) for v in row.values()])
+    buf = io.StringIO()
+    Console(width=200, file=buf).print(table)
+    return buf.getvalue().rstrip()

@@ -1,0 +1,28 @@
+"""Bank statistics: counts per store, entity compression and the editor's decision mix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import polars as pl
+
+from memora_graph.bank import Bank
+from memora_graph.form.build import decision_shares
+
+
+def bank_stats(bank_path: str | Path, participants: list[str] | None = None) -> pl.DataFrame:
+    bank = Bank(bank_path)
+    rows = []
+    for p in participants or bank.participants():
+        with bank.open(p) as store:
+            counts = {k: int(v or 0) for k, v in store.run("store_counts", participant=p).to_dicts()[0].items()}
+            decisions = {r["op"]: int(r["n"]) for r in store.rows("decision_mix", participant=p)}
+        shares = decision_shares(decisions)
+        entities = counts["entities"]
+        rows.append({
+            "participant": p, **counts,
+            "compression": round(counts["state_events"] / entities, 1) if entities else None,
+            **{f"{op}%": shares[op] for op in ("NOOP", "UPDATE", "ADD", "DELETE")},
+            "decisions": sum(decisions.values()),
+        })
+    return pl.DataFrame(rows)

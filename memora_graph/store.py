@@ -1,0 +1,178 @@
+"""The only module that imports kuzu: open a participant database, migrate, query, bulk-load.
+
+Kùzu errors become `StoreError`s that say what happened in a user's words (locked by another
+process, not a database, read-only, syntax error), always naming the database path.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
+from datetime import datetime, timezone
+from pathlib import Path
+
+import kuzu
+import polars as pl
+
+from memora_graph.errors import StoreError
+from memora_graph.paths import SCHEMA_DIR
+from memora_graph.queries import NamedQuery, bind, get_query
+
+_MIGRATIONS = (
+    "CREATE NODE TABLE IF NOT EXISTS SchemaMigration(id STRING PRIMARY KEY, checksum STRING, applied_at TIMESTAMP)"
+)
+_IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def translate_error(exc: Exception, path: Path, cypher: str | None = None) -> StoreError:
+    msg = str(exc)
+    low = msg.lower()
+    if "could not set lock" in low:
+        return StoreError(f"{path}: the database is locked by another process (is a `memora build` still running?). Wait for it to finish, or stop it, then retry.")
+    if "not a valid kuzu database" in low or "unable to open database" in low:
+        return StoreError(f"{path}: not a memora/Kùzu database file (damaged, or some other file).")
+    if "read-only" in low or "read only" in low:
+        if "cannot create an empty database" in low:
+            return StoreError(f"{path}: no database here (nothing to open read-only). Build it first with `memora build`.")
+        return StoreError(f"{path}: this database is open read-only; pass --write to allow writes.")
+    if "parser exception" in low:
+        detail = msg.split("Parser exception:", 1)[-1].strip()
+        return StoreError(f"Cypher syntax error: {detail}")
+    if "binder exception" in low:
+        detail = msg.split("Binder exception:", 1)[-1].strip()
+        return StoreError(f"Cypher error: {detail}")
+    if "path cannot be a directory" in low:
+        return StoreError(f"{path}: is a directory, not a database file.")
+    return StoreError(f"{path}: {msg}")
+
+
+class Store:
+    """One Kùzu database (one participant's memory), opened read-only unless asked otherwise."""
+
+    def __init__(self, path: str | Path, read_only: bool = True, bulk: bool = False):
+        """`bulk=True` (builds) defers checkpoints to `close()`: a commit then only appends to
+        the write-ahead log, which is still replayed after a crash, so nothing committed is lost."""
+        self.path = Path(path)
+        self.read_only = read_only
+        if read_only and not self.path.exists():
+            raise StoreError(f"{self.path}: no database here. Build it first with `memora build`.")
+        if self.path.exists() and self.path.is_file() and self.path.stat().st_size == 0:
+            # Kùzu would silently open a 0-byte file as a new, empty database.
+            raise StoreError(f"{self.path}: empty file, not a database (a build that never started?). Delete it and rebuild.")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=not bulk)
+            self._conn = kuzu.Connection(self._db)
+        except RuntimeError as exc:
+            raise translate_error(exc, self.path) from exc
+        self._in_tx = False
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def close(self) -> None:
+        if getattr(self, "_conn", None) is not None:
+            if not self.read_only:
+                self._execute("CHECKPOINT")
+            self._conn.close()
+            self._db.close()
+            self._conn = None
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- running Cypher ----------------------------------------------------------------
+    def _execute(self, cypher: str, params: dict | None = None):
+        try:
+            return self._conn.execute(cypher, params or {})
+        except RuntimeError as exc:
+            raise translate_error(exc, self.path, cypher) from exc
+
+    def query(self, cypher: str, params: dict | None = None) -> pl.DataFrame:
+        """Ad-hoc Cypher (the `memora query` path); writes fail unless opened read-write."""
+        result = self._execute(cypher, params)
+        if isinstance(result, list):  # several statements: keep the last result
+            result = result[-1]
+        return result.get_as_pl()
+
+    def run(self, name: str | NamedQuery, **params) -> pl.DataFrame:
+        q = name if isinstance(name, NamedQuery) else get_query(name)
+        if q.writes and self.read_only:
+            raise StoreError(f"{self.path}: query '{q.name}' writes; the database is open read-only.")
+        return self._execute(q.cypher, bind(q, params)).get_as_pl()
+
+    def rows(self, name: str, **params) -> list[dict]:
+        return self.run(name, **params).to_dicts()
+
+    # -- writes ------------------------------------------------------------------------
+    @contextmanager
+    def transaction(self) -> Iterator[Store]:
+        """All-or-nothing: a killed process or an exception leaves nothing of the block."""
+        self._execute("BEGIN TRANSACTION")
+        self._in_tx = True
+        try:
+            yield self
+        except BaseException:
+            self._in_tx = False
+            try:
+                self._execute("ROLLBACK")
+            except StoreError:
+                pass
+            raise
+        self._in_tx = False
+        self._execute("COMMIT")
+
+    def tables(self) -> dict[str, str]:
+        df = self._execute("CALL show_tables() RETURN name, type").get_as_pl()
+        return dict(df.iter_rows())
+
+    def copy(self, table: str, frame: pl.DataFrame, from_table: str | None = None, to_table: str | None = None) -> int:
+        """Bulk load a polars frame into a table (COPY FROM), the fast path for builds."""
+        if frame.is_empty():
+            return 0
+        names = [table] + [t for t in (from_table, to_table) if t]
+        known = self.tables()
+        for n in names:
+            if not _IDENT.match(n) or n not in known:
+                raise StoreError(f"{self.path}: no table named {n!r}")
+        options = f" (from='{from_table}', to='{to_table}')" if from_table and to_table else ""
+        # The table name is validated against the catalog above; Kùzu reads `frame` by name.
+        self._execute(f"COPY {table} FROM frame{options}")
+        return frame.height
+
+    # -- schema ------------------------------------------------------------------------
+    def apply_schema(self, folder: Path = SCHEMA_DIR) -> list[str]:
+        """Apply schema/*.cypher in order, once each; returns the files applied now."""
+        files = sorted(folder.glob("*.cypher"))
+        if not files:
+            raise StoreError(f"{folder}: no schema files found")
+        self._execute(_MIGRATIONS)
+        done = dict(self._execute("MATCH (m:SchemaMigration) RETURN m.id, m.checksum").get_as_pl().iter_rows())
+        applied = []
+        for f in files:
+            text = f.read_text()
+            checksum = hashlib.sha256(text.encode()).hexdigest()[:16]
+            if f.name in done:
+                if done[f.name] != checksum:
+                    raise StoreError(f"{self.path}: schema file {f.name} changed after it was applied (checksum {done[f.name]} -> {checksum}); rebuild the bank.")
+                continue
+            statements = [s.strip() for s in _strip_comments(text).split(";") if s.strip()]
+            with self.transaction():
+                for s in statements:
+                    self._execute(s)
+                self._execute(
+                    "CREATE (m:SchemaMigration {id: $id, checksum: $c, applied_at: $t})",
+                    {"id": f.name, "c": checksum, "t": datetime.now(timezone.utc).replace(tzinfo=None)},
+                )
+            applied.append(f.name)
+        return applied
+
+    def migrations(self) -> list[str]:
+        return self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id").get_as_pl()["m.id"].to_list()
+
+
+def _strip_comments(text: str) -> str:
+    return "\n".join(line for line in text.splitlines() if not line.strip().startswith("//"))
