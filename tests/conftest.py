@@ -1,0 +1,31 @@
+"""Shared fixtures: real Kùzu in temporary directories, the bundled MiniLM, small real banks."""
+
+from __future__ import annotations
+
+import pytest
+
+from memora_graph.paths import epic_dir
+
+
+@pytest.fixture(scope="session")
+def embedder():
+    from memora_graph.embed import get_embedder
+
+    return get_embedder()
+
+
+@pytest.fixture(scope="session")
+def epic_meta():
+    from memora_graph.perceive.annotations import load_class_tables, load_video_info
+
+    return load_class_tables(epic_dir()), dict(load_video_info(epic_dir()).select("video_id", "duration").iter_rows())
+
+
+@pytest.fixture(scope="session")
+def small_bank(tmp_path_factory, embedder):
+    """P09 and P37 built from the bundled annotations (the two smallest participants)."""
+    from memora_graph.pipeline import build_bank
+
+    path = tmp_path_factory.mktemp("bank") / "small"
+    result = build_bank(path, ["P09", "P37"])
+    return path, result

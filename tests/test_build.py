@@ -1,0 +1,111 @@
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import polars as pl
+import pytest
+
+from memora_graph.bank import Bank
+from memora_graph.errors import BankError, StoreError
+from memora_graph.store import Store
+
+MEMORA = [sys.executable, "-m", "memora_graph.cli"]
+
+
+def test_small_bank_counts_and_history(small_bank):
+    path, result = small_bank
+    bank = Bank(path)
+    assert bank.participants() == ["P09", "P37"]
+    for r in result.participants:
+        c = r.counts
+        assert c["segments"] > 0 and c["entities"] > 0 and c["places"] > 0
+        # every observation is kept as a state event, so the history is never smaller than the registry
+        assert c["state_events"] >= c["entities"]
+        assert sum(r.decisions.values()) >= c["state_events"]
+    with bank.open("P37") as s:
+        hist = s.run("object_history", participant="P37", object="knife")
+        assert hist.height > 1
+        assert hist["op"][0] == "ADD"
+        keys = list(zip(hist["video"], hist["t"]))
+        assert keys == sorted(keys)
+        assert s.run("places_most_used", participant="P37")["turns"].sum() == s.run("store_counts", participant="P37")["segments"][0]
+
+
+def test_participant_scoping(small_bank):
+    path, _ = small_bank
+    with Bank(path).open("P09") as s:
+        assert s.run("entities", participant="P37").is_empty()
+        assert not s.run("entities", participant="P09").is_empty()
+
+
+def test_rebuild_adds_nothing(small_bank, tmp_path):
+    path, result = small_bank
+    from memora_graph.pipeline import build_bank
+
+    again = build_bank(path, ["P09"])
+    assert again.participants[0].videos_built == 0
+    assert again.participants[0].counts == next(r for r in result.participants if r.participant == "P09").counts
+
+
+def _staged(bank):
+    d = bank / ".staging" / "P07"
+    return sorted(d.glob("*.pkl")) if d.is_dir() else []
+
+
+def test_resume_after_kill_matches_a_clean_build(tmp_path):
+    killed = tmp_path / "killed"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([*MEMORA, "build", str(killed), "--participants", "P07", "--quiet"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while len(_staged(killed)) < 3 and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert proc.poll() is None, "build finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    kept = len(_staged(killed))
+    assert kept >= 3
+    from memora_graph.pipeline import build_bank
+
+    resumed = build_bank(killed, ["P07"]).participants[0]
+    assert resumed.videos_skipped == kept  # finished videos are not redone
+    clean = build_bank(tmp_path / "clean", ["P07"]).participants[0]
+    assert resumed.counts == clean.counts
+    assert resumed.decisions == clean.decisions
+    with Bank(killed).open("P07") as s:
+        ids = s.query("MATCH (x:StateEvent) RETURN x.id AS id")["id"]
+        assert ids.n_unique() == ids.len()
+    assert not _staged(killed)
+
+
+def test_lock_held_by_another_process(small_bank):
+    path, _ = small_bank
+    db = Bank(path).db_path("P09")
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from memora_graph.store import Store; s = Store(sys.argv[1], read_only=False); "
+        "print('ready', flush=True); time.sleep(30)"), str(db)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "ready"
+        with pytest.raises(StoreError, match="locked by another process"):
+            Store(db)
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_manifest_mismatch_is_reported(small_bank, tmp_path):
+    import json
+    import shutil
+
+    path, _ = small_bank
+    copy = tmp_path / "copy"
+    shutil.copytree(path, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["participants"]["P09"]["counts"]["segments"] += 1
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(BankError, match="does not match manifest.json"):
+        Bank(copy).open("P09")
+    with pytest.raises(BankError, match="not in this bank"):
+        Bank(copy).open("P01")

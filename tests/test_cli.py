@@ -1,0 +1,75 @@
+import csv
+import io
+import json
+
+from click.testing import CliRunner
+
+from memora_graph.cli import main
+
+
+def invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_query_formats(small_bank):
+    path, _ = small_bank
+    q = "MATCH (p:Place) WHERE p.participant = $participant RETURN p.location_id AS place, p.turn_count AS turns ORDER BY place"
+    js = invoke("query", path, q, "-p", "participant", "P09", "--json")
+    assert js.exit_code == 0, js.output
+    rows = json.loads(js.output)
+    assert rows and set(rows[0]) == {"place", "turns"}
+    csv_out = invoke("query", path, q, "-p", "participant", "P09", "--csv")
+    parsed = list(csv.DictReader(io.StringIO(csv_out.output)))
+    assert [r["place"] for r in parsed] == [r["place"] for r in rows]
+    nl = invoke("query", path, q, "-p", "participant", "P09", "--nl")
+    assert [json.loads(line) for line in nl.output.strip().splitlines()] == rows
+    table = invoke("query", path, q, "-p", "participant", "P09")
+    assert "place" in table.output and rows[0]["place"] in table.output
+
+
+def test_query_is_read_only_unless_write(small_bank, tmp_path):
+    import shutil
+
+    path, _ = small_bank
+    copy = tmp_path / "b"
+    shutil.copytree(path, copy)
+    create = "CREATE (:Participant {id: 'X99', participant: 'X99'})"
+    r = invoke("query", copy, create, "--participant", "P09")
+    assert r.exit_code == 1 and "read-only" in r.output
+    r = invoke("query", copy, create, "--participant", "P09", "--write")
+    assert r.exit_code == 0, r.output
+    r = invoke("query", copy, "MATCH (p:Participant) RETURN p.id AS id ORDER BY id", "--participant", "P09", "--json")
+    assert [x["id"] for x in json.loads(r.output)] == ["P09", "X99"]
+
+
+def test_syntax_error_is_clear(small_bank):
+    path, _ = small_bank
+    r = invoke("query", path, "MATCH (x) RETRUN x", "--participant", "P09")
+    assert r.exit_code == 1 and "Cypher syntax error" in r.output and "Traceback" not in r.output
+
+
+def test_queries_run_and_stats(small_bank):
+    path, _ = small_bank
+    r = invoke("queries", "--json")
+    names = {q["name"] for q in json.loads(r.output)}
+    assert {"object_history", "places_most_used", "location_changes"} <= names
+    assert not any(n.startswith("_") for n in names)
+    r = invoke("run", path, "location_changes", "-p", "participant", "P37", "-p", "object", "knife", "--json")
+    assert r.exit_code == 0, r.output
+    assert all(x["moved_from"] != x["moved_to"] for x in json.loads(r.output))
+    r = invoke("run", path, "store_counts", "--json")
+    assert {x["participant"] for x in json.loads(r.output)} == {"P09", "P37"}
+    r = invoke("stats", path, "--json")
+    stats = json.loads(r.output)
+    assert {s["participant"] for s in stats} == {"P09", "P37"}
+    for s in stats:
+        assert s["compression"] == round(s["state_events"] / s["entities"], 1)
+        assert abs(s["NOOP%"] + s["UPDATE%"] + s["ADD%"] + s["DELETE%"] - 100) < 0.5
+    r = invoke("run", path, "nope")
+    assert r.exit_code == 1 and "known queries" in r.output
+
+
+def test_help_has_examples():
+    for cmd in ("build", "query", "queries", "run", "stats"):
+        r = invoke(cmd, "--help")
+        assert r.exit_code == 0 and "Example" in r.output, cmd

@@ -1,0 +1,102 @@
+import numpy as np
+
+from memora_graph.form.editor import DeterministicPolicy, EntityEditor, RawPolicy
+from memora_graph.records import LayeredSegment, ObjectObservation, VisualProperties
+
+
+def seg(turn, *objects, video="P01_105"):
+    return LayeredSegment(participant_id="P01", video_id=video, turn_id=turn, t_start=turn * 10.0,
+                          t_end=turn * 10.0 + 10, objects=list(objects))
+
+
+def obs(object_id, state, location, t_rel=0.0, **kw):
+    return ObjectObservation(object_id=object_id, name=object_id.replace("_", " "), state=state,
+                             location=location, t_rel=t_rel, **kw)
+
+
+def test_paper_plate_is_one_entity_with_three_state_history():
+    # The paper's example: a dirty plate at 40 s, 50 s and 540 s.
+    ed = EntityEditor("P01")
+    results = [ed.edit(seg(4, obs("plate", "idle", "counter_area"))),
+               ed.edit(seg(5, obs("plate", "idle", "counter_area"))),
+               ed.edit(seg(54, obs("plate", "being used", "counter_area")))]
+    assert [e.id for e in ed.live()] == ["P01:plate"]
+    events = [ev for r in results for ev in r.events]
+    assert [(ev["t"], ev["state"], ev["op"]) for ev in events] == [
+        (40.0, "idle", "ADD"), (50.0, "idle", "NOOP"), (540.0, "being used", "UPDATE")]
+    assert ed.entities["P01:plate"].state == "being used"
+    assert ed.entities["P01:plate"].n_observations == 3
+
+
+def test_update_on_location_change_keeps_previous_state_in_history():
+    ed = EntityEditor("P01")
+    ed.edit(seg(1, obs("bowl", "placed", "counter_area")))
+    r = ed.edit(seg(2, obs("bowl", "washed", "sink_area")))
+    (op, _), = r.ops
+    assert op.op == "UPDATE" and op.changes == {"state": "washed", "location": "sink_area"}
+    assert r.events[0]["prev_location"] == "counter_area"
+
+
+def test_attributes_split_and_join_identities():
+    ed = EntityEditor("P01")
+    ed.edit(seg(1, obs("spoon", "held", "counter_area", kind="spoon")))
+    r = ed.edit(seg(2, obs("wooden_spoon", "held", "counter_area", kind="spoon",
+                           visual_properties=VisualProperties(material="wooden"))))
+    assert r.ops[0][0].op == "UPDATE" and r.ops[0][0].changes == {"material": "wooden"}
+    r = ed.edit(seg(3, obs("metal_spoon", "held", "counter_area", kind="spoon",
+                           visual_properties=VisualProperties(material="metal"))))
+    assert r.ops[0][0].op == "ADD"
+    assert sorted(e.material for e in ed.live()) == ["metal", "wooden"]
+
+
+def test_duplicate_identifications_are_merged_by_delete():
+    ed = EntityEditor("P01")
+    ed.edit(seg(1, obs("cup", "placed", "counter_area")))
+    # A second record of the same object (as a model editor might leave behind).
+    dup = ed.entities["P01:cup"].__class__(**{**ed.entities["P01:cup"].__dict__, "id": "P01:cup#2", "n_observations": 1})
+    ed.entities[dup.id] = dup
+    r = ed.edit(seg(2, obs("cup", "held", "counter_area", held_by="hand")))
+    kinds = [op.op for op, _ in r.ops]
+    assert kinds == ["DELETE", "UPDATE"]
+    deleted = [e for e in ed.entities.values() if e.status == "merged"]
+    assert len(deleted) == 1 and deleted[0].merged_into in ed.entities
+    assert len(ed.live()) == 1
+
+
+def test_discarded_object_is_retracted_and_a_new_one_added_later():
+    ed = EntityEditor("P01")
+    ed.edit(seg(1, obs("onion_skin", "peeled", "counter_area")))
+    r = ed.edit(seg(2, obs("onion_skin", "discarded", "bin_area", action="throw", narration="throw skin in bin")))
+    assert r.ops[0][0].op == "DELETE"
+    r = ed.edit(seg(3, obs("onion_skin", "peeled", "counter_area")))
+    assert r.ops[0][0].op == "ADD" and r.ops[0][0].entity_id == "P01:onion_skin#2"
+
+
+def test_same_object_twice_in_a_turn_is_one_record():
+    ed = EntityEditor("P01")
+    r = ed.edit(seg(1, obs("knife", "held", "counter_area", 1.0), obs("knife", "placed", "counter_area", 5.0)))
+    assert [op.op for op, _ in r.ops] == ["ADD", "UPDATE"]
+    assert len(ed.live()) == 1
+
+
+def test_raw_policy_keeps_one_record_per_observation():
+    ed = EntityEditor("P01", policy=RawPolicy())
+    for t in range(3):
+        ed.edit(seg(t, obs("plate", "idle", "counter_area")))
+    assert len(ed.live()) == 3
+
+
+def test_prompt_budget_prefilters_by_embedding_but_keeps_exact_names(embedder):
+    ed = EntityEditor("P01", embed=lambda s: embedder.encode([s])[0], prompt_budget=5)
+    ed.edit(seg(0, *[obs(f"thing_{i}", "idle", "counter_area", kind=f"thing_{i}") for i in range(12)]))
+    ed.edit(seg(1, obs("plate", "idle", "counter_area")))
+    live = ed.live()
+    matrix = np.stack([e.emb for e in live])
+    cands = ed.candidates(obs("plate", "held", "counter_area"), live, matrix)
+    assert len(cands) <= 6 and any(e.kind == "plate" for e in cands)
+    r = ed.edit(seg(2, obs("plate", "held", "counter_area")))
+    assert r.ops[0][0].op == "UPDATE"
+
+
+def test_deterministic_policy_is_the_default():
+    assert isinstance(EntityEditor("P01").policy, DeterministicPolicy)

@@ -1,0 +1,97 @@
+import re
+
+import pytest
+
+from memora_graph.errors import QueryError, StoreError
+from memora_graph.queries import load_queries, parse_query
+from memora_graph.store import Store
+
+
+@pytest.fixture()
+def empty_store(tmp_path):
+    store = Store(tmp_path / "P01.kuzu", read_only=False)
+    store.apply_schema()
+    yield store
+    store.close()
+
+
+def _sample(field: str):
+    if field == "emb":
+        return [0.0] * 384
+    if field in ("zones", "features"):
+        return ["sink"]
+    if field in ("last_seen",):
+        return 1.0
+    if field in ("last_turn", "n_observations", "turn_count"):
+        return 1
+    return "x"
+
+
+def _dummy(param: str, cypher: str = ""):
+    if param == "rows":  # one row with every field the query reads, matching no node
+        return [{f: _sample(f) for f in sorted(set(re.findall(r"\br\.(\w+)", cypher)))}]
+    if param == "ids":
+        return ["nothing"]
+    return "x"
+
+
+def test_every_named_query_runs_on_an_empty_schema(empty_store):
+    queries = load_queries()
+    assert len(queries) >= 10
+    for q in queries.values():
+        if q.writes:
+            continue
+        empty_store.run(q, **{p: _dummy(p) for p in q.params})
+
+
+def test_write_queries_prepare_in_a_rolled_back_transaction(empty_store):
+    for q in load_queries().values():
+        if q.writes:
+            with pytest.raises(RuntimeError):
+                with empty_store.transaction():
+                    empty_store.run(q, **{p: _dummy(p, q.cypher) for p in q.params})
+                    raise RuntimeError("rollback")
+
+
+def test_schema_is_applied_once_and_recorded(tmp_path):
+    with Store(tmp_path / "a.kuzu", read_only=False) as s:
+        first = s.apply_schema()
+        assert first and s.apply_schema() == []
+        assert s.migrations() == first
+
+
+def test_loader_rejects_undeclared_and_unscoped_queries(tmp_path):
+    bad = tmp_path / "bad.cypher"
+    bad.write_text("// params: participant\nMATCH (e:Entity) WHERE e.participant = $participant AND e.name = $name RETURN e.id\n")
+    with pytest.raises(QueryError, match="undeclared: name"):
+        parse_query(bad)
+    unscoped = tmp_path / "unscoped.cypher"
+    unscoped.write_text("// params: name\nMATCH (e:Entity) WHERE e.name = $name RETURN e.id\n")
+    with pytest.raises(QueryError, match="participant"):
+        parse_query(unscoped)
+
+
+def test_every_participant_query_takes_participant():
+    for q in load_queries().values():
+        if q.name != "_schema_applied":
+            assert "participant" in q.params, q.name
+
+
+def test_store_error_messages(tmp_path):
+    with pytest.raises(StoreError, match="no database here"):
+        Store(tmp_path / "missing.kuzu")
+    junk = tmp_path / "junk.kuzu"
+    junk.write_bytes(b"this is not a database" * 1000)
+    with pytest.raises(StoreError, match="not a memora/Kùzu database"):
+        Store(junk)
+    empty = tmp_path / "empty.kuzu"
+    empty.write_bytes(b"")
+    with pytest.raises(StoreError, match="empty file"):
+        Store(empty)
+    with Store(tmp_path / "ok.kuzu", read_only=False) as s:
+        s.apply_schema()
+        with pytest.raises(StoreError, match="syntax error"):
+            s.query("MATCH (x) RETRUN x")
+    with Store(tmp_path / "ok.kuzu") as ro:
+        with pytest.raises(StoreError, match="read-only"):
+            ro.query("CREATE (:Participant {id: 'P01', participant: 'P01'})")
