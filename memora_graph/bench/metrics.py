@@ -345,8 +345,8 @@ for _canon in set(v for v in _BASE_SYNONYMS.values() if v):
     VERB_SYNONYMS.setdefault(_canon, _canon)
 _SYNONYM_KEYS = sorted(VERB_SYNONYMS, key=lambda k: (-len(k), k))
 _SUBJECT_WORDS = frozenset({"person", "a", "the", "he", "she", "they", "it", "user", "participant", "subject"})
-_PERSON_PREFIX = re.compile(r"^(?:(?:the|a)\s+)?person\s+(?:(?:is|are|was|were|will|begins?(?:\s+to)?|continues?(?:\s+to)?)\s+)?")
-_PRONOUN_PREFIX = re.compile(r"^(?:he|she|they|it)\s+(?:(?:is|are|was|were|will|then)\s+)?")
+_PERSON_PREFIX = re.compile(r"^(?:(?:the|a)\s+)?person(?:\s+|$)(?:(?:is|are|was|were|will|begins?(?:\s+to)?|continues?(?:\s+to)?)(?:\s+|$))?")
+_PRONOUN_PREFIX = re.compile(r"^(?:he|she|they|it)(?:\s+|$)(?:(?:is|are|was|were|will|then)(?:\s+|$))?")
 
 
 def stem(word: str) -> str:
