@@ -26,6 +26,7 @@ FILLER_VERB_KEYS = frozenset({
     "search", "feel", "wait", "let-go", "carry", "choose", "transition", "use", "finish", "gather",
     "check", "turn", "press", "touch", "drop", "slide", "attach", "set", "unlock", "lock",
 })
+HAND_VERB_KEYS = frozenset({"wash", "dry", "shake", "wipe", "rub"})
 PUT_VERB_KEYS = frozenset({"put", "insert", "throw", "drop"})
 TAKE_VERB_KEYS = frozenset({"take", "remove"})
 # Verbs whose second noun is usually the instrument ("wash plate with sponge", "cut onion with
@@ -56,6 +57,11 @@ class Action(NamedTuple):
     @property
     def is_filler(self) -> bool:
         return self.verb in FILLER_VERB_KEYS
+
+    @property
+    def phrasable(self) -> bool:
+        """False for label combinations that read as nonsense in English ('eats their hands')."""
+        return self.noun != "hand" or self.verb in HAND_VERB_KEYS
 
     def key(self) -> str:
         return f"{self.verb} {self.noun}"
@@ -259,6 +265,7 @@ def build_behaviours(annotations: pl.DataFrame, class_dir: str | Path | None = N
 # Phrasing
 # ---------------------------------------------------------------------------------------------
 
+_NEEDS_PREPOSITION = {"look": "at", "search": "for", "wait": "for"}
 _IRREGULAR_3RD = {"have": "has", "do": "does", "go": "goes"}
 _GERUND = {"put": "putting", "cut": "cutting", "stir": "stirring", "scrub": "scrubbing", "pat": "patting",
            "flip": "flipping", "drop": "dropping", "wrap": "wrapping", "rip": "ripping", "stab": "stabbing",
@@ -297,6 +304,8 @@ def verb_phrase(verb: str, form: str = "present") -> str:
     if verb == "let-go":
         return {"present": "lets go of", "gerund": "letting go of", "base": "let go of"}[form]
     head, *rest = verb.split("-")
+    if not rest and head in _NEEDS_PREPOSITION:
+        rest = [_NEEDS_PREPOSITION[head]]
     if form == "present":
         head = _third_person(head)
     elif form == "gerund":

@@ -8,11 +8,10 @@ files are the same whether it is generated alone or with the whole cohort.
 
 from __future__ import annotations
 
-import json
 import random
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,7 @@ from memora_graph.bench.generate_qa import (
 from memora_graph.bench.generate_replay import ReplayConfig, generate_replay
 from memora_graph.bench.tasks import (
     ABSTAIN_INSTRUCTION, LETTERS, OPTION_E, QA_TYPES, BenchSuite, EamQaFile, EamQuestion, ParticipantTasks, ReplayTask,
-    _dump, normalize_participants, write_suite,
+    normalize_participants, write_json, write_suite,
 )
 from memora_graph.errors import DataError
 
@@ -37,7 +36,8 @@ MANIFEST = "generation.json"
 
 @dataclass
 class GenerateConfig:
-    seed: int = 42
+    """Knobs with the paper's defaults; the seed is an argument of generate_suite."""
+
     qa: QaConfig = field(default_factory=QaConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     generalize_targets_per_action: int = 2
@@ -146,8 +146,7 @@ def generate_suite(
     E-correct controls draw donor questions from every participant in the annotations.
     """
     t0 = time.perf_counter()
-    config = config or GenerateConfig(seed=seed)
-    config.seed = seed
+    config = config or GenerateConfig()
     if annotations is None:
         from memora_graph.perceive.annotations import load_annotations
 
@@ -219,7 +218,7 @@ def write_generated(suite: BenchSuite, report: GenerationReport, out: str | Path
     for pid, tasks in report.filtered_replay.items():
         if tasks:
             path = out / REPLAY_AUDIT_DIR / f"{pid.lower()}.json"
-            _dump(path, [t.model_dump(exclude_none=True) for t in tasks])
+            write_json(path, [t.model_dump(exclude_none=True) for t in tasks])
             written.append(path)
     manifest = {
         "generator": "memora-graph bench generate", "seed": report.seed, "participants": report.participants,
@@ -228,10 +227,6 @@ def write_generated(suite: BenchSuite, report: GenerationReport, out: str | Path
         "note": "EAM-QA items carry an `audit` field with their evidence; strip it (EamQuestion.answering_view) "
                 "before showing an item to an answering agent.",
     }
-    _dump(out / MANIFEST, manifest)
+    write_json(out / MANIFEST, manifest)
     written.append(out / MANIFEST)
     return written
-
-
-def config_dict(config: GenerateConfig) -> dict:
-    return json.loads(json.dumps(asdict(config), default=str))

@@ -62,6 +62,7 @@ FIXTURES = {
 _DISPLAY = {"top": "counter", "kitchen": "counter"}
 _PREP = re.compile(r"^(on|in|at|inside|under|near|beside|by|above|next to)\s+(the\s+)?", re.I)
 _DEFAULT_PLACE = "counter"
+FIXED_PLACE_CATEGORIES = frozenset({"furniture", "storage", "appliances"})  # where things are kept, not a glass
 
 
 def _slug(text: str) -> str:
@@ -103,7 +104,8 @@ class Grounder:
         if obj is not None and obj.location.strip():
             return _PREP.sub("", obj.location.strip()).replace("_", " ")
         for kind in ("take", "put"):
-            places = self.b.places.get((kind, noun_key or ""), {})
+            places = {p: ev for p, ev in self.b.places.get((kind, noun_key or ""), {}).items()
+                      if self.b.category(p) in FIXED_PLACE_CATEGORIES}
             if places:
                 best = max(places.items(), key=lambda kv: (kv[1].count, kv[0]))[0]
                 return _DISPLAY.get(best, noun_text(best))

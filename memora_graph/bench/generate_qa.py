@@ -112,7 +112,7 @@ class QaGenerator:
         self.rng = rng
         self.t = thresholds or QaThresholds()
         self.frequent = sorted(
-            (a for a, ev in behaviour.action_evidence.items() if ev.count >= 2),
+            (a for a, ev in behaviour.action_evidence.items() if ev.count >= 2 and a.phrasable),
             key=lambda a: (-behaviour.action_evidence[a].count, a),
         )
         self.nonfiller = [a for a in self.frequent if not a.is_filler]
@@ -306,7 +306,7 @@ class QaGenerator:
             if total < (t.min_trigger if d == 1 else t.min_chain_count):
                 continue
             best, ev, second = _dominant(nexts)
-            if best is None or best in chain:
+            if best is None or best in chain or not all(a.phrasable for a in (*chain, best)):
                 continue
             if d == 1:
                 trig = self.b.action_evidence[chain[0]]
@@ -392,7 +392,7 @@ class QaGenerator:
         for seq, ev in sorted(routines.items()):
             if ev.count < t.min_chain_count or len(ev.videos) < t.min_videos:
                 continue
-            if sum(not a.is_filler for a in seq) < 2:
+            if sum(not a.is_filler for a in seq) < 2 or not all(a.phrasable for a in seq):
                 continue  # universal flows (pick-up -> put-down, open -> close) are not routines
             topics = Counter(a.noun for a in seq if not a.is_filler and a.noun not in LOW_INFO_NOUNS)
             if not topics:
@@ -413,6 +413,8 @@ class QaGenerator:
             if best is None or ev.count < t.min_chain_count or len(ev.videos) < t.min_videos:
                 continue
             if len(set(best)) < d or trigger in best or sum(not a.is_filler for a in best) < 1:
+                continue
+            if not all(a.phrasable for a in (trigger, *best)):
                 continue
             if all(a.is_filler for a in (trigger, *best)):
                 continue
@@ -477,7 +479,7 @@ class QaGenerator:
                 chains = []
                 for chain in self.b.chains(video, d):
                     seq = tuple(r.action for r in chain)
-                    if len(set(seq)) < d or all(a.is_filler for a in seq):
+                    if len(set(seq)) < d or all(a.is_filler for a in seq) or not all(a.phrasable for a in seq):
                         continue
                     nouns = Counter(a.noun for a in seq)
                     noun = nouns.most_common(1)[0][0]

@@ -446,7 +446,9 @@ def generate_replay(behaviour: Behaviour, registry: list[dict] | None = None,
             primary_objects=_ranked(c["nouns"])[:5], primary_verbs=_ranked(c["verbs"])[:5],
             repeat_rate=rate,
             audit={"score": round(c["score"], 4), "category_shares": {k: round(v, 4) for k, v in c["shares"].items()},
-                   "narration_ids": [s.narration_id for s in steps], "enriched": bool(objects)},
+                   "narration_ids": [s.narration_id for s in steps], "enriched": bool(objects),
+                   # rows of the bundled subset without narration text read "verb noun" from the class keys
+                   "class_key_steps": sum(s.text_source == "class_keys" for s in steps)},
         )
         (result.filtered if rate > config.max_repeat_rate else result.tasks).append(task)
     return result

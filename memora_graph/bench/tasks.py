@@ -352,7 +352,7 @@ def load_suite(root: str | Path | None = None, participants: list[str] | None = 
 # Writing (UTF-8, 2-space indent, trailing newline, as in the release)
 # ---------------------------------------------------------------------------------------------
 
-def _dump(path: Path, data: Any) -> None:
+def write_json(path: Path, data: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
 
@@ -364,7 +364,7 @@ def write_suite(suite: BenchSuite, out: str | Path) -> list[Path]:
         name = f"{pid.lower()}.json"
         if entry.eam_qa is not None:
             path = out / EAM_DIR / name
-            _dump(path, {
+            write_json(path, {
                 "questions": [q.model_dump(exclude_none=True) for q in entry.eam_qa.questions],
                 "metadata": entry.eam_qa.metadata,
             })
@@ -373,6 +373,6 @@ def write_suite(suite: BenchSuite, out: str | Path) -> list[Path]:
             tasks = getattr(entry, kind)
             if tasks is not None:
                 path = out / folder / name
-                _dump(path, [t.model_dump(exclude_none=True) for t in tasks])
+                write_json(path, [t.model_dump(exclude_none=True) for t in tasks])
                 written.append(path)
     return written
