@@ -100,3 +100,17 @@ def test_prompt_budget_prefilters_by_embedding_but_keeps_exact_names(embedder):
 
 def test_deterministic_policy_is_the_default():
     assert isinstance(EntityEditor("P01").policy, DeterministicPolicy)
+
+
+def test_stale_merge_in_the_same_turn_is_dropped_not_readded():
+    # Decisions for a turn are made against the registry at the start of the turn; a duplicate
+    # retracted by the first observation must not be re-created by the second one's decision.
+    ed = EntityEditor("P01")
+    ed.edit(seg(1, obs("cup", "placed", "counter_area")))
+    base = ed.entities["P01:cup"]
+    for n in (2, 3):
+        ed.entities[f"P01:cup#{n}"] = base.__class__(**{**base.__dict__, "id": f"P01:cup#{n}"})
+    r = ed.edit(seg(2, *[obs("cup", s, "counter_area", float(i)) for i, s in enumerate(["held", "washed", "placed"])]))
+    assert len(ed.live()) == 1
+    assert [op.op for op, _ in r.ops].count("DELETE") == 2
+    assert len(r.events) == 3  # every observation still lands in the history

@@ -219,10 +219,11 @@ class EntityEditor:
         for obs, ops in zip(segment.objects, decisions):
             for op in ops:
                 op = self._repair(op, obs, added_here)
-                self._apply(op, obs, segment, result, added_here)
+                if op is not None:
+                    self._apply(op, obs, segment, result, added_here)
         return result
 
-    def _repair(self, op: EditOp, obs: ObjectObservation, added_here) -> EditOp:
+    def _repair(self, op: EditOp, obs: ObjectObservation, added_here) -> EditOp | None:
         """Make a decision applicable: ADD on a known id becomes UPDATE, UPDATE/DELETE/NOOP on
         an unknown id becomes ADD (the observation must land somewhere)."""
         same_turn = [self.entities[i] for i in added_here.get(obs.kind, []) if self.entities[i].status == "active"]
@@ -233,7 +234,11 @@ class EntityEditor:
             return fixed.model_copy(update={"reason": fixed.reason + " [repair: added earlier in this turn]"})
         if op.op == "ADD" and op.entity_id in self.entities and self.entities[op.entity_id].status == "active":
             return op.model_copy(update={"op": "UPDATE", "reason": op.reason + " [repair: ADD on existing id]"})
-        if op.op != "ADD" and (op.entity_id not in self.entities or self.entities[op.entity_id].status != "active"):
+        stale = op.entity_id not in self.entities or self.entities[op.entity_id].status != "active"
+        if op.op == "DELETE" and op.merged_into and (stale or self.entities.get(op.merged_into) is None
+                                                    or self.entities[op.merged_into].status != "active"):
+            return None  # DELETE_INVALID: already retracted earlier in this turn; nothing to do
+        if op.op != "ADD" and stale:
             return EditOp(op="ADD", entity_id="", reason=f"{op.reason} [repair: {op.op} on unknown id]", changes=_add_fields(obs))
         return op
 
