@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 
 import click
@@ -16,8 +17,13 @@ def output_options(f):
         ("table", "Render a table (default)."), ("csv", "Comma-separated values."),
         ("json", "A JSON array of objects."), ("nl", "Newline-delimited JSON, one object per line."),
     ]):
-        f = click.option(f"--{name}", "fmt", flag_value=name, default=name == "table", help=help_)(f)
-    return f
+        f = click.option(f"--{name}", "fmt", flag_value=name, help=help_)(f)
+
+    @functools.wraps(f)
+    def wrapper(*args, fmt=None, **kwargs):
+        return f(*args, fmt=fmt if fmt in FORMATS else "table", **kwargs)
+
+    return wrapper
 
 
 def _jsonable(df: pl.DataFrame) -> list[dict]:
