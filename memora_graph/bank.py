@@ -116,3 +116,15 @@ class Bank:
                 df = store.run(name, participant=p, **params)
             frames.append(df.with_columns(pl.lit(p).alias("participant")).select(["participant", *df.columns]) if "participant" not in df.columns else df)
         return pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame()
+
+    def object_registries(self, participants: list[str] | None = None) -> dict[str, list[dict]]:
+        """Each participant's registry in the shape MEMORA-Bench grounds Replay nouns against."""
+        out = {}
+        for p in participants or self.participants():
+            if p not in self.manifest()["participants"]:
+                continue
+            with self.open(p) as store:
+                out[p] = [{k: r[k] or "" for k in ("memory_id", "memory_name", "color", "material", "location")}
+                          for r in store.rows("object_registry", participant=p)]
+        return out
+

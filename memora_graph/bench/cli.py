@@ -32,7 +32,10 @@ def _participants(value: str | None) -> list[str] | None:
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="EPIC-style annotation CSV (default: the bundled extension subset).")
 @click.option("--no-dedup", is_flag=True, help="Skip the embedding near-duplicate check (exact dedup still applies).")
-def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | None, no_dedup: bool) -> None:
+@click.option("--bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="A memory bank whose object registry grounds Replay nouns (enriched_narration, matched_object).")
+def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | None, no_dedup: bool,
+                 bank: Path | None) -> None:
     """Generate EAM-QA questions and Planning Replay/Generalize tasks from annotations.
 
     Writes eam_qa/questions/pXX.json and planning/suites/{replay,generalize}/pXX.json (the
@@ -45,6 +48,7 @@ def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | No
       memora bench generate --out runs/bench
       memora bench generate --out runs/bench-p01 --participants P01,P02 --seed 7
       memora bench generate --out runs/bench --annotations EPIC_100_train_subset.csv
+      memora bench generate --out runs/bench --bank banks/epic
     """
     from memora_graph.bench.generate import generate_suite, write_generated
     from memora_graph.bench.validate import ValidationReport, check_suite, count_suite, render_table
@@ -55,7 +59,12 @@ def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | No
             from memora_graph.perceive.annotations import load_annotations
 
             frame = load_annotations(annotations)
-        suite, report = generate_suite(frame, _participants(participants), seed=seed,
+        registries = None
+        if bank is not None:
+            from memora_graph.bank import Bank
+
+            registries = Bank(bank).object_registries(_participants(participants))
+        suite, report = generate_suite(frame, _participants(participants), seed=seed, registries=registries,
                                        embedder=None if no_dedup else "default")
         t0 = time.perf_counter()
         write_generated(suite, report, out)
