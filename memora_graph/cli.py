@@ -60,12 +60,23 @@ def main():
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False), help="EPIC-style CSV (default: the bundled subset).")
 @click.option("--mode", type=click.Choice(["edited", "raw"]), default="edited", show_default=True,
               help="'raw' stores one record per observation, unedited (baselines, compression figure).")
-@click.option("--backend", type=click.Choice(["offline"]), default="offline", show_default=True,
-              help="Memory processors: 'offline' is the deterministic CPU policy.")
+@click.option("--backend", type=click.Choice(["offline", "openai", "vllm"]), default="offline", show_default=True,
+              help="Memory processors: 'offline' is the deterministic CPU policy (annotations only); 'openai' "
+                   "any OpenAI-compatible server (vllm serve, llama.cpp); 'vllm' an in-process engine.")
+@click.option("--video", "video", type=click.Path(exists=True), help="Build from a video file, or every video in a directory.")
+@click.option("--participant", help="With --video: whose memory the video goes into (P01).")
+@click.option("--video-id", help="With --video FILE: the id to store it under (default: the file name).")
+@click.option("--base-url", help="With --backend openai: the server, e.g. http://127.0.0.1:8000/v1.")
+@click.option("--perception-model", help="The vision-language model (default: the first the server lists).")
+@click.option("--editor-model", help="The entity-editor model (default: the perception model).")
+@click.option("--editor-base-url", help="A separate server for the editor model (default: --base-url).")
+@click.option("--audio/--no-audio", default=None,
+              help="Send each clip's audio to the perception model (default: only for audio-capable models, e.g. *Omni*).")
 @click.option("--embed-model", default=None, help="sentence-transformers model name or path (default: bundled all-MiniLM-L6-v2).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def build(bank, participants, annotations, mode, backend, embed_model, quiet):
-    """Build (or resume) a memory bank from action annotations.
+def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
+          editor_model, editor_base_url, audio, embed_model, quiet):
+    """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
     are kept and nothing is written twice.
@@ -75,8 +86,24 @@ def build(bank, participants, annotations, mode, backend, embed_model, quiet):
       memora build banks/epic
       memora build banks/p01 --participants P01,P02
       memora build banks/raw --mode raw --participants P01
+      memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
+          --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    video_opts = dict(participant=participant, video_id=video_id, base_url=base_url, perception_model=perception_model,
+                      editor_model=editor_model, editor_base_url=editor_base_url, audio=audio)
+    if video:
+        if annotations or mode != "edited" or participants != "all":
+            raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode and --participants")
+        if not participant:
+            raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
+        return _build_video(bank, video, backend, embed_model, quiet, video_opts)
+    given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]
+    if given:
+        raise click.UsageError(f"{', '.join(given)} only apply with --video")
+    if backend != "offline":
+        raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
     from memora_graph.form.build import decision_shares
     from memora_graph.pipeline import build_bank
@@ -109,6 +136,44 @@ def build(bank, participants, annotations, mode, backend, embed_model, quiet):
     click.echo(f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s "
                f"(perception {t.perception:.1f} s, editor {t.editor:.1f} s, embedding {t.embedding:.1f} s, "
                f"graph {t.graph:.1f} s)")
+
+
+def _build_video(bank, video, backend, embed_model, quiet, opts):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from memora_graph.form.build import decision_shares
+    from memora_graph.pipeline import build_from_video
+
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                        disable=quiet, transient=False)
+    tasks = {}
+
+    def on_video(video_id, n_clips):
+        tasks[video_id] = progress.add_task(f"{opts['participant']} {video_id}", total=n_clips)
+
+    def on_segment(video_id, turn, error):
+        progress.update(tasks[video_id], advance=1)
+
+    with progress:
+        res = build_from_video(bank, video, backend=backend, embed_model=embed_model, on_video=on_video,
+                               on_segment=on_segment, **opts)
+    rows = [{"video": v["video"], "turns": v.get("turns", 0), "segments": v.get("segments", 0),
+             "failed_turns": len(v.get("perception_failed", [])) + len(v.get("editor_failed", [])),
+             "seconds": v.get("seconds", 0.0), "status": "already built" if v.get("skipped") else "built"}
+            for v in res.videos]
+    click.echo(render(pl.DataFrame(rows)))
+    c, shares = res.counts, decision_shares(res.decisions)
+    tokens = sum((r.tokens_in or 0) + (r.tokens_out or 0) for r in res.calls)
+    click.echo(f"bank {bank}, {res.participant}: {c.get('segments')} segments, {c.get('entities')} entities, "
+               f"{c.get('state_events')} state events, {c.get('places')} places; editor NOOP {shares['NOOP']}% "
+               f"UPDATE {shares['UPDATE']}% ADD {shares['ADD']}% DELETE {shares['DELETE']}%")
+    click.echo(f"{len(res.calls)} model calls ({sum(not r.ok for r in res.calls)} failed, {tokens} tokens) in "
+               f"{res.wall_seconds:.1f} s: waiting for the model {res.model_seconds:.1f} s, decoding "
+               f"{res.decode_seconds:.1f} s, graph work {res.graph_seconds:.1f} s")
+    failed = sum(r["failed_turns"] for r in rows)
+    if failed:
+        click.echo(f"{failed} turn(s) were not written because the model's reply stayed invalid; "
+                   f"see `memora stats {bank} --calls failed`", err=True)
 
 
 @main.command()
@@ -187,8 +252,11 @@ def run(bank, name, params, fmt):
 @main.command()
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--participant", help="One participant (default: all).")
+@click.option("--calls", type=click.Choice(["role", "segment", "failed"]), is_flag=False, flag_value="role",
+              default=None, help="Model calls of video builds instead: cost and latency per role (the default), "
+                                 "per segment, or the failed calls.")
 @output_options
-def stats(bank, participant, fmt):
+def stats(bank, participant, calls, fmt):
     """Counts per store, entity compression and the editor's decision mix.
 
     Compression = entity observations without editing (state events) / entity records after
@@ -198,9 +266,15 @@ def stats(bank, participant, fmt):
     Examples:
       memora stats banks/epic
       memora stats banks/epic --participant P01 --json
+      memora stats banks/home --calls              # model cost and latency per role
+      memora stats banks/home --calls segment      # ... per 10 s segment
     """
-    from memora_graph.stats import bank_stats
+    from memora_graph.stats import bank_stats, call_stats
 
+    if calls:
+        df = call_stats(bank, [participant] if participant else None, by=calls)
+        click.echo(render(df, fmt) if not df.is_empty() or fmt != "table" else "no model calls recorded in this bank")
+        return
     df = bank_stats(bank, [participant] if participant else None)
     click.echo(render(df, fmt))
     if fmt == "table" and df.height > 1:
@@ -240,6 +314,16 @@ def perf_build(bank_dir, participants):
                f"{t.perception + t.editor + t.graph + res.load_seconds:.1f} s = "
                f"{100 * (t.perception + t.editor + t.graph + res.load_seconds) / total:.0f}% of wall")
     del graph_share
+
+
+def _register_perf_video() -> None:
+    from memora_graph.perf_video import perf_decode, perf_video
+
+    perf.add_command(perf_decode)
+    perf.add_command(perf_video)
+
+
+_register_perf_video()
 
 
 def _register_optional_groups() -> None:

@@ -70,3 +70,158 @@ def build_bank(
         out.timings.add(res.timings)
     out.wall_seconds = time.perf_counter() - t_start
     return out
+
+
+# -- video ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class VideoBuild:
+    """What `build_from_video` did, with the time split a user needs to size a run."""
+
+    participant: str
+    videos: list[dict] = field(default_factory=list)  # per video: id, turns, segments, failed turns, seconds
+    counts: dict = field(default_factory=dict)
+    decisions: dict = field(default_factory=dict)
+    calls: list = field(default_factory=list)  # CallRecords of this run
+    decode_seconds: float = 0.0
+    model_seconds: float = 0.0  # waiting for model replies (sum of call latencies)
+    load_seconds: float = 0.0  # loading the embedding model
+    finish_seconds: float = 0.0  # the bulk load into the graph
+    wall_seconds: float = 0.0
+
+    @property
+    def segments(self) -> int:
+        return sum(v.get("segments", 0) for v in self.videos)
+
+    @property
+    def graph_seconds(self) -> float:
+        """Everything except decoding, model loading and waiting for the model."""
+        return max(self.wall_seconds - self.decode_seconds - self.model_seconds - self.load_seconds, 0.0)
+
+
+def _model_backend(name: str, base_url: str | None, model: str | None, call_log, options: dict | None):
+    from memora_graph.llm import ModelUnavailableError, get_backend
+
+    opts = dict(options or {})
+    if name == "openai":
+        opts.update({k: v for k, v in (("base_url", base_url), ("model", model)) if v})
+    elif name == "vllm":
+        if not model:
+            raise ModelUnavailableError("--backend vllm loads the model in-process: pass --perception-model NAME")
+        opts["model"] = model
+    return get_backend(name, call_log=call_log, **opts)
+
+
+def build_from_video(
+    bank_path: str | Path,
+    video: str | Path,
+    participant: str,
+    *,
+    video_id: str | None = None,
+    backend: str = "openai",
+    base_url: str | None = None,
+    perception_model: str | None = None,
+    editor_model: str | None = None,
+    editor_base_url: str | None = None,
+    audio: bool | None = None,
+    embed_model: str | None = None,
+    decode=None,
+    backend_options: dict | None = None,
+    on_video: Callable[[str, int], None] | None = None,
+    on_segment: Callable[[str, int, str | None], None] | None = None,
+) -> VideoBuild:
+    """Build (or resume) one participant's memory from a video file or a directory of videos:
+    10 s clips -> VLM perception -> LLM entity editor -> the participant's graph.
+
+    Nothing is written before every file has been probed and the backend is known to do
+    perception. `audio=None` sends audio to audio-capable models only (by model name).
+    `on_video(video_id, n_clips)` and `on_segment(video_id, turn, error_or_None)` report progress.
+    """
+    import dataclasses
+
+    from memora_graph.form.build import ParticipantBuilder
+    from memora_graph.form.llm_editor import LLMEditorPolicy
+    from memora_graph.llm import CallLog
+    from memora_graph.perceive.video import DecodeOptions, list_videos, probe_video, segment_video
+    from memora_graph.perceive.vlm import VLMPerception
+
+    t_start = time.perf_counter()
+    bank = Bank(bank_path)
+    bank.db_path(participant)  # a bad participant id fails before any work
+    files = list_videos(video)
+    if video_id and len(files) > 1:
+        raise DataError(f"{video}: --video-id names one video, but this directory holds {len(files)}")
+    log = CallLog()
+    perception_backend = _model_backend(backend, base_url, perception_model, log, backend_options)
+    perceiver = VLMPerception(perception_backend, participant, audio=audio)
+    editor_backend = perception_backend
+    if editor_model or editor_base_url:
+        editor_backend = _model_backend(backend, editor_base_url or base_url, editor_model or perception_model, log,
+                                        backend_options)
+    policy = LLMEditorPolicy(editor_backend)
+    opts = decode or DecodeOptions()
+    opts = dataclasses.replace(opts, audio=opts.audio and perceiver.audio)
+    infos = [probe_video(f, video_id) for f in files]
+    seen: dict[str, Path] = {}
+    for info in infos:
+        if info.video_id in seen:
+            raise DataError(f"{info.path} and {seen[info.video_id]} would both be video {info.video_id!r}; rename one")
+        seen[info.video_id] = info.path
+
+    out = VideoBuild(participant)
+    t0 = time.perf_counter()
+    embedder = get_embedder(embed_model)
+    out.load_seconds = time.perf_counter() - t0
+    bank.init(mode="edited", embed_model=embedder.name, consolidated=False)
+    builder = ParticipantBuilder(bank, participant, embedder, policy=policy, call_log=log)
+    try:
+        for info in infos:
+            if info.video_id in builder.done:
+                out.videos.append({"video": info.video_id, "skipped": True})
+                continue
+            n_clips = info.n_segments(opts.segment_seconds)
+            if on_video:
+                on_video(info.video_id, n_clips)
+            t_video = time.perf_counter()
+            decode_before = out.decode_seconds
+            perceived = []
+            for pc in perceiver.perceive(_timed(segment_video(info.path, opts, info=info), out)):
+                perceived.append(pc)
+                if on_segment:
+                    on_segment(info.video_id, pc.clip.turn_id, pc.error)
+            segments = [pc.segment for pc in perceived if pc.segment is not None]
+            _, dropped = builder.build_segments(info.video_id, segments, info.duration, n_turns=len(perceived))
+            out.videos.append({
+                "video": info.video_id, "duration_s": round(info.duration, 2), "turns": len(perceived),
+                "segments": len(segments) - len(dropped),
+                "perception_failed": [pc.clip.turn_id for pc in perceived if pc.segment is None],
+                "editor_failed": dropped, "decode_s": round(out.decode_seconds - decode_before, 3),
+                "seconds": round(time.perf_counter() - t_video, 3),
+            })
+        t0 = time.perf_counter()
+        builder.finish()
+        out.finish_seconds = time.perf_counter() - t0
+        out.counts = builder.counts()
+        out.decisions = builder.decisions()
+        bank.record_participant(participant, sorted(builder.done), out.counts)
+    finally:
+        builder.close()
+    out.calls = list(log.records)
+    out.model_seconds = sum(r.latency_s for r in log.records)
+    out.wall_seconds = time.perf_counter() - t_start
+    return out
+
+
+def _timed(clips, out: VideoBuild):
+    """Yield from the decoder, adding the time spent inside it to `out.decode_seconds`."""
+    it = iter(clips)
+    while True:
+        t0 = time.perf_counter()
+        try:
+            clip = next(it)
+        except StopIteration:
+            out.decode_seconds += time.perf_counter() - t0
+            return
+        out.decode_seconds += time.perf_counter() - t0
+        yield clip

@@ -26,3 +26,23 @@ def bank_stats(bank_path: str | Path, participants: list[str] | None = None) -> 
             "decisions": sum(decisions.values()),
         })
     return pl.DataFrame(rows)
+
+
+CALL_VIEWS = {"role": "model_calls_by_role", "segment": "model_calls_by_segment", "failed": "model_calls_failed"}
+
+
+def call_stats(bank_path: str | Path, participants: list[str] | None = None, by: str = "role") -> pl.DataFrame:
+    """Model-call cost and latency of video builds, per role (and model), per segment, or the
+    failed calls. Banks built without models (or before model calls were logged) give no rows."""
+    if by not in CALL_VIEWS:
+        raise ValueError(f"by must be one of {', '.join(CALL_VIEWS)}")
+    bank = Bank(bank_path)
+    frames = []
+    for p in participants or bank.participants():
+        with bank.open(p) as store:
+            if "ModelCall" not in store.tables():
+                continue
+            df = store.run(CALL_VIEWS[by], participant=p)
+        if not df.is_empty():
+            frames.append(df.select(pl.lit(p).alias("participant"), *df.columns))
+    return pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame()

@@ -23,6 +23,7 @@ from memora_graph.bank import Bank
 from memora_graph.embed import CachedEmbedder
 from memora_graph.form.editor import DeterministicPolicy, EditPolicy, EntityEditor, EntityState, RawPolicy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
+from memora_graph.llm.backends import CallLog, CallRecord, ModelReplyError
 from memora_graph.perceive.annotations import ClassTables
 from memora_graph.perceive.narration import perceive_video
 from memora_graph.records import LayeredSegment
@@ -86,10 +87,12 @@ class ParticipantBuilder:
     """
 
     def __init__(self, bank: Bank, participant: str, embedder: CachedEmbedder, mode: str = "edited",
-                 policy: EditPolicy | None = None, prompt_budget: int = 50):
+                 policy: EditPolicy | None = None, prompt_budget: int = 50, call_log: CallLog | None = None):
+        """`call_log`: the model calls of this build; each video stages the calls tagged with it."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}")
         self.bank, self.participant, self.embedder, self.mode = bank, participant, embedder, mode
+        self.call_log = call_log
         self.store = Store(bank.db_path(participant), read_only=False, bulk=True)
         self.store.apply_schema()
         self.staging = bank.path / ".staging" / participant
@@ -158,7 +161,21 @@ class ParticipantBuilder:
         t0 = time.perf_counter()
         segments = list(perceive_video(self.participant, video_id, actions, duration, classes))
         t.perception = time.perf_counter() - t0
+        self._edit_and_stage(video_id, segments, duration, len(actions), t)
+        return t, len(segments)
 
+    def build_segments(self, video_id: str, segments: list[LayeredSegment], duration: float,
+                       n_turns: int | None = None) -> tuple[Timings, list[int]]:
+        """Edit and stage segments perceived elsewhere (video through a VLM). `n_turns` counts
+        the clips including those perception failed on. A segment whose editor call fails is
+        not written at all (no half-written segment); the model calls of the video, failed ones
+        included, are staged with it. Returns the timings and the turn ids that were dropped."""
+        t = Timings()
+        dropped = self._edit_and_stage(video_id, segments, duration, 0, t, n_turns=n_turns)
+        return t, dropped
+
+    def _edit_and_stage(self, video_id: str, segments: list[LayeredSegment], duration: float, n_actions: int,
+                        t: Timings, n_turns: int | None = None) -> list[int]:
         emb0 = self.embedder.seconds
         seg_vecs = self.embedder.encode([s.activity.summary for s in segments])
         # Identity texts are embedded up front, so editor time below is editing, not encoding.
@@ -166,19 +183,31 @@ class ParticipantBuilder:
         t.embedding = self.embedder.seconds - emb0
 
         t0 = time.perf_counter()
-        edits, in_place, spatial = [], [], []
-        for seg in segments:
-            edits.append((seg, self.editor.edit(seg)))
+        edits, in_place, spatial, kept, dropped = [], [], [], [], []
+        for seg, vec in zip(segments, seg_vecs):
+            try:
+                result = self.editor.edit(seg)  # a policy decides before anything is applied
+            except ModelReplyError:
+                dropped.append(seg.turn_id)
+                continue
+            edits.append((seg, result))
+            kept.append((seg, vec))
             ip, sp, _, _ = self.places.merge(seg)
             in_place += ip
             spatial += sp
         t.editor = time.perf_counter() - t0
+        segments, seg_vecs = [s for s, _ in kept], [v for _, v in kept]
 
         t0 = time.perf_counter()
-        self._stage(video_id, self._frames(video_id, duration, len(actions), segments, seg_vecs, edits, in_place, spatial))
+        frames = self._frames(video_id, duration, n_actions, segments, seg_vecs, edits, in_place, spatial)
+        if n_turns is not None:
+            frames["Video"] = frames["Video"].with_columns(pl.lit(n_turns, dtype=pl.Int64).alias("n_turns"))
+        if self.call_log is not None:
+            frames["ModelCall"] = model_call_frame(self.participant, video_id, self.call_log.records)
+        self._stage(video_id, frames)
         t.graph = time.perf_counter() - t0
         self.done.add(video_id)
-        return t, len(segments)
+        return dropped
 
     def _frames(self, video_id, duration, n_actions, segments: list[LayeredSegment], seg_vecs, edits, in_place, spatial) -> dict:
         p = self.participant
@@ -289,7 +318,7 @@ class ParticipantBuilder:
         return {r["op"]: r["n"] for r in self.store.rows("decision_mix", participant=self.participant)}
 
 
-NODE_ORDER = ("Video", "Segment", "Place", "Entity", "StateEvent", "EditOp")
+NODE_ORDER = ("Video", "Segment", "Place", "Entity", "StateEvent", "EditOp", "ModelCall")
 REL_ORDER = ("HAS_VIDEO", "HAS_SEGMENT", "NEXT", "IN_PLACE", "SPATIAL", "HAS_STATE", "OBSERVED_IN", "AT",
              "EDITED", "MERGED_INTO")
 ENTITY_SCHEMA = {
@@ -298,6 +327,30 @@ ENTITY_SCHEMA = {
     "status": pl.String, "merged_into": pl.String, "state": pl.String, "location": pl.String, "held_by": pl.String,
     "first_seen": pl.Float64, "first_video": pl.String, "first_turn": pl.Int64, "last_seen": pl.Float64,
     "last_video": pl.String, "last_turn": pl.Int64, "n_observations": pl.Int64,
+}
+
+
+def model_call_frame(participant: str, video_id: str, records: list[CallRecord]) -> pl.DataFrame | None:
+    """The ModelCall rows of one video: every call tagged with it, failed ones included."""
+    mine = [r for r in records if r.tags.get("video") == video_id and r.tags.get("participant", participant) == participant]
+    if not mine:
+        return None
+    return pl.DataFrame([{
+        "id": f"{participant}:{video_id}:call{i:05d}", "participant": participant, "video": video_id,
+        "turn": int(r.tags["turn"]) if r.tags.get("turn", "").lstrip("-").isdigit() else -1,
+        "segment": r.tags.get("segment", ""), "role": r.role, "backend": r.backend, "model": r.model or "",
+        "prompt_hash": r.prompt_hash, "prompt_version": r.tags.get("prompt", ""), "tokens_in": r.tokens_in,
+        "tokens_out": r.tokens_out, "latency_s": r.latency_s, "retries": r.retries, "repairs": r.repairs,
+        "ok": r.ok, "error": r.error or "",
+        "started_at": datetime.fromisoformat(r.started_at).astimezone(timezone.utc).replace(tzinfo=None),
+    } for i, r in enumerate(mine)], schema=MODEL_CALL_SCHEMA)
+
+
+MODEL_CALL_SCHEMA = {
+    "id": pl.String, "participant": pl.String, "video": pl.String, "turn": pl.Int64, "segment": pl.String,
+    "role": pl.String, "backend": pl.String, "model": pl.String, "prompt_hash": pl.String,
+    "prompt_version": pl.String, "tokens_in": pl.Int64, "tokens_out": pl.Int64, "latency_s": pl.Float64,
+    "retries": pl.Int64, "repairs": pl.Int64, "ok": pl.Boolean, "error": pl.String, "started_at": pl.Datetime("us"),
 }
 
 
