@@ -107,3 +107,102 @@ def validate_cmd(directory: Path, participants: str, as_json: bool) -> None:
         click.echo(render_table(report))
     if report.problems:
         raise click.ClickException(f"{len(report.problems)} problem(s) in {directory}")
+
+
+def _backend_options(base_url, model, api_key, temperature, timeout_s, options) -> dict:
+    out: dict = {}
+    for key, value in (("base_url", base_url), ("model", model), ("api_key", api_key),
+                       ("temperature", temperature), ("timeout_s", timeout_s)):
+        if value is not None:
+            out[key] = value
+    for key, value in options:
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+@bench_group.command("run")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Run directory (created; an existing run is resumed: finished items are skipped).")
+@click.option("--conditions", default="all", show_default=True,
+              help="Comma-separated conditions (no_memory, flat_1d_raw, flat_1d_edited, graph_2d_raw, "
+                   "graph_2d_edited, memora_episodic, memora_full) or 'all'.")
+@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
+@click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="MEMORA-Bench release folder (default: the bundled calibration cohort P01-P04).")
+@click.option("--raw-bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="A bank built with `memora build DIR --mode raw` (needed by flat_1d_raw and graph_2d_raw).")
+@click.option("--kinds", default="eam_qa,replay,generalize", show_default=True, help="Task kinds to run.")
+@click.option("--backend", default="offline", show_default=True,
+              help="Answer backend: offline (deterministic policy, not an LLM), openai, vllm.")
+@click.option("--base-url", default=None, help="openai backend: server URL, e.g. http://127.0.0.1:8000/v1.")
+@click.option("--model", default=None, help="Model name (openai / vllm backends).")
+@click.option("--api-key", default=None, help="openai backend: API key (default: $OPENAI_API_KEY).")
+@click.option("--temperature", type=float, default=None, help="Sampling temperature (model backends; default 0.6).")
+@click.option("--timeout-s", type=float, default=None, help="openai backend: request timeout in seconds.")
+@click.option("-o", "--option", "options", type=(str, str), multiple=True, metavar="NAME VALUE",
+              help="Any other backend option (JSON if it parses). Repeatable.")
+@click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def run_cmd(bank, out, conditions, participants, tasks, raw_bank, kinds, backend, base_url, model, api_key,
+            temperature, timeout_s, options, limit, quiet):
+    """Run the seven-condition evaluation: every condition on every task, one record per item.
+
+    \b
+    Examples:
+      memora build banks/cal --participants P01,P02,P03,P04
+      memora build banks/cal-raw --mode raw --participants P01,P02,P03,P04
+      memora bench run banks/cal --raw-bank banks/cal-raw --out runs/offline
+      memora bench run banks/cal --raw-bank banks/cal-raw --out runs/qwen --backend openai \\
+          --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
+      memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from memora_graph.bench.run import run_bench
+
+    opts = _backend_options(base_url, model, api_key, temperature, timeout_s, options)
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                        disable=quiet, transient=True)
+    state: dict = {}
+
+    def on_plan(n):
+        state["task"] = progress.add_task("items", total=n)
+
+    def on_item(rec):
+        progress.update(state["task"], advance=1, description=f"{rec['condition']} {rec['item_id']}")
+
+    try:
+        with progress:
+            summary = run_bench(bank, out, conditions=conditions, participants=_participants(participants),
+                                tasks=tasks, raw_bank=raw_bank, backend=backend, backend_options=opts,
+                                kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
+                                on_item=on_item, on_plan=on_plan)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    click.echo(f"{summary.done} items run ({summary.failed} failed), {summary.skipped} already done; "
+               f"{summary.seconds:.1f} s. Records in {out}/records; `memora bench report {out}` for the tables.")
+
+
+@bench_group.command("report")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--print/--no-print", "show", default=True, show_default=True, help="Print the markdown report.")
+def report_cmd(run_dir, show):
+    """Write report.md, report.html and report.json (and results.parquet) for a run directory.
+
+    \b
+    Example:
+      memora bench report runs/offline
+    """
+    from memora_graph.bench.report import write_report
+
+    try:
+        paths = write_report(run_dir)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    if show:
+        click.echo(paths["markdown"].read_text())
+    click.echo("Wrote " + ", ".join(str(p) for p in paths.values()))

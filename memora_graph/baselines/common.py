@@ -1,0 +1,136 @@
+"""What the baseline memories share: reading a participant's bank records, an on-disk embedding
+store (a text is embedded once per bank, whichever representation needs it), and cosine top-k
+with the paper's near-duplicate collapse (cosine >= 0.95 keeps the higher-scoring record).
+
+Representations are cached under `BANK/.cache/`, keyed by the participant's manifest entry, so
+a rebuilt participant invalidates its cache and nothing else.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from memora_graph.bank import Bank
+from memora_graph.embed import get_embedder
+
+CACHE_DIR = ".cache"
+DEDUP_COSINE = 0.95
+DEFAULT_TOP_K = 10
+MAX_TOP_K = 30
+
+
+def clamp_top_k(value: Any, default: int = DEFAULT_TOP_K) -> int:
+    try:
+        k = int(value)
+    except (TypeError, ValueError):
+        k = default
+    return max(1, min(MAX_TOP_K, k))
+
+
+def cache_dir(bank: Bank) -> Path:
+    path = bank.path / CACHE_DIR
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def participant_key(bank: Bank, participant: str, version: str) -> str:
+    """Changes whenever the participant is rebuilt (its manifest entry) or the code version moves."""
+    entry = bank.manifest()["participants"][participant]
+    blob = json.dumps({"entry": entry, "mode": bank.manifest().get("mode"), "v": version}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def load_records(bank: Bank, participant: str) -> dict[str, list[dict]]:
+    """The participant's records through the named baseline queries (one read-only open)."""
+    with bank.open(participant) as store:
+        return {
+            name: store.rows(f"baseline_{name}", participant=participant)
+            for name in ("segments", "state_events", "entities", "places", "routines", "preferences")
+        }
+
+
+class EmbeddingStore:
+    """text -> vector, persisted per bank and model in `BANK/.cache/embeddings-<model>.npz`."""
+
+    def __init__(self, bank: Bank, model: str | None = None):
+        self.embedder = get_embedder(model)
+        safe = re.sub(r"[^A-Za-z0-9._-]+", "_", self.embedder.name)
+        self.path = cache_dir(bank) / f"embeddings-{safe}.npz"
+        self._vectors: dict[str, np.ndarray] = {}
+        if self.path.exists():
+            try:
+                with np.load(self.path) as data:
+                    keys, mat = data["keys"], data["vectors"]
+                self._vectors = {str(k): mat[i] for i, k in enumerate(keys)}
+            except Exception:  # a damaged cache is rebuilt, never trusted
+                self._vectors = {}
+        self._dirty = False
+
+    @staticmethod
+    def _key(text: str) -> str:
+        return hashlib.blake2b(text.encode(), digest_size=12).hexdigest()
+
+    def encode(self, texts: list[str]) -> np.ndarray:
+        keys = [self._key(t) for t in texts]
+        todo = {}
+        for k, t in zip(keys, texts):
+            if k not in self._vectors and k not in todo:
+                todo[k] = t
+        if todo:
+            vecs = self.embedder.encode(list(todo.values()), kind="passage")
+            for k, v in zip(todo, vecs):
+                self._vectors[k] = v
+            self._dirty = True
+        if not texts:
+            return np.zeros((0, self.embedder.dim), dtype=np.float32)
+        return np.stack([self._vectors[k] for k in keys]).astype(np.float32)
+
+    def save(self) -> None:
+        if not self._dirty:
+            return
+        keys = np.array(list(self._vectors))
+        mat = np.stack(list(self._vectors.values())).astype(np.float32)
+        tmp = self.path.with_name(self.path.stem + ".tmp.npz")
+        np.savez(tmp, keys=keys, vectors=mat)
+        os.replace(tmp, self.path)
+        self._dirty = False
+
+
+def embed_query(text: str, model: str | None = None) -> np.ndarray:
+    return get_embedder(model).encode([text], kind="query")[0]
+
+
+def top_k(matrix: np.ndarray, query: np.ndarray, k: int, mask: np.ndarray | None = None,
+          dedup: float = DEDUP_COSINE) -> list[tuple[int, float]]:
+    """(row, cosine) of the k best rows, best first, collapsing rows that are near-duplicates
+    (cosine >= `dedup`) of a better-scoring row already taken."""
+    if matrix.shape[0] == 0:
+        return []
+    scores = matrix @ query
+    if mask is not None:
+        scores = np.where(mask, scores, -np.inf)
+    order = np.argsort(-scores, kind="stable")
+    taken: list[int] = []
+    for i in order:
+        if not np.isfinite(scores[i]) or len(taken) >= k:
+            break
+        if any(float(matrix[i] @ matrix[j]) >= dedup for j in taken):
+            continue
+        taken.append(int(i))
+    return [(i, round(float(scores[i]), 4)) for i in taken]
+
+
+def place_name(location: str | None) -> str:
+    return (location or "").replace("_", " ").strip()
+
+
+def object_label(row: dict) -> str:
+    parts = [row.get("color") or "", row.get("material") or "", row.get("name") or ""]
+    return " ".join(p for p in parts if p).strip()

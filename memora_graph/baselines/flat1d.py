@@ -1,0 +1,124 @@
+"""Flat-1D (Socratic-models style): time-stamped text records in chronological order behind one
+`search` tool.
+
+The records come from the same bank every other condition reads:
+- activity facts: one per 10 s turn, "[video start-end s] summary";
+- state facts: raw bank = one per object observation (nothing edited, every sighting kept);
+  edited bank = one per object after online editing (its current state and location, where it
+  has been, how often it was seen), as an editor that UPDATEs a fact in place would leave it;
+- environment facts: one per place.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from memora_graph.bank import Bank
+from memora_graph.baselines.common import (
+    EmbeddingStore, cache_dir, clamp_top_k, embed_query, load_records, object_label, participant_key, place_name,
+)
+from memora_graph.baselines.common import top_k as top_k_rows
+
+VERSION = "flat1d-1"
+
+
+@dataclass
+class FlatRecord:
+    kind: str  # activity | state | environment
+    video: str
+    time: float
+    text: str  # what the agent reads (with its time stamp)
+    embed_text: str  # what is embedded (shared with Graph-2D where the content is the same)
+
+    def as_result(self, similarity: float) -> dict:
+        return {"kind": self.kind, "video": self.video, "time": round(self.time, 2), "text": self.text,
+                "similarity": similarity}
+
+
+def _stamp(video: str, start: float, end: float | None = None) -> str:
+    return f"[{video} {start:.1f}-{end:.1f}s]" if end is not None else f"[{video} {start:.1f}s]"
+
+
+def build_records(records: dict[str, list[dict]], mode: str) -> list[FlatRecord]:
+    out: list[FlatRecord] = []
+    for s in records["segments"]:
+        summary = s["summary"] or ""
+        if summary:
+            out.append(FlatRecord("activity", s["video"], float(s["t_start"]),
+                                  f"{_stamp(s['video'], s['t_start'], s['t_end'])} {summary}", summary))
+    if mode == "raw":
+        for e in records["entities"]:
+            label = object_label(e)
+            fact = f"{label}: {e['state'] or 'seen'} at {place_name(e['location'])}"
+            out.append(FlatRecord("state", e["first_video"] or "", float(e["first_seen"] or 0),
+                                  f"{_stamp(e['first_video'] or '', e['first_seen'] or 0)} {fact}", fact))
+    else:
+        seen_at: dict[str, list[str]] = defaultdict(list)
+        for x in records["state_events"]:
+            loc = place_name(x["location"])
+            if loc and loc not in seen_at[x["entity"]]:
+                seen_at[x["entity"]].append(loc)
+        for e in records["entities"]:
+            label = object_label(e)
+            where = ", ".join(seen_at.get(e["id"], [])[:6])
+            fact = (f"{label}: now {e['state'] or 'seen'} at {place_name(e['location'])}; "
+                    f"seen {e['n_observations']} times" + (f"; locations: {where}" if where else ""))
+            stamp = f"[{e['first_video']} {e['first_seen'] or 0:.1f}s .. {e['last_video']} {e['last_seen'] or 0:.1f}s]"
+            out.append(FlatRecord("state", e["first_video"] or "", float(e["first_seen"] or 0), f"{stamp} {fact}", fact))
+    for p in records["places"]:
+        zones = ", ".join(p["zones"] or [])
+        fact = f"place {p['name']}" + (f" with {zones}" if zones else "")
+        out.append(FlatRecord("environment", p["first_video"] or "", float(p["first_seen"] or 0),
+                              f"{_stamp(p['first_video'] or '', p['first_seen'] or 0)} {fact}", fact))
+    out.sort(key=lambda r: (r.video, r.time, r.kind))
+    return out
+
+
+class Flat1DMemory:
+    """One participant's Flat-1D memory: records in chronological order plus their vectors."""
+
+    tool_names = ("search",)
+
+    def __init__(self, participant: str, mode: str, records: list[FlatRecord], vectors: np.ndarray):
+        self.participant = participant
+        self.mode = mode
+        self.records = records
+        self.vectors = vectors
+
+    @classmethod
+    def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Flat1DMemory:
+        """Built once per bank and participant, then read from `BANK/.cache/`."""
+        bank = Bank(bank_path)
+        mode = bank.manifest().get("mode", "edited")
+        key = participant_key(bank, participant, VERSION)
+        base = cache_dir(bank) / f"flat1d-{participant}-{key}"
+        if base.with_suffix(".json").exists() and base.with_suffix(".npy").exists():
+            rows = json.loads(base.with_suffix(".json").read_text())
+            return cls(participant, mode, [FlatRecord(**r) for r in rows], np.load(base.with_suffix(".npy")))
+        recs = build_records(load_records(bank, participant), mode)
+        store = store or EmbeddingStore(bank)
+        vectors = store.encode([r.embed_text for r in recs])
+        store.save()
+        base.with_suffix(".json").write_text(json.dumps([r.__dict__ for r in recs]))
+        np.save(base.with_suffix(".npy"), vectors)
+        return cls(participant, mode, recs, vectors)
+
+    def search(self, query: str, top_k: int = 10) -> dict:
+        """The top-k records by cosine to the query (near-duplicates collapsed)."""
+        query = str(query or "").strip()
+        if not query:
+            return {"query": query, "results": [], "error": "empty query"}
+        hits = top_k_rows(self.vectors, embed_query(query), clamp_top_k(top_k))
+        return {"query": query, "results": [self.records[i].as_result(s) for i, s in hits]}
+
+    def stats(self) -> dict:
+        kinds: dict[str, int] = defaultdict(int)
+        for r in self.records:
+            kinds[r.kind] += 1
+        return {"records": len(self.records), **dict(kinds)}
+

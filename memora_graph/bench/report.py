@@ -1,0 +1,318 @@
+"""The report of a run directory: pure aggregation of the per-item records (bench.metrics), written
+as report.json, report.md and report.html. Every number can be traced to the records it came from.
+
+Tables: EAM-QA accuracy / E-selection / per-type accuracy per condition; the three evaluation views
+(full; MEMORA-committed; parametric-missed + MEMORA-committed), pooled and macro over participants;
+MEMORA against the best baseline per type and the consolidation lift (MEMORA - MEMORA-Episodic) per
+type; the planning panel per condition and split (OrderExec, KeyObj, PrefAdh, RGP, Exec, KBGround,
+ObjGT-F1, GF1); tool calls per condition and tool; latency (model / tools / other).
+Figures are drawn only when matplotlib is installed.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from collections import Counter, defaultdict
+from pathlib import Path
+from statistics import mean
+from typing import Any
+
+from memora_graph.bench.conditions import get_condition, list_conditions
+from memora_graph.bench.metrics import eam_scores, eam_views, planning_panel
+from memora_graph.bench.run import load_run, write_results_table
+from memora_graph.bench.tasks import QA_TYPES
+from memora_graph.errors import MemoraError
+
+MEMORA, EPISODIC, PARAMETRIC = "memora_full", "memora_episodic", "no_memory"
+BASELINES = ("flat_1d_raw", "flat_1d_edited", "graph_2d_raw", "graph_2d_edited")
+PANEL = ("order_exec", "key_obj", "pref_adh", "rgp", "exec", "kb_ground", "objgt_f1", "gf1")
+PANEL_LABELS = {"order_exec": "OrderExec", "key_obj": "KeyObj", "pref_adh": "PrefAdh", "rgp": "RGP", "exec": "Exec",
+                "kb_ground": "KBGround", "objgt_f1": "ObjGT-F1", "gf1": "GF1"}
+
+
+def _order(conds) -> list[str]:
+    known = list_conditions()
+    return sorted(conds, key=lambda c: (known.index(c) if c in known else 99, c))
+
+
+def _label(c: str) -> str:
+    try:
+        return get_condition(c).label
+    except MemoraError:
+        return c
+
+
+def _type_acc(records: list[dict], ids: set[str] | None = None) -> dict[str, float | None]:
+    out = {}
+    for t in QA_TYPES:
+        rs = [r for r in records if r["qa_type"] == t and (ids is None or r["question_id"] in ids)]
+        out[t] = sum(r["predicted"] == r["correct_answer"] for r in rs) / len(rs) if rs else None
+    return out
+
+
+def build_report(run: str | Path) -> dict[str, Any]:
+    data = load_run(run)
+    manifest_path = Path(run) / "manifest.json"
+    manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+    out: dict[str, Any] = {"run": str(run), "manifest": manifest, "eam_qa": {}, "planning": {}}
+    eam = data["eam_qa"]
+    conds = _order(eam)
+    if conds:
+        out["eam_qa"]["conditions"] = {c: {**eam_scores(eam[c]), "label": _label(c),
+                                           "n_failed_items": sum(r["status"] != "ok" for r in eam[c])} for c in conds}
+        by_p = {c: _by_participant(eam[c]) for c in conds}
+        if MEMORA in by_p:
+            views = eam_views(by_p, memora=MEMORA, parametric=PARAMETRIC,
+                              baselines=[b for b in BASELINES if b in by_p])
+            out["eam_qa"]["views"] = views
+            headline = _headline_ids(by_p)
+            out["eam_qa"]["per_type_views"] = {
+                "full": {c: _type_acc(eam[c]) for c in conds},
+                "parametric_missed_memora_committed": {c: _type_acc(eam[c], headline) for c in conds} if headline is not None else None,
+            }
+            out["eam_qa"]["memora_vs_best_baseline"] = _vs_best(out["eam_qa"]["per_type_views"], conds)
+            if EPISODIC in by_p:
+                out["eam_qa"]["consolidation_lift_pp"] = {
+                    view: {t: (None if vals is None or vals[MEMORA][t] is None or vals[EPISODIC][t] is None
+                               else round(100 * (vals[MEMORA][t] - vals[EPISODIC][t]), 1)) for t in QA_TYPES}
+                    for view, vals in out["eam_qa"]["per_type_views"].items()}
+        else:
+            out["eam_qa"]["views"] = None
+            out["eam_qa"]["note"] = "the three views need the memora_full condition in the run"
+    plan = data["planning"]
+    for c in _order(plan):
+        per_split = {}
+        for split in ("replay", "generalize"):
+            scores = [r["scores"] for r in plan[c] if r.get("split") == split and r.get("scores")]
+            if scores:
+                per_split[split] = planning_panel(scores)
+        out["planning"][c] = {"label": _label(c), **per_split,
+                              "n_failed_items": sum(r["status"] != "ok" for r in plan[c])}
+    if plan:
+        out["planning_vs_best_baseline"] = _plan_vs_best(out["planning"])
+    all_recs = [(c, r) for kind in data.values() for c, rs in kind.items() for r in rs]
+    tools: dict[str, Counter] = defaultdict(Counter)
+    for c, r in all_recs:
+        for call in r.get("tool_calls") or []:
+            tools[c][call["name"]] += 1
+            tools[c]["_duplicate"] += bool(call.get("duplicate"))
+    out["tool_calls"] = {c: dict(sorted(tools[c].items())) for c in _order(tools)}
+    lat: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for c, r in all_recs:
+        for k, v in (r.get("time") or {}).items():
+            lat[c][k].append(v)
+    out["latency_s"] = {c: {k: round(mean(v), 4) for k, v in lat[c].items()} | {"items": len(lat[c]["total_s"])}
+                        for c in _order(lat)}
+    return out
+
+
+def _by_participant(records: list[dict]) -> dict[str, list[dict]]:
+    out: dict[str, list[dict]] = defaultdict(list)
+    for r in records:
+        out[r["participant"]].append(r)
+    return dict(out)
+
+
+def _headline_ids(by_p: dict[str, dict[str, list[dict]]]) -> set[str] | None:
+    """Question ids where Parametric is wrong and MEMORA chose A-D (answered by every condition)."""
+    if PARAMETRIC not in by_p:
+        return None
+    idx = {c: {r["question_id"]: r for rs in by_p[c].values() for r in rs} for c in by_p}
+    common = set.intersection(*(set(v) for v in idx.values()))
+    return {q for q in common if idx[MEMORA][q]["predicted"] in ("A", "B", "C", "D")
+            and idx[PARAMETRIC][q]["predicted"] != idx[PARAMETRIC][q]["correct_answer"]}
+
+
+def _vs_best(per_type_views: dict, conds: list[str]) -> dict:
+    out = {}
+    for view, vals in per_type_views.items():
+        if vals is None:
+            continue
+        rows = {}
+        for t in QA_TYPES:
+            base = [(vals[b][t], b) for b in BASELINES if b in vals and vals[b][t] is not None]
+            best = max(base) if base else (None, None)
+            mem = vals[MEMORA][t]
+            rows[t] = {"memora": mem, "best_baseline": best[1], "best_baseline_acc": best[0],
+                       "delta_pp": None if mem is None or best[0] is None else round(100 * (mem - best[0]), 1)}
+        out[view] = rows
+    return out
+
+
+def _plan_vs_best(planning: dict) -> dict:
+    out = {}
+    for split in ("replay", "generalize"):
+        base = [(planning[b][split]["rgp"], b) for b in BASELINES
+                if b in planning and split in planning[b] and planning[b][split]["rgp"] is not None]
+        best = max(base) if base else (None, None)
+        mem = planning.get(MEMORA, {}).get(split, {}).get("rgp")
+        out[split] = {"memora_rgp": mem, "best_baseline": best[1], "best_baseline_rgp": best[0],
+                      "delta": None if mem is None or best[0] is None else round(mem - best[0], 4)}
+    return out
+
+
+# -- rendering --------------------------------------------------------------------------------------
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.1f}"
+
+
+def _num(v) -> str:
+    return "-" if v is None else f"{v:.3f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(str(x) for x in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def render_markdown(rep: dict[str, Any]) -> str:
+    m = rep["manifest"]
+    parts = [f"# MEMORA-Bench report: `{rep['run']}`", "",
+             f"Backend: **{m.get('backend')}** ({m.get('model')}); participants: {', '.join(m.get('participants', []))}; "
+             f"tasks: {m.get('tasks')} (hash {m.get('task_set_hash')}); code {m.get('code_version')}; "
+             f"prompts {m.get('prompt_version')}."]
+    if m.get("backend") == "offline":
+        parts.append("\n> The `offline` backend is a deterministic retrieval-and-scoring policy, **not an LLM**: "
+                     "these numbers measure the memories through a fixed simple reader.")
+    eam = rep.get("eam_qa") or {}
+    if eam.get("conditions"):
+        parts += ["", "## EAM-QA: full benchmark", ""]
+        rows = []
+        for c, s in eam["conditions"].items():
+            rows.append([s["label"], s["n"], _pct(s["accuracy"]), _pct(s["e_rate"]),
+                         *[_pct(s["per_type_accuracy"].get(t)) for t in QA_TYPES], s["n_failed_items"]])
+        parts.append(_table(["Condition", "n", "Acc %", "E-rate %", *QA_TYPES, "failed"], rows))
+        if eam.get("views"):
+            parts += ["", "## EAM-QA: evaluation views (pooled accuracy %, macro in parentheses)", ""]
+            views = eam["views"]
+            names = [v for v in ("full", "memora_committed", "parametric_missed_memora_committed") if v in views]
+            rows = []
+            for c in eam["conditions"]:
+                rows.append([_label(c)] + [
+                    f"{_pct(views[v]['conditions'][c]['pooled'])} ({_pct(views[v]['conditions'][c]['macro'])})"
+                    for v in names])
+            rows.append(["n (items)"] + [str(views[v]["conditions"][MEMORA]["n"]) for v in names])
+            rows.append(["MEMORA - best baseline (pp)"] + [
+                f"{views[v]['delta_pp']:+.1f} vs {_label(views[v]['best_baseline'])}" if views[v]["delta_pp"] is not None
+                else "-" for v in names])
+            parts.append(_table(["Condition", *names], rows))
+            if views.get("commit_rate") is not None:
+                parts.append(f"\nMEMORA commit rate P(A-D | parametric wrong): {_pct(views['commit_rate'])}%.")
+        for view, label in (("parametric_missed_memora_committed", "headline view"), ("full", "full benchmark")):
+            vals = (eam.get("per_type_views") or {}).get(view)
+            if vals:
+                parts += ["", f"## EAM-QA per type, {label} (accuracy %)", ""]
+                parts.append(_table(["Condition", *QA_TYPES],
+                                    [[_label(c), *[_pct(vals[c][t]) for t in QA_TYPES]] for c in vals]))
+                vs = (eam.get("memora_vs_best_baseline") or {}).get(view)
+                if vs:
+                    parts.append("\n" + _table(["", *QA_TYPES], [
+                        ["MEMORA - best baseline (pp)", *[f"{vs[t]['delta_pp']:+.1f} ({_label(vs[t]['best_baseline'])})"
+                                                          if vs[t]["delta_pp"] is not None else "-" for t in QA_TYPES]],
+                        ["Consolidation lift (pp)", *[
+                            f"{(eam.get('consolidation_lift_pp') or {}).get(view, {}).get(t):+.1f}"
+                            if (eam.get('consolidation_lift_pp') or {}).get(view, {}).get(t) is not None else "-"
+                            for t in QA_TYPES]]]))
+    if rep.get("planning"):
+        for split in ("replay", "generalize"):
+            rows = []
+            for c, p in rep["planning"].items():
+                if split in p:
+                    s = p[split]
+                    rows.append([p["label"], s["n_plans_scored"], s["n_empty_plans"], *[_num(s.get(a)) for a in PANEL]])
+            if rows:
+                parts += ["", f"## Planning: {split.capitalize()}", ""]
+                parts.append(_table(["Condition", "plans", "empty", *[PANEL_LABELS[a] for a in PANEL]], rows))
+                vs = rep.get("planning_vs_best_baseline", {}).get(split) or {}
+                if vs.get("delta") is not None:
+                    parts.append(f"\nMEMORA RGP {vs['memora_rgp']:.3f} vs best baseline {_label(vs['best_baseline'])} "
+                                 f"{vs['best_baseline_rgp']:.3f}: {vs['delta']:+.3f}.")
+    if rep.get("tool_calls"):
+        names = sorted({n for v in rep["tool_calls"].values() for n in v if not n.startswith("_")})
+        parts += ["", "## Tool calls per condition", ""]
+        parts.append(_table(["Condition", *names, "repeated"],
+                            [[_label(c), *[v.get(n, 0) for n in names], v.get("_duplicate", 0)]
+                             for c, v in rep["tool_calls"].items()]))
+    if rep.get("latency_s"):
+        parts += ["", "## Latency per item (mean seconds)", ""]
+        parts.append(_table(["Condition", "items", "model", "tools", "other", "total"],
+                            [[_label(c), v.get("items", 0), _num(v.get("model_s")), _num(v.get("tools_s")),
+                              _num(v.get("other_s")), _num(v.get("total_s"))] for c, v in rep["latency_s"].items()]))
+    parts.append("")
+    return "\n".join(parts)
+
+
+def render_html(markdown: str) -> str:
+    """A dependency-free rendering of the report's markdown (headings, paragraphs, tables)."""
+    body, table = [], []
+
+    def flush():
+        if table:
+            rows = [r for r in table if not set(r.replace("|", "").strip()) <= {"-"}]
+            cells = [[html.escape(c.strip()) for c in r.strip().strip("|").split("|")] for r in rows]
+            head = "".join(f"<th>{c}</th>" for c in cells[0])
+            rest = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in cells[1:])
+            body.append(f"<table><thead><tr>{head}</tr></thead><tbody>{rest}</tbody></table>")
+            table.clear()
+
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            table.append(line)
+            continue
+        flush()
+        if line.startswith("## "):
+            body.append(f"<h2>{html.escape(line[3:])}</h2>")
+        elif line.startswith("# "):
+            body.append(f"<h1>{html.escape(line[2:])}</h1>")
+        elif line.strip():
+            body.append(f"<p>{html.escape(line.lstrip('> '))}</p>")
+    flush()
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;margin:1em 0}"
+             "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td:first-child,th:first-child{text-align:left}")
+    return f"<!doctype html><html><head><meta charset='utf-8'><style>{style}</style></head><body>{''.join(body)}</body></html>"
+
+
+def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    paths = []
+    for split in ("replay", "generalize"):
+        rows = [(p["label"], p[split]["rgp"]) for p in rep.get("planning", {}).values()
+                if split in p and p[split]["rgp"] is not None]
+        if rows:
+            fig, ax = plt.subplots(figsize=(7, 3))
+            ax.bar([r[0] for r in rows], [r[1] for r in rows])
+            ax.set_ylabel("RGP")
+            ax.set_title(f"RGP, {split}")
+            ax.tick_params(axis="x", rotation=30)
+            fig.tight_layout()
+            path = out / f"rgp_{split}.png"
+            fig.savefig(path)
+            plt.close(fig)
+            paths.append(path)
+    return paths
+
+
+def write_report(run: str | Path) -> dict[str, Path]:
+    run = Path(run)
+    if not (run / "records").is_dir():
+        raise MemoraError(f"{run}: not a run directory (no records/); create one with `memora bench run`")
+    rep = build_report(run)
+    write_results_table(run)
+    md = render_markdown(rep)
+    paths = {"json": run / "report.json", "markdown": run / "report.md", "html": run / "report.html"}
+    paths["json"].write_text(json.dumps(rep, indent=2, default=str))
+    paths["markdown"].write_text(md)
+    paths["html"].write_text(render_html(md))
+    for i, p in enumerate(_figures(rep, run)):
+        paths[f"figure{i}"] = p
+    return paths

@@ -1,0 +1,349 @@
+"""The runner: conditions x tasks, one agent episode per item, one JSON line per item.
+
+    run_bench(bank, out, conditions="all", participants=["P01"], backend="offline")
+
+Layout of a run directory:
+    manifest.json                 code version, backend, model, options, seeds, task-set hash, banks
+    records/eam_qa/<condition>.jsonl
+    records/planning/<condition>.jsonl   (Replay and Generalize; `split` says which)
+    scoring_memory/<PID>.json     the MEMORA-full routines, preferences and object names the
+                                  planning metrics read (the paper scores every condition against it)
+    results.parquet               one row per item (the latest record of each), written at the end
+    model_calls.jsonl             one line per model call (model backends only)
+
+Resumable: an item with an `ok` record is not run again; a failed one is retried (the loader keeps
+the last record of each item). One failing item is recorded as failed and never stops the run.
+Under the offline backend the run is deterministic.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+import polars as pl
+
+from memora_graph.agent.loop import ModelPolicy, run_agent
+from memora_graph.agent.prompts import PROMPT_VERSION
+from memora_graph.bank import Bank
+from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
+from memora_graph.bench.metrics import extract_plan, parse_answer_letter, score_plan
+from memora_graph.bench.tasks import BenchSuite, load_suite
+from memora_graph.errors import MemoraError
+
+RUN_FORMAT = 1
+KINDS = ("eam_qa", "replay", "generalize")
+DEFAULT_TEMPERATURE = 0.6
+
+
+@dataclass
+class RunSummary:
+    out: Path
+    done: int = 0
+    skipped: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+    per_condition_seconds: dict[str, float] = field(default_factory=dict)
+
+
+# -- run directory ------------------------------------------------------------------------------
+
+
+def record_path(out: Path, kind: str, condition: str) -> Path:
+    return out / "records" / ("eam_qa" if kind == "eam_qa" else "planning") / f"{condition}.jsonl"
+
+
+def read_records(path: Path) -> dict[str, dict]:
+    """item id -> the last record written for it (a retried item replaces its failed record)."""
+    out: dict[str, dict] = {}
+    if not path.exists():
+        return out
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # a line cut by a killed run; the item runs again
+        out[rec["item_id"]] = rec
+    return out
+
+
+def load_run(out: str | Path) -> dict[str, dict[str, list[dict]]]:
+    """{"eam_qa"|"planning": {condition: [records]}} of a run directory."""
+    out = Path(out)
+    result: dict[str, dict[str, list[dict]]] = {"eam_qa": {}, "planning": {}}
+    for kind in result:
+        folder = out / "records" / kind
+        for path in sorted(folder.glob("*.jsonl")) if folder.is_dir() else []:
+            result[kind][path.stem] = list(read_records(path).values())
+    return result
+
+
+def _code_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        pkg = version("memora-graph")
+    except Exception:
+        pkg = "unknown"
+    try:
+        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parent).stdout.strip()
+    except Exception:
+        sha = ""
+    return f"{pkg}+{sha}" if sha else pkg
+
+
+def task_set_hash(suite: BenchSuite) -> str:
+    h = hashlib.sha256()
+    for pid, entry in suite.participants.items():
+        h.update(pid.encode())
+        for q in (entry.eam_qa.questions if entry.eam_qa else []):
+            h.update(q.model_dump_json().encode())
+        for t in [*(entry.replay or []), *(entry.generalize or [])]:
+            h.update(t.model_dump_json().encode())
+    return h.hexdigest()[:16]
+
+
+def scoring_memory(bank: Path, participant: str) -> dict[str, Any]:
+    """What the planning metrics read from the participant's MEMORA bank (routines, preferences,
+    object names); stored in the run so the report needs only the run directory."""
+    with Bank(bank).open(participant) as store:
+        routines = store.rows("baseline_routines", participant=participant)
+        prefs = store.rows("baseline_preferences", participant=participant)
+        objects = store.rows("baseline_entities", participant=participant)
+    return {
+        "routines": [{"goal": r["goal"], "canonical_steps": [{"action": s} for s in r["canonical_steps"] or []],
+                      "key_objects": [{"object": o} for o in r["key_objects"] or []]} for r in routines],
+        "preferences": [{"preference": p["statement"], "keywords": list(p["keywords"] or [])} for p in prefs],
+        "object_names": sorted({o["name"] for o in objects if o["name"]}),
+        "places": sorted({(o["location"] or "").replace("_", " ") for o in objects if o["location"]}),
+    }
+
+
+# -- structured plan steps ------------------------------------------------------------------------
+
+
+def structure_steps(steps: list[str], memory: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """(action, entity, location) per plan step; entity and location are drawn from the
+    participant's memory (object names, places) when the condition has memory."""
+    from memora_graph.bench.metrics import LOCATION_NOUNS, extract_action_verb
+
+    names = sorted(memory["object_names"], key=len, reverse=True) if memory else []
+    places = sorted(memory["places"], key=len, reverse=True) if memory else []
+    out = []
+    for s in steps:
+        low = s.lower()
+        entity = next((n for n in names if n.lower() in low), None)
+        location = next((p for p in places if p and p.lower() in low), None)
+        if location is None:
+            location = next((p for p in sorted(LOCATION_NOUNS, key=len, reverse=True) if f" {p}" in f" {low}"), None)
+        out.append({"text": s, "action": extract_action_verb(s), "entity": entity, "location": location,
+                    "from_memory": bool(memory) and entity is not None})
+    return out
+
+
+# -- one item ---------------------------------------------------------------------------------------
+
+
+def _run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any, memory: dict | None,
+              participant: str) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    base: dict[str, Any] = {"condition": condition.name, "participant": participant, "kind": kind,
+                            "status": "ok", "error": None}
+    if kind == "eam_qa":
+        view = item.answering_view()
+        base.update(item_id=item.question_id, question_id=item.question_id, qa_type=item.qa_type,
+                    is_unanswerable=item.is_unanswerable, correct_answer=item.correct_answer)
+    else:
+        view = {"task_id": item.task_id, "participant_id": item.participant_id, "task_query": item.task_query}
+        base.update(item_id=item.task_id, task_id=item.task_id, split=kind, task_type=item.task_type,
+                    task_query=item.task_query)
+    try:
+        toolset = condition.open_tools(banks, participant) if condition.open_tools else None
+        res = run_agent(policy, toolset, "eam_qa" if kind == "eam_qa" else "planning", view, condition.family)
+        base.update(final_text=res.final_text, iterations=res.iterations, forced=res.forced, retried=res.retried,
+                    tool_calls=res.tool_calls, n_tool_calls=len(res.tool_calls),
+                    time={"model_s": round(res.model_s, 4), "tools_s": round(res.tools_s, 4),
+                          "other_s": round(res.other_s + 0.0, 4), "total_s": 0.0})
+        if kind == "eam_qa":
+            base["predicted"] = parse_answer_letter(res.final_text, view["choices"])
+            base["is_correct"] = base["predicted"] == item.correct_answer
+        else:
+            steps = extract_plan(res.final_text)
+            base["plan_text"] = "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1))
+            base["generated_plan"] = steps
+            base["structured_steps"] = structure_steps(steps, memory if condition.bank != "none" else None)
+            base["scores"] = score_plan(steps, item.model_dump(), memory["routines"], memory["preferences"],
+                                        memory["object_names"])
+    except Exception as exc:  # recorded, never fatal
+        base.update(status="failed", error=f"{type(exc).__name__}: {exc}")
+        if kind == "eam_qa":
+            base.update(predicted="", is_correct=False)
+        else:
+            base.update(generated_plan=[], plan_text="",
+                        scores=score_plan([], item.model_dump(), memory["routines"], memory["preferences"],
+                                          memory["object_names"]) if memory else {"empty": True})
+    total = time.perf_counter() - t0
+    t = base.setdefault("time", {"model_s": 0.0, "tools_s": 0.0, "other_s": 0.0})
+    t["total_s"] = round(total, 4)
+    t["other_s"] = round(max(0.0, total - t["model_s"] - t["tools_s"]), 4)
+    return base
+
+
+# -- the run ----------------------------------------------------------------------------------------
+
+
+def make_policy(backend: str, options: dict[str, Any], out: Path):
+    if backend == "offline":
+        from memora_graph.agent.offline import OfflinePolicy
+
+        return OfflinePolicy()
+    from memora_graph.llm import CallLog, get_backend
+
+    opts = dict(options)
+    opts.setdefault("temperature", DEFAULT_TEMPERATURE)
+    return ModelPolicy(get_backend(backend, call_log=CallLog(out / "model_calls.jsonl"), **opts))
+
+
+def run_bench(
+    bank: str | Path,
+    out: str | Path,
+    *,
+    conditions: str | list[str] | None = "all",
+    participants: list[str] | None = None,
+    tasks: str | Path | None = None,
+    raw_bank: str | Path | None = None,
+    backend: str = "offline",
+    backend_options: dict[str, Any] | None = None,
+    kinds: tuple[str, ...] = KINDS,
+    limit: int | None = None,
+    on_item: Callable[[dict[str, Any]], None] | None = None,
+    on_plan: Callable[[int], None] | None = None,
+) -> RunSummary:
+    """Run every (condition, item) not yet recorded in `out`. `limit` caps items per participant
+    and task kind (for smoke runs)."""
+    t_start = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    bank = Path(bank)
+    conds = resolve_conditions(conditions)
+    suite = load_suite(tasks, participants)
+    known = set(Bank(bank).participants())
+    missing = sorted(set(suite.participants) - known)
+    if missing:
+        raise MemoraError(f"{bank}: no memory for participant(s) {', '.join(missing)}; build them first "
+                          f"(`memora build {bank} --participants {','.join(missing)}`) or pass --participants")
+    if any(c.bank == "raw" for c in conds) and raw_bank is None:
+        raise MemoraError("the raw conditions (flat_1d_raw, graph_2d_raw) need --raw-bank DIR, a bank built with "
+                          "`memora build DIR --mode raw`; or leave them out with --conditions")
+    banks = BankSet(edited=bank, raw=Path(raw_bank) if raw_bank else None)
+    policy = make_policy(backend, backend_options or {}, out)
+    _write_manifest(out, bank, raw_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit)
+    plan: list[tuple[str, str, Any]] = []
+    for pid, entry in suite.participants.items():
+        items = {"eam_qa": entry.eam_qa.questions if entry.eam_qa else [], "replay": entry.replay or [],
+                 "generalize": entry.generalize or []}
+        for kind in kinds:
+            for it in items[kind][:limit] if limit else items[kind]:
+                plan.append((pid, kind, it))
+    summary = RunSummary(out)
+    if on_plan:
+        on_plan(len(plan) * len(conds))
+    for pid in suite.participants:
+        memory = scoring_memory(bank, pid)
+        (out / "scoring_memory").mkdir(exist_ok=True)
+        (out / "scoring_memory" / f"{pid}.json").write_text(json.dumps(memory, indent=1))
+        for cond in conds:
+            t_cond = time.perf_counter()
+            for kind in kinds:
+                path = record_path(out, kind, cond.name)
+                existing = read_records(path)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                with path.open("a", encoding="utf-8") as fh:
+                    for p, k, item in plan:
+                        if p != pid or k != kind:
+                            continue
+                        item_id = item.question_id if kind == "eam_qa" else item.task_id
+                        if existing.get(item_id, {}).get("status") == "ok":
+                            summary.skipped += 1
+                            if on_item:
+                                on_item({"condition": cond.name, "item_id": item_id, "status": "skipped"})
+                            continue
+                        rec = _run_item(policy, cond, banks, kind, item, memory, pid)
+                        fh.write(json.dumps(rec, ensure_ascii=False, default=str) + "\n")
+                        fh.flush()
+                        summary.done += 1
+                        summary.failed += rec["status"] != "ok"
+                        if on_item:
+                            on_item(rec)
+            summary.per_condition_seconds[cond.name] = summary.per_condition_seconds.get(cond.name, 0.0) + (
+                time.perf_counter() - t_cond)
+    write_results_table(out)
+    summary.seconds = time.perf_counter() - t_start
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest.setdefault("sessions", []).append({
+        "finished_at": _now(), "seconds": round(summary.seconds, 2), "done": summary.done,
+        "skipped": summary.skipped, "failed": summary.failed,
+        "per_condition_seconds": {k: round(v, 2) for k, v in summary.per_condition_seconds.items()},
+    })
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    return summary
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _write_manifest(out, bank, raw_bank, conds, suite, tasks, backend, options, policy, kinds, limit) -> None:
+    path = out / "manifest.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    safe_options = {k: ("***" if "key" in k.lower() else v) for k, v in options.items()}
+    digest = task_set_hash(suite)
+    if old and (old.get("task_set_hash") != digest or old.get("backend") != backend):
+        raise MemoraError(f"{out}: holds a run with another task set or backend "
+                          f"({old.get('task_set_hash')}/{old.get('backend')}); use another --out")
+    manifest = {
+        **old,
+        "format": RUN_FORMAT, "code_version": _code_version(), "prompt_version": PROMPT_VERSION,
+        "backend": backend, "model": getattr(getattr(policy, "backend", None), "model", None) or policy.name,
+        "options": safe_options, "seeds": {"offline_policy": "deterministic (no sampling)"},
+        "temperature": None if backend == "offline" else options.get("temperature", DEFAULT_TEMPERATURE),
+        "bank": str(bank), "raw_bank": str(raw_bank) if raw_bank else None,
+        "tasks": str(tasks) if tasks else "bundled calibration cohort", "task_set_hash": digest,
+        "participants": sorted(suite.participants), "kinds": list(kinds), "limit": limit,
+        "conditions": sorted(set(old.get("conditions", [])) | {c.name for c in conds}),
+        "started_at": old.get("started_at") or _now(),
+    }
+    path.write_text(json.dumps(manifest, indent=2))
+
+
+RESULT_COLUMNS = ("kind", "condition", "participant", "item_id", "status", "qa_type", "split", "task_type",
+                  "correct_answer", "predicted", "is_correct", "n_tool_calls", "iterations", "forced")
+
+
+def write_results_table(out: str | Path) -> Path:
+    """results.parquet: one row per item (its latest record), scores flattened for planning."""
+    out = Path(out)
+    rows = []
+    for kind, per_cond in load_run(out).items():
+        for recs in per_cond.values():
+            for r in recs:
+                row = {c: r.get(c) for c in RESULT_COLUMNS}
+                row["kind"] = r.get("kind", kind)
+                for k, v in (r.get("time") or {}).items():
+                    row[k] = v
+                for k, v in (r.get("scores") or {}).items():
+                    if k not in ("task_id", "metric_source"):
+                        row[f"score_{k}"] = v
+                rows.append(row)
+    path = out / "results.parquet"
+    pl.DataFrame(rows, infer_schema_length=None).write_parquet(path) if rows else None
+    return path

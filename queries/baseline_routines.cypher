@@ -1,0 +1,9 @@
+// description: The consolidated routines of a participant with their supporting segments (Graph-2D pattern nodes, planning metrics).
+// params: participant
+// example: memora run BANK baseline_routines -p participant P01
+MATCH (r:Routine)
+WHERE r.participant = $participant
+OPTIONAL MATCH (r)-[:SUPPORTED_BY]->(s:Segment)
+RETURN r.id AS id, r.goal AS goal, r.activity_type AS activity_type, r.canonical_steps AS canonical_steps,
+       r.key_objects AS key_objects, r.count AS count, r.confidence AS confidence, collect(s.id) AS segments
+ORDER BY id
