@@ -14,4 +14,4 @@ RETURN video, turn, segment, calls, failed, CAST(tokens_in AS INT64) AS tokens_i
        CAST(tokens_out AS INT64) AS tokens_out, round(latency_s, 3) AS latency_s,
        round(perception_s, 3) AS perception_s, round(editor_s, 3) AS editor_s,
        CAST(retries AS INT64) AS retries, CAST(repairs AS INT64) AS repairs
-ORDER BY video, turn
+ORDER BY segment

@@ -5,4 +5,4 @@ MATCH (c:ModelCall)
 WHERE c.participant = $participant AND NOT c.ok
 RETURN c.video AS video, c.turn AS turn, c.segment AS segment, c.role AS role, c.model AS model,
        c.retries AS retries, c.repairs AS repairs, c.error AS error
-ORDER BY video, turn, role
+ORDER BY segment, role

@@ -293,12 +293,14 @@ def _clean_changes(changes: dict[str, Any]) -> dict[str, str]:
 
 
 def _fields(o: ObjectObservation) -> dict[str, str]:
-    return {"state": o.state, "location": o.location, "held_by": o.held_by or ""}
+    """What an earlier stop of a trajectory may change: where the object is and who holds it
+    (its state is the model's decision at the last stop)."""
+    return {"location": o.location, "held_by": o.held_by or ""}
 
 
 def _snapshot(registry: list[EntityState], entity_id: str) -> dict[str, str]:
     e = next((e for e in registry if e.id == entity_id), None)
-    return {"state": e.state, "location": e.location, "held_by": e.held_by} if e else {}
+    return {"location": e.location, "held_by": e.held_by} if e else {}
 
 
 def _follow_on(entity_id: str, prev: dict[str, str], obs: ObjectObservation) -> EditOp:

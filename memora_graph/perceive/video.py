@@ -25,6 +25,7 @@ from memora_graph.errors import DataError
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv", ".webm", ".avi", ".mpg", ".mpeg", ".ts", ".mts")
 _VIDEO_ID = re.compile(r"[^A-Za-z0-9_.-]+")
+MIN_TAIL_S = 1.0  # containers often run a frame past a round length (20.02 s): no 0.02 s turn
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,8 @@ class VideoInfo:
     has_audio: bool
 
     def n_segments(self, segment_seconds: float = 10.0) -> int:
-        return max(1, math.ceil(self.duration / segment_seconds - 1e-9))
+        """Clips of the video; a final remainder under MIN_TAIL_S is not a turn of its own."""
+        return max(1, math.ceil((self.duration - MIN_TAIL_S) / segment_seconds - 1e-9))
 
 
 def _av():
@@ -112,8 +114,10 @@ def list_videos(path: str | Path) -> list[Path]:
     return [p]
 
 
-def probe_video(path: str | Path, video_id: str | None = None) -> VideoInfo:
-    """Open the file and decode its first frame; a DataError names the file if that fails."""
+def probe_video(path: str | Path, video_id: str | None = None, scan: bool = True) -> VideoInfo:
+    """Open the file, decode its first frame and (with `scan`) read every packet header to make
+    sure the stream reaches the duration the container claims (a truncated download does not).
+    A DataError names the file if any of that fails."""
     av = _av()
     path = Path(path)
     if path.is_file() and path.stat().st_size == 0:
@@ -129,6 +133,8 @@ def probe_video(path: str | Path, video_id: str | None = None) -> VideoInfo:
             duration = _duration(container, stream)
             if duration <= 0:
                 raise DataError(f"{path}: cannot tell the video's duration (damaged container?)")
+            if scan:
+                _check_complete(container, stream, duration, path)
             rate = stream.average_rate or stream.guessed_rate
             return VideoInfo(
                 path=path, video_id=video_id or video_id_for(path), duration=duration,
@@ -139,6 +145,20 @@ def probe_video(path: str | Path, video_id: str | None = None) -> VideoInfo:
         raise
     except (av.FFmpegError, OSError, StopIteration, ValueError) as exc:
         raise DataError(f"{path}: not a readable video ({_reason(exc)})") from None
+
+
+def _check_complete(container, stream, duration: float, path: Path) -> None:
+    """Demux (no decoding: fast) to the end; the last packet must be near the claimed end."""
+    container.seek(0)
+    tb = float(stream.time_base)
+    start = float(stream.start_time * stream.time_base) if stream.start_time is not None else 0.0
+    last = 0.0
+    for packet in container.demux(stream):
+        if packet.pts is not None:
+            last = max(last, packet.pts * tb - start)
+    if last < duration - max(1.0, 0.02 * duration):
+        raise DataError(f"{path}: the video stream ends at {last:.1f} s but the file says it lasts {duration:.1f} s "
+                        f"(truncated or damaged)")
 
 
 def _duration(container, stream) -> float:
@@ -282,6 +302,9 @@ def segment_video(path: str | Path, options: DecodeOptions | None = None, video_
         except av.FFmpegError as exc:
             raise DataError(f"{info.path}: decoding failed at {reached:.1f} s ({_reason(exc)}); the file is damaged") from None
         while emitted < n_seg:
+            if not frames[emitted]:
+                raise DataError(f"{info.path}: no video frames after {reached:.1f} s although the file says it lasts "
+                                f"{info.duration:.1f} s (truncated or damaged)")
             yield clip(emitted)
             emitted += 1
 

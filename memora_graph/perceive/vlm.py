@@ -281,7 +281,7 @@ def to_segment(reply: PerceptionReply, clip: VideoClip, participant: str, workin
             last = k == len(stops) - 1
             moved = f"moved from {stops[k - 1]} to {loc}" if k else f"at {loc}"
             objects.append(ObjectObservation(
-                **base, location=loc, state=state, held_by=held if last else None,
+                **base, location=loc, state=state if last else "observed", held_by=held if last else None,
                 t_rel=clamp(t0 + span * k / len(stops)), action=(action or "move") if last else ("move" if k else ""),
                 narration=narration if last and step else moved,
             ))
