@@ -41,6 +41,8 @@ E_MARGIN = 0.01
 LEXICAL_WEIGHT = 0.3
 ROUTINE_ADOPT = 0.5
 MAX_STEPS = 12
+EVIDENCE_PER_CALL = 6  # the best results of each call are read
+EVIDENCE_CHARS = 240
 _VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
 _TEXT_KEYS = ("text", "summary", "description", "statement", "preference", "goal", "narrative", "detailed_narrative",
               "name", "label", "action", "content")
@@ -80,7 +82,7 @@ def evidence_items(result: Any, kind: str = "") -> list[dict[str, Any]]:
             if isinstance(steps, list):
                 extra.append("; ".join(s.get("action", "") if isinstance(s, dict) else str(s) for s in steps))
             video = next((str(result[k]) for k in _VIDEO_KEYS if result.get(k)), "")
-            out.append({"text": " | ".join(texts + extra)[:400], "video": video, "kind": kind, "raw": result})
+            out.append({"text": " | ".join(texts + extra)[:EVIDENCE_CHARS], "video": video, "kind": kind, "raw": result})
         for k, v in result.items():
             if isinstance(v, (list, dict)) and k not in ("canonical_steps", "steps", "key_objects", "_context"):
                 out.extend(evidence_items(v, k))
@@ -123,7 +125,7 @@ class OfflinePolicy:
             c = self.embedder.encode(choices, kind="query")
             best = int(np.argmax(c @ q))
             return "ABCD"[best], "Closed-book prior: no memory available."
-        items = [it for call in calls for it in evidence_items(call["result"])]
+        items = [it for call in calls for it in evidence_items(call["result"])[:EVIDENCE_PER_CALL]]
         videos = set(_VIDEO.findall(stem))
         if videos and any(it["video"] in videos for it in items):
             items = [it for it in items if it["video"] in videos]
