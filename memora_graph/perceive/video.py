@@ -238,7 +238,7 @@ def segment_video(path: str | Path, options: DecodeOptions | None = None, video_
         raise DataError(f"{info.path}: not a readable video ({_reason(exc)})") from None
     with container:
         vstream = container.streams.video[0]
-        vstream.thread_type = "SLICE"
+        vstream.thread_type = "AUTO"  # frame threads: both cores decode
         if opts.skip_nonref:
             # Frames nothing else references (most B-frames) are never needed to decode others;
             # at 2 fps sampling the next decoded frame is a few ms away, and its time is recorded.
