@@ -171,7 +171,8 @@ class ParticipantBuilder:
         not written at all (no half-written segment); the model calls of the video, failed ones
         included, are staged with it. Returns the timings and the turn ids that were dropped."""
         t = Timings()
-        dropped = self._edit_and_stage(video_id, segments, duration, 0, t, n_turns=n_turns)
+        n_actions = sum(len(s.activity.action_breakdown) for s in segments)  # the perceived actions
+        dropped = self._edit_and_stage(video_id, segments, duration, n_actions, t, n_turns=n_turns)
         return t, dropped
 
     def _edit_and_stage(self, video_id: str, segments: list[LayeredSegment], duration: float, n_actions: int,
