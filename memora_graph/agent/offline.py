@@ -44,8 +44,6 @@ MAX_STEPS = 12
 EVIDENCE_PER_CALL = 6  # the best results of each call are read
 EVIDENCE_CHARS = 240
 _VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
-_TEXT_KEYS = ("text", "summary", "description", "statement", "preference", "goal", "narrative", "detailed_narrative",
-              "name", "label", "action", "content")
 _VIDEO_KEYS = ("video", "video_id", "source_video")
 _KITCHEN = frozenset(KITCHEN_NOUNS)
 
@@ -65,26 +63,48 @@ def _stem(question: str) -> str:
     return question.split("\n\nIMPORTANT:")[0].strip()
 
 
+_PRIMARY = ("summary", "text", "description", "statement", "preference", "goal")
+_NOT_EVIDENCE = frozenset({"used_with", "places", "score", "time_seen_seconds", "arguments", "routing", "evidence",
+                           "action_breakdown", "supporting_episodes", "_context", "canonical_steps", "steps",
+                           "key_objects", "time", "visual_properties", "spatial_info", "state"})
+
+
+def _field(value: Any, *keys: str) -> str:
+    if isinstance(value, dict):
+        return next((str(value[k]) for k in keys if value.get(k)), "")
+    return str(value or "")
+
+
+def _item_text(d: dict[str, Any]) -> str:
+    """The one text a reader takes from a record: its summary / text / description / statement /
+    goal, or for an object record "name: state at place"; routine steps are appended."""
+    text = next((d[k] for k in _PRIMARY if isinstance(d.get(k), str) and d[k]), "")
+    if not text and (d.get("name") or d.get("label")):
+        state = _field(d.get("state"), "current_state") or str(d.get("current_state") or "")
+        place = (_field(d.get("spatial_info"), "place", "location") or str(d.get("location") or "")
+                 or str(d.get("current_location") or ""))
+        text = str(d.get("label") or d.get("name")) + (f": {state}" if state else "") + (f" at {place}" if place else "")
+    steps = d.get("canonical_steps") or d.get("steps")
+    if text and isinstance(steps, list):
+        text += ": " + "; ".join(_field(x, "action") if isinstance(x, dict) else str(x) for x in steps)
+    return re.sub(r"^\[[^\]]*\]\s*", "", text).replace("_", " ")[:EVIDENCE_CHARS]
+
+
 def evidence_items(result: Any, kind: str = "") -> list[dict[str, Any]]:
-    """Flatten any tool result into evidence items {text, video, kind, raw}: every dict that carries
-    a text-like field becomes one item (text = its string fields joined, at most 400 characters)."""
+    """Flatten any tool result into evidence items {text, video, kind, raw}: every record (a dict
+    with a text-like field or an object name) becomes one item; bookkeeping fields are skipped."""
     out: list[dict[str, Any]] = []
     if isinstance(result, list):
         for x in result:
             out.extend(evidence_items(x, kind))
     elif isinstance(result, dict):
-        texts = [str(result[k]) for k in _TEXT_KEYS if isinstance(result.get(k), str) and result.get(k)]
-        if texts and not any(isinstance(result.get(k), list) and result.get(k) and isinstance(result[k][0], dict)
-                             for k in ("results", "objects", "activities", "history")):
-            extra = [f"{k}: {v}" for k, v in result.items()
-                     if isinstance(v, str) and k not in _TEXT_KEYS and k not in ("id", "query") and v and len(v) < 80]
-            steps = result.get("canonical_steps") or result.get("steps")
-            if isinstance(steps, list):
-                extra.append("; ".join(s.get("action", "") if isinstance(s, dict) else str(s) for s in steps))
-            video = next((str(result[k]) for k in _VIDEO_KEYS if result.get(k)), "")
-            out.append({"text": " | ".join(texts + extra)[:EVIDENCE_CHARS], "video": video, "kind": kind, "raw": result})
+        if kind:  # the top level of a tool result is an envelope, not a record
+            text = _item_text(result)
+            if text:
+                video = next((str(result[k]) for k in _VIDEO_KEYS if result.get(k)), "")
+                out.append({"text": text, "video": video, "kind": kind, "raw": result})
         for k, v in result.items():
-            if isinstance(v, (list, dict)) and k not in ("canonical_steps", "steps", "key_objects", "_context"):
+            if isinstance(v, (list, dict)) and k not in _NOT_EVIDENCE:
                 out.extend(evidence_items(v, k))
     return out
 
@@ -166,15 +186,20 @@ class OfflinePolicy:
                 return PolicyReply(tool_calls=first)
             if state.iteration == 1:
                 nouns = self._nouns_to_ground(query, state.calls)
-                if nouns:
+                routine, sim = self._routine(state.calls)
+                extra = []
+                if "get_routine_skill" in names and sim < ROUTINE_ADOPT and "search_activities" in names:
+                    extra = [_call("search_activities", query=query)]  # no usable routine: episodes once
+                    nouns = nouns[:2]
+                if nouns or extra:
                     if "search_objects" in names:
                         calls = [_call("search_objects", query=n) for n in nouns]
                     elif "get_object_history" in names:
                         calls = [_call("get_object_history", object_query=n) for n in nouns]
                     else:
                         calls = [_call("search", query=n) for n in nouns if n != query]
-                    if calls:
-                        return PolicyReply(tool_calls=calls)
+                    if calls or extra:
+                        return PolicyReply(tool_calls=(extra + calls)[:3])
         steps = self.compose_plan(state.view["task_query"], state.calls)
         return PolicyReply(content="Plan:\n" + "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1)))
 
@@ -260,7 +285,8 @@ class OfflinePolicy:
             raw = it["raw"]
             text = str(raw.get("summary") or raw.get("text") or "")
             text = re.sub(r"^\[[^\]]*\]\s*", "", text)
-            place = str(raw.get("place") or raw.get("location") or "").replace("_", " ")
+            place = str(raw.get("place") or raw.get("location") or raw.get("environment") or "").replace("_", " ")
+            place = re.sub(r"\s*\(.*$", "", place)
             for part in re.split(r"[;.]\s*", text):
                 if part.strip():
                     steps.append((part.strip(), place))

@@ -135,6 +135,8 @@ def _backend_options(base_url, model, api_key, temperature, timeout_s, options) 
               help="MEMORA-Bench release folder (default: the bundled calibration cohort P01-P04).")
 @click.option("--raw-bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A bank built with `memora build DIR --mode raw` (needed by flat_1d_raw and graph_2d_raw).")
+@click.option("--episodic-bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="A bank built with `memora build DIR --episodic` (needed by memora_episodic).")
 @click.option("--kinds", default="eam_qa,replay,generalize", show_default=True, help="Task kinds to run.")
 @click.option("--backend", default="offline", show_default=True,
               help="Answer backend: offline (deterministic policy, not an LLM), openai, vllm.")
@@ -147,7 +149,7 @@ def _backend_options(base_url, model, api_key, temperature, timeout_s, options) 
               help="Any other backend option (JSON if it parses). Repeatable.")
 @click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def run_cmd(bank, out, conditions, participants, tasks, raw_bank, kinds, backend, base_url, model, api_key,
+def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
             temperature, timeout_s, options, limit, quiet):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
 
@@ -155,7 +157,8 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, kinds, backend
     Examples:
       memora build banks/cal --participants P01,P02,P03,P04
       memora build banks/cal-raw --mode raw --participants P01,P02,P03,P04
-      memora bench run banks/cal --raw-bank banks/cal-raw --out runs/offline
+      memora build banks/cal-episodic --episodic --participants P01,P02,P03,P04
+      memora bench run banks/cal --raw-bank banks/cal-raw --episodic-bank banks/cal-episodic --out runs/offline
       memora bench run banks/cal --raw-bank banks/cal-raw --out runs/qwen --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
       memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
@@ -178,7 +181,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, kinds, backend
     try:
         with progress:
             summary = run_bench(bank, out, conditions=conditions, participants=_participants(participants),
-                                tasks=tasks, raw_bank=raw_bank, backend=backend, backend_options=opts,
+                                tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
                                 on_item=on_item, on_plan=on_plan)
     except MemoraError as exc:

@@ -35,7 +35,7 @@ class Condition:
     name: str
     label: str
     family: str  # prompt family (memora_graph.agent.prompts.FAMILIES)
-    bank: str  # which bank the representation is built from: none | raw | edited
+    bank: str  # which bank the representation is built from: none | raw | edited | episodic
     tools: tuple[str, ...]
     open_tools: Callable[[BankSet, str], Any] | None  # (banks, participant) -> ToolSet; None for Parametric
     aliases: tuple[str, ...] = ()
@@ -49,9 +49,15 @@ class BankSet:
 
     edited: Path
     raw: Path | None = None
+    episodic: Path | None = None
     _memories: dict[tuple[str, str], Any] = field(default_factory=dict)
 
     def path(self, kind: str) -> Path:
+        if kind == "episodic":
+            if self.episodic is None:
+                raise ConditionError("memora_episodic needs --episodic-bank DIR, a bank built with "
+                                     "`memora build DIR --episodic` (no consolidated routines or preferences)")
+            return Path(self.episodic)
         if kind == "raw":
             if self.raw is None:
                 raise ConditionError("this condition needs a raw bank: pass --raw-bank DIR "
@@ -215,7 +221,7 @@ register(Condition("graph_2d_raw", "Graph-2D (raw)", "graph2d", "raw",
 register(Condition("graph_2d_edited", "Graph-2D (processed)", "graph2d", "edited",
                    ("search", "get_object_history", "get_state_at_time"), _open_graph("edited"),
                    aliases=("graph_2d_processed",), description="The graph rebuilt after online editing."))
-register(Condition("memora_episodic", "MEMORA-Episodic", "memora_episodic", "edited", MEMORA_EPISODIC_TOOLS,
+register(Condition("memora_episodic", "MEMORA-Episodic", "memora_episodic", "episodic", MEMORA_EPISODIC_TOOLS,
                    _open_memora(MEMORA_EPISODIC_TOOLS, episodic=True),
                    description="Typed environment, entity and activity stores; no consolidation."))
 register(Condition("memora_full", "MEMORA", "memora", "edited", MEMORA_FULL_TOOLS,

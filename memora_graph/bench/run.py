@@ -221,6 +221,7 @@ def run_bench(
     participants: list[str] | None = None,
     tasks: str | Path | None = None,
     raw_bank: str | Path | None = None,
+    episodic_bank: str | Path | None = None,
     backend: str = "offline",
     backend_options: dict[str, Any] | None = None,
     kinds: tuple[str, ...] = KINDS,
@@ -244,9 +245,13 @@ def run_bench(
     if any(c.bank == "raw" for c in conds) and raw_bank is None:
         raise MemoraError("the raw conditions (flat_1d_raw, graph_2d_raw) need --raw-bank DIR, a bank built with "
                           "`memora build DIR --mode raw`; or leave them out with --conditions")
-    banks = BankSet(edited=bank, raw=Path(raw_bank) if raw_bank else None)
+    if any(c.bank == "episodic" for c in conds) and episodic_bank is None:
+        raise MemoraError("memora_episodic needs --episodic-bank DIR, a bank built with `memora build DIR --episodic`; "
+                          "or leave it out with --conditions")
+    banks = BankSet(edited=bank, raw=Path(raw_bank) if raw_bank else None,
+                    episodic=Path(episodic_bank) if episodic_bank else None)
     policy = make_policy(backend, backend_options or {}, out)
-    _write_manifest(out, bank, raw_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit)
+    _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit)
     plan: list[tuple[str, str, Any]] = []
     for pid, entry in suite.participants.items():
         items = {"eam_qa": entry.eam_qa.questions if entry.eam_qa else [], "replay": entry.replay or [],
@@ -319,7 +324,7 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _write_manifest(out, bank, raw_bank, conds, suite, tasks, backend, options, policy, kinds, limit) -> None:
+def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, options, policy, kinds, limit) -> None:
     path = out / "manifest.json"
     old = json.loads(path.read_text()) if path.exists() else {}
     safe_options = {k: ("***" if "key" in k.lower() else v) for k, v in options.items()}
@@ -334,6 +339,7 @@ def _write_manifest(out, bank, raw_bank, conds, suite, tasks, backend, options, 
         "options": safe_options, "seeds": {"offline_policy": "deterministic (no sampling)"},
         "temperature": None if backend == "offline" else options.get("temperature", DEFAULT_TEMPERATURE),
         "bank": str(bank), "raw_bank": str(raw_bank) if raw_bank else None,
+        "episodic_bank": str(episodic_bank) if episodic_bank else None,
         "tasks": str(tasks) if tasks else "bundled calibration cohort", "task_set_hash": digest,
         "participants": sorted(suite.participants), "kinds": list(kinds), "limit": limit,
         "conditions": sorted(set(old.get("conditions", [])) | {c.name for c in conds}),

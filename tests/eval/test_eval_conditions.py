@@ -78,3 +78,26 @@ def test_raw_condition_without_a_raw_bank_says_what_to_do(small_bank):
     bank, _ = small_bank
     with pytest.raises(ConditionError, match="--raw-bank"):
         get_condition("flat_1d_raw").open_tools(BankSet(edited=bank), "P37")
+
+
+@pytest.fixture(scope="session")
+def small_episodic_bank(tmp_path_factory, embedder):
+    from memora_graph.pipeline import build_bank
+
+    path = tmp_path_factory.mktemp("episodic") / "epi"
+    build_bank(path, ["P37"], episodic=True)
+    return path
+
+
+def test_memora_conditions_use_the_typed_tools(small_bank, small_episodic_bank):
+    bank, _ = small_bank
+    banks = BankSet(edited=bank, episodic=small_episodic_bank)
+    full = get_condition("memora_full").open_tools(banks, "P37")
+    epi = get_condition("memora_episodic").open_tools(banks, "P37")
+    assert {"get_routine_skill", "get_preferences"} <= {s["function"]["name"] for s in full.schemas()}
+    assert not {"get_routine_skill", "get_preferences"} & {s["function"]["name"] for s in epi.schemas()}
+    out = full.call("search_activities", {"query": "wash the plate", "participant": "P09"})
+    assert "error" not in out
+    assert "P09_" not in str(out)
+    assert "unknown tool" in epi.call("get_routine_skill", {"goal_query": "wash"})["error"]
+    assert "error" in full.call("get_state_at_time", {"time_seconds": "soon"})

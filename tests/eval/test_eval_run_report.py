@@ -57,12 +57,16 @@ def test_run_records_resume_and_determinism(small_bank, small_raw_bank, tiny_tas
 
 def test_a_failing_item_is_recorded_and_the_run_goes_on(small_bank, tiny_tasks, tmp_path):
     bank, _ = small_bank
+    empty = tmp_path / "not-a-bank"
+    empty.mkdir()
     summary = run_bench(bank, tmp_path / "r", conditions="memora_episodic,no_memory", participants=["P37"],
-                        tasks=tiny_tasks, kinds=("eam_qa",))
+                        tasks=tiny_tasks, kinds=("eam_qa",), episodic_bank=empty)
     recs = load_run(tmp_path / "r")["eam_qa"]
     assert len(recs["no_memory"]) == 2 and all(r["status"] == "ok" for r in recs["no_memory"])
-    if summary.failed:  # the MEMORA tools are not in this checkout: recorded as failed, scored as wrong
-        assert all(r["status"] == "failed" and r["predicted"] == "" and r["error"] for r in recs["memora_episodic"])
+    assert summary.failed == 2
+    assert all(r["status"] == "failed" and r["predicted"] == "" and "no memory bank" in r["error"]
+               for r in recs["memora_episodic"])
+    assert build_report(tmp_path / "r")["eam_qa"]["conditions"]["memora_episodic"]["n_failed_items"] == 2
 
 
 def test_report_numbers_equal_hand_computed_metrics(small_bank, small_raw_bank, tiny_tasks, tmp_path):
