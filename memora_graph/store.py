@@ -24,6 +24,8 @@ _MIGRATIONS = (
     "CREATE NODE TABLE IF NOT EXISTS SchemaMigration(id STRING PRIMARY KEY, checksum STRING, applied_at TIMESTAMP)"
 )
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_INDEX_DDL = re.compile(r"CREATE_(?:FTS|VECTOR)_INDEX\(\s*'(\w+)'\s*,\s*'(\w+)'")
+INDEX_DIR = SCHEMA_DIR / "indexes"
 
 
 def translate_error(exc: Exception, path: Path, cypher: str | None = None) -> StoreError:
@@ -68,6 +70,7 @@ class Store:
         except RuntimeError as exc:
             raise translate_error(exc, self.path) from exc
         self._in_tx = False
+        self._prepared: dict[str, object] = {}
 
     # -- lifecycle ---------------------------------------------------------------------
     def close(self) -> None:
@@ -106,6 +109,23 @@ class Store:
 
     def rows(self, name: str, **params) -> list[dict]:
         return self.run(name, **params).to_dicts()
+
+    def fetch(self, name: str, **params) -> list[dict]:
+        """A named read query as a list of dicts, for the hot path (retrieval tools): the
+        statement is prepared once per Store and reused, and no polars frame is built."""
+        q = get_query(name)
+        if q.writes:
+            raise StoreError(f"query '{q.name}' writes; fetch() is for reads")
+        bound = bind(q, params)
+        prepared = self._prepared.get(q.name)
+        try:
+            if prepared is None:
+                prepared = self._prepared[q.name] = kuzu.PreparedStatement(self._conn, q.cypher, bound)
+            result = self._conn.execute(prepared, bound)
+        except RuntimeError as exc:
+            raise translate_error(exc, self.path, q.cypher) from exc
+        columns = result.get_column_names()
+        return [dict(zip(columns, row)) for row in result.get_all()]
 
     # -- writes ------------------------------------------------------------------------
     @contextmanager
@@ -169,6 +189,31 @@ class Store:
                 )
             applied.append(f.name)
         return applied
+
+    def indexes(self) -> dict[str, str]:
+        """Index name -> table, for the FTS / vector indexes this database has."""
+        df = self._execute("CALL SHOW_INDEXES() RETURN index_name, table_name").get_as_pl()
+        return dict(df.iter_rows())
+
+    def ensure_indexes(self, optional: bool = False, folder: Path = INDEX_DIR) -> list[str]:
+        """Create the indexes of schema/indexes/*.cypher that are missing; returns those created.
+        `optional=True` adds schema/indexes/optional/ (HNSW, measured by `memora perf tools`).
+
+        Index DDL runs outside any transaction (Kùzu's rule) and after bulk loads (an index is
+        built once over the loaded rows; later rows join it automatically). An index is never
+        dropped and re-created (a known Kùzu bug with vector indexes)."""
+        have = set(self.indexes())
+        created = []
+        files = sorted(folder.glob("*.cypher")) + (sorted((folder / "optional").glob("*.cypher")) if optional else [])
+        for f in files:
+            for statement in (s.strip() for s in _strip_comments(f.read_text()).split(";")):
+                m = _INDEX_DDL.search(statement)
+                if not m:
+                    continue
+                if m.group(2) not in have:
+                    self._execute(statement)
+                    created.append(m.group(2))
+        return created
 
     def migrations(self) -> list[str]:
         return self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id").get_as_pl()["m.id"].to_list()

@@ -11,6 +11,7 @@ from memora_graph.store import Store
 def empty_store(tmp_path):
     store = Store(tmp_path / "P01.kuzu", read_only=False)
     store.apply_schema()
+    store.ensure_indexes(optional=True)  # FTS / HNSW indexes the retrieval queries read
     yield store
     store.close()
 
@@ -32,6 +33,8 @@ def _dummy(param: str, cypher: str = ""):
         return [{f: _sample(f) for f in sorted(set(re.findall(r"\br\.(\w+)", cypher)))}]
     if param == "ids":
         return ["nothing"]
+    if param == "vector":
+        return [0.0] * 384
     return "x"
 
 

@@ -1,0 +1,9 @@
+// Keyword (full-text) indexes read by the retrieval tools' keyword signal.
+// Created once per database by `Store.ensure_indexes()` after the build's bulk load, outside any
+// transaction (Kùzu requires it); rows added later join the index automatically. Kùzu strips
+// digits from indexed text, so ids stay in their own columns and are matched exactly.
+CALL CREATE_FTS_INDEX('Segment', 'segment_fts', ['summary', 'narrative'], stemmer := 'porter');
+CALL CREATE_FTS_INDEX('Entity', 'entity_fts', ['name', 'kind', 'category'], stemmer := 'porter');
+CALL CREATE_FTS_INDEX('Place', 'place_fts', ['name'], stemmer := 'porter');
+CALL CREATE_FTS_INDEX('Routine', 'routine_fts', ['retrieval_text'], stemmer := 'porter');
+CALL CREATE_FTS_INDEX('Preference', 'preference_fts', ['retrieval_text'], stemmer := 'porter');
