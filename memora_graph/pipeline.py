@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from memora_graph.bank import Bank
+from memora_graph.consolidate import finish_participant
 from memora_graph.embed import get_embedder
 from memora_graph.errors import DataError
 from memora_graph.form.build import ParticipantBuild, Timings, build_participant
@@ -21,6 +22,8 @@ class BankBuild:
     load_seconds: float = 0.0
     model_seconds: float = 0.0
     wall_seconds: float = 0.0
+    inferred: dict[str, dict] = field(default_factory=dict)  # participant -> routine / preference counts
+    inferred_seconds: float = 0.0  # keyword indexes + offline consolidation and enrichment
 
     @property
     def segments(self) -> int:
@@ -36,8 +39,11 @@ def build_bank(
     on_plan: Callable[[dict[str, list[str]]], None] | None = None,
     on_video: Callable[[str, str, int], None] | None = None,
     stop_after: int | None = None,
+    episodic: bool = False,
 ) -> BankBuild:
-    """Build (or resume) a bank. `participants=None` means every participant in the annotations."""
+    """Build (or resume) a bank. `participants=None` means every participant in the annotations.
+    After each participant, offline consolidation and enrichment write its inferred knowledge,
+    unless `episodic` (the MEMORA-Episodic condition) or a raw bank."""
     t_start = time.perf_counter()
     out = BankBuild()
     t0 = time.perf_counter()
@@ -68,6 +74,11 @@ def build_bank(
         )
         out.participants.append(res)
         out.timings.add(res.timings)
+        t0 = time.perf_counter()
+        knowledge = finish_participant(bank, p, embedder, episodic=episodic or mode == "raw")
+        out.inferred[p] = knowledge.counts() if knowledge else {"routines": 0, "preferences": 0}
+        res.counts.update({k: out.inferred[p][k] for k in ("routines", "preferences")})
+        out.inferred_seconds += time.perf_counter() - t0
     out.wall_seconds = time.perf_counter() - t_start
     return out
 
@@ -84,6 +95,7 @@ class VideoBuild:
     counts: dict = field(default_factory=dict)
     decisions: dict = field(default_factory=dict)
     calls: list = field(default_factory=list)  # CallRecords of this run
+    timings: Timings = field(default_factory=Timings)  # the builder's split: editor, embedding, staging
     decode_seconds: float = 0.0
     model_seconds: float = 0.0  # waiting for model replies (sum of call latencies)
     load_seconds: float = 0.0  # loading the embedding model
@@ -130,6 +142,7 @@ def build_from_video(
     backend_options: dict | None = None,
     on_video: Callable[[str, int], None] | None = None,
     on_segment: Callable[[str, int, str | None], None] | None = None,
+    episodic: bool = False,
 ) -> VideoBuild:
     """Build (or resume) one participant's memory from a video file or a directory of videos:
     10 s clips -> VLM perception -> LLM entity editor -> the participant's graph.
@@ -191,7 +204,8 @@ def build_from_video(
                 if on_segment:
                     on_segment(info.video_id, pc.clip.turn_id, pc.error)
             segments = [pc.segment for pc in perceived if pc.segment is not None]
-            _, dropped = builder.build_segments(info.video_id, segments, info.duration, n_turns=len(perceived))
+            timings, dropped = builder.build_segments(info.video_id, segments, info.duration, n_turns=len(perceived))
+            out.timings.add(timings)
             out.videos.append({
                 "video": info.video_id, "duration_s": round(info.duration, 2), "turns": len(perceived),
                 "segments": len(segments) - len(dropped),
@@ -207,6 +221,7 @@ def build_from_video(
         bank.record_participant(participant, sorted(builder.done), out.counts)
     finally:
         builder.close()
+    finish_participant(bank, participant, embedder, episodic=episodic)
     out.calls = list(log.records)
     out.model_seconds = sum(r.latency_s for r in log.records)
     out.wall_seconds = time.perf_counter() - t_start

@@ -1,0 +1,123 @@
+"""The participant memory slice that consolidation reads: segments and narrated steps.
+
+A step is one narrated action as the formed memory holds it: the state-history entries that one
+narration wrote (same video, time and narration), the first being the main object. Everything
+the processors cite (segment ids, entity ids) comes from here, so it exists in the bank.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from memora_graph.consolidate import vocab
+from memora_graph.store import Store
+
+_PREP = {"INSIDE": "in", "ON_TOP_OF": "on", "ADJACENT_TO": "next to", "BELOW": "under", "ABOVE": "above",
+         "BEHIND": "behind", "IN_FRONT_OF": "in front of", "LEFT_OF": "left of", "RIGHT_OF": "right of"}
+
+
+def display(kind: str) -> str:
+    return kind.replace("_", " ").strip()
+
+
+@dataclass(frozen=True)
+class Obj:
+    kind: str
+    entity: str  # the entity id (a merged duplicate resolves to what it was merged into)
+    category: str
+    is_fixture: bool
+
+
+@dataclass
+class Step:
+    video: str
+    segment: str
+    t: float
+    verb: str  # EPIC verb class key ("take", "wash", "turn-on")
+    objects: list[Obj]
+    location: str  # place id of the main object
+    zone: str
+    destination: str  # what the main object was put in / on (a kind), if narrated
+    relation: str
+    narration: str
+    _text: str | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def main(self) -> Obj:
+        return self.objects[0]
+
+    @property
+    def token(self) -> str:
+        return f"{self.verb}:{self.main.kind}"
+
+    @property
+    def is_filler(self) -> bool:
+        return self.verb in vocab.FILLER
+
+    def text(self) -> str:
+        if self._text is None:
+            words = f"{vocab.phrase(self.verb)} {display(self.main.kind)}"
+            if self.destination and self.destination != self.main.kind:
+                words += f" {_PREP.get(self.relation, 'to')} {display(self.destination)}"
+            self._text = words
+        return self._text
+
+    def where(self) -> tuple[str, str]:
+        """(preferred-location words, place id) for where the main object ended up."""
+        if self.destination and self.destination != self.main.kind:
+            return display(self.destination), self.location
+        if self.zone:
+            return display(self.zone), self.location
+        return display(self.location), self.location
+
+
+@dataclass
+class ParticipantMemory:
+    participant: str
+    segments: list[dict] = field(default_factory=list)
+    steps: list[Step] = field(default_factory=list)
+    _by_video: dict[str, list[Step]] | None = field(default=None, repr=False)
+
+    @property
+    def videos(self) -> list[str]:
+        return sorted({s["video"] for s in self.segments})
+
+    def steps_by_video(self) -> dict[str, list[Step]]:
+        if self._by_video is None:
+            self._by_video = {}
+            for s in self.steps:
+                self._by_video.setdefault(s.video, []).append(s)
+        return self._by_video
+
+    @property
+    def segment_ids(self) -> set[str]:
+        return {s["id"] for s in self.segments}
+
+
+def load_memory(store: Store, participant: str) -> ParticipantMemory:
+    segments = store.run("_consolidate_segments", participant=participant).to_dicts()
+    events = store.run("_consolidate_events", participant=participant).to_dicts()
+    merged = {e["entity"]: e["merged_into"] for e in events if e["status"] == "merged" and e["merged_into"]}
+
+    def resolve(entity: str) -> str:
+        seen = set()
+        while entity in merged and entity not in seen:
+            seen.add(entity)
+            entity = merged[entity]
+        return entity
+
+    steps: list[Step] = []
+    current: Step | None = None
+    key = None
+    for e in events:  # ordered by video, t, ord: one narration's entries are adjacent
+        k = (e["video"], e["t"], e["narration"])
+        obj = Obj(e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+        if k != key:
+            current = Step(video=e["video"], segment=e["segment"], t=float(e["t"]), verb=e["action"], objects=[obj],
+                           location=e["location"] or "", zone=e["zone"] or "", destination=e["relative_to"] or "",
+                           relation=e["relation"] or "", narration=e["narration"] or "")
+            steps.append(current)
+            key = k
+        elif obj.kind not in {o.kind for o in current.objects}:
+            current.objects.append(obj)
+    return ParticipantMemory(participant, segments, steps)

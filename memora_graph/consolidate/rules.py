@@ -1,0 +1,542 @@
+"""The deterministic consolidation and enrichment policies (the CPU default).
+
+Consolidation reads each completed video's narrated steps and counts what it shows: where each
+object ends up (storage preferences, by context), what the person does right after an action
+(organizational habits), how a kind of object flows from use to its place (workflow patterns),
+and the short action sequences it contains. The participant pass keeps what repeats in at least
+`min_videos` videos. Enrichment cuts videos into episodes, groups episodes with the same goal
+across videos into routine skills (canonical steps from the most typical episode), and turns
+repeated instrument choices ("stir egg in pan using spatula") into generated preferences with
+keywords. Every record cites the segments it was counted from.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections import Counter, defaultdict
+
+from memora_graph.consolidate import vocab
+from memora_graph.consolidate.memory import ParticipantMemory, Step, display
+from memora_graph.consolidate.records import (
+    ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, OrganizationalHabit, RoutineSkill,
+    StoragePreference, VideoConsolidation, WorkflowPattern,
+)
+from memora_graph.perceive.vocab import VERB_STATE
+
+
+def _conf(x: float) -> float:
+    return round(min(max(x, 0.0), 0.99), 3)
+
+
+def _support(videos: int) -> float:
+    """How much repetition across videos is worth: 0.5, 0.75, 0.875, ... for 1, 2, 3 videos."""
+    return 1.0 - 0.5 ** max(videos, 0)
+
+
+_ON = frozenset({"rack", "top", "counter", "board", "hob", "tray", "table", "plate", "worktop", "shelf", "stove"})
+
+
+def _prep(location_words: str) -> str:
+    return "on" if _ON & set(location_words.split()) else "in"
+
+
+def _past(verb: str) -> str:
+    state = VERB_STATE.get(verb, "")
+    if state and state.endswith("ed") or state in ("cut", "broken", "torn", "shaken"):
+        return state
+    return vocab.phrase(verb) + ("d" if verb.endswith("e") else "ed")
+
+
+def _merge_videos(parts: list[dict[str, int]]) -> dict[str, int]:
+    out: Counter[str] = Counter()
+    for p in parts:
+        out.update(p)
+    return dict(sorted(out.items()))
+
+
+def _uniq(items) -> list:
+    return list(dict.fromkeys(items))
+
+
+def stable_id(participant: str, kind: str, *key) -> str:
+    digest = hashlib.blake2b("\x1f".join(map(str, key)).encode(), digest_size=5).hexdigest()
+    return f"{participant}:{kind}:{digest}"
+
+
+class RuleConsolidator:
+    """Offline consolidation: per completed video, then what repeats across videos."""
+
+    name = "deterministic"
+    min_videos = 2
+    habit_window = 30.0  # seconds: the next action must follow within this
+    habit_min_count = 3
+    habit_min_share = 0.25
+    workflow_window = 120.0  # seconds from the use of an object to where it is put
+    workflow_min_count = 3
+    sequence_lengths = (3, 4, 5)
+    sequence_span = 60.0  # seconds an action sequence may span
+    caps = {"storage": 15, "after_use": 15, "during_use": 10, "default": 5, "habit": 25, "workflow": 15, "sequence": 20}
+
+    def __init__(self):
+        self._recurring: tuple[int, set[tuple[str, ...]]] | None = None
+
+    # -- per video ---------------------------------------------------------------------
+    def consolidate_video(self, memory: ParticipantMemory, video: str) -> VideoConsolidation:
+        steps = memory.steps_by_video().get(video, [])
+        return VideoConsolidation(
+            video=video, storage_preferences=self._storage(video, steps), organizational_habits=self._habits(video, steps),
+            workflow_patterns=self._workflows(video, steps),
+            action_sequences=self._sequences(video, steps, self.recurring(memory)),
+        )
+
+    def _storage(self, video: str, steps: list[Step]) -> list[StoragePreference]:
+        seen: dict[tuple, dict] = {}
+        used: dict[str, bool] = {}
+
+        def note(s: Step, context: str, where: str, place: str) -> None:
+            rec = seen.setdefault((s.main.kind, context, where), {"place": place, "n": 0, "segments": [], "entities": []})
+            rec["n"] += 1
+            rec["segments"].append(s.segment)
+            rec["entities"].append(s.main.entity)
+
+        for s in steps:
+            if s.main.is_fixture:
+                continue
+            kind = s.main.kind
+            if s.verb in vocab.RELEASING or s.verb == "insert":
+                where, place = s.where()
+                if used.get(kind):
+                    context = "after_use"
+                elif s.destination in vocab.STORAGE_KINDS or s.zone in vocab.STORAGE_ZONES:
+                    context = "storage"
+                else:
+                    context = "default"
+                note(s, context, where, place)
+                used[kind] = False
+            elif s.verb in vocab.TAKING:
+                fixture = next((o for o in s.objects[1:] if o.kind in vocab.STORAGE_KINDS), None)
+                if fixture is not None:
+                    note(s, "storage", display(fixture.kind), s.location)
+            elif not s.is_filler:
+                note(s, "during_use", display(s.location), s.location)
+                used[kind] = True
+        totals: Counter[tuple] = Counter()
+        for (kind, context, _), rec in seen.items():
+            totals[(kind, context)] += rec["n"]
+        out = []
+        for (kind, context, where), rec in sorted(seen.items()):
+            out.append(StoragePreference.model_construct(
+                object=kind, object_name=display(kind), preferred_location=where, place=rec["place"], context=context,
+                count=rec["n"], total=totals[(kind, context)], alternatives={}, confidence=_conf(rec["n"] / totals[(kind, context)]),
+                supporting_episodes=_uniq(rec["segments"]), entities=_uniq(rec["entities"]), videos={video: rec["n"]},
+            ))
+        return out
+
+    def _habits(self, video: str, steps: list[Step]) -> list[OrganizationalHabit]:
+        pairs: dict[tuple[str, str], dict] = {}
+        triggers: Counter[str] = Counter()
+        for i, a in enumerate(steps):
+            trigger = f"{vocab.phrase(a.verb)} {display(a.main.kind)}"
+            for b in steps[i + 1:]:
+                if b.t - a.t > self.habit_window:
+                    break
+                if b.token == a.token:
+                    continue
+                if a.is_filler and b.is_filler and a.main.kind == b.main.kind:
+                    break  # take X -> put X, open X -> close X: bookkeeping, not a habit
+                triggers[trigger] += 1
+                rec = pairs.setdefault((trigger, b.text()), {"n": 0, "segments": [], "entities": [], "a": a, "b": b})
+                rec["n"] += 1
+                rec["segments"] += [a.segment, b.segment]
+                rec["entities"] += [a.main.entity, b.main.entity]
+                break
+        out = []
+        for (trigger, nxt), rec in sorted(pairs.items()):
+            a, b = rec["a"], rec["b"]
+            statement = (f"After {vocab.gerund(a.verb)} the {display(a.main.kind)}, usually "
+                         f"{vocab.third_person(vocab.phrase(b.verb))} the {b.text()[len(vocab.phrase(b.verb)) + 1:]}")
+            out.append(OrganizationalHabit.model_construct(
+                trigger=trigger, next_action=nxt, habit=statement.replace("  ", " "), count=rec["n"],
+                trigger_count=triggers[trigger], objects_involved=_uniq([display(a.main.kind), display(b.main.kind)]),
+                confidence=_conf(rec["n"] / triggers[trigger]), supporting_episodes=_uniq(rec["segments"]),
+                entities=_uniq(rec["entities"]), videos={video: rec["n"]},
+            ))
+        return out
+
+    def _workflows(self, video: str, steps: list[Step]) -> list[WorkflowPattern]:
+        flows: dict[tuple[str, str, str], dict] = {}
+        last_use: dict[str, Step] = {}
+        for s in steps:
+            if s.main.is_fixture:
+                continue
+            kind = s.main.kind
+            if not s.is_filler and vocab.category(s.verb) in ("cleanup", "prep", "cooking"):
+                last_use[kind] = s
+            elif (s.verb in vocab.RELEASING or s.verb == "insert") and kind in last_use:
+                u = last_use.pop(kind)
+                if s.t - u.t > self.workflow_window:
+                    continue
+                where, _ = s.where()
+                if where == display(u.location):
+                    continue  # put down where it was used: no flow
+                key = (s.main.category or "objects", f"{u.verb} @ {display(u.location)}", f"put {_prep(where)} {where}")
+                rec = flows.setdefault(key, {"n": 0, "objects": [], "segments": [], "entities": [], "u": u, "where": where})
+                rec["n"] += 1
+                rec["objects"].append(display(kind))
+                rec["segments"] += [u.segment, s.segment]
+                rec["entities"].append(s.main.entity)
+        out = []
+        for (cat, use, then), rec in sorted(flows.items()):
+            u = rec["u"]
+            objects = _uniq(rec["objects"])
+            out.append(WorkflowPattern.model_construct(
+                pattern=f"{cat.capitalize()} ({', '.join(objects[:4])}) are usually {_past(u.verb)} at the "
+                        f"{display(u.location)}, then put {_prep(rec['where'])} the {rec['where']}",
+                category=cat, use=use, then=then, objects=objects, count=rec["n"], confidence=0.0,
+                supporting_episodes=_uniq(rec["segments"]), entities=_uniq(rec["entities"]), videos={video: rec["n"]},
+            ))
+        return out
+
+    def _windows(self, steps: list[Step]):
+        run: list[Step] = []
+        for s in steps:  # collapse immediate repeats ("move tofu" x 12)
+            if not run or run[-1].token != s.token:
+                run.append(s)
+        for n in self.sequence_lengths:
+            for i in range(len(run) - n + 1):
+                window = run[i:i + n]
+                if window[-1].t - window[0].t > self.sequence_span:
+                    continue
+                tokens = tuple(s.token for s in window)
+                if len(set(tokens)) < n:
+                    continue
+                if all(s.is_filler for s in window) and len({s.main.kind for s in window}) < 2:
+                    continue
+                yield tokens, window
+
+    def recurring(self, memory: ParticipantMemory) -> set[tuple[str, ...]]:
+        """Action n-grams seen in at least `min_videos` videos: the per-video pass reports only these."""
+        if self._recurring is None or self._recurring[0] != id(memory):
+            videos: dict[tuple[str, ...], set[str]] = defaultdict(set)
+            for video, steps in memory.steps_by_video().items():
+                for tokens, _ in self._windows(steps):
+                    videos[tokens].add(video)
+            self._recurring = (id(memory), {t for t, vs in videos.items() if len(vs) >= self.min_videos})
+        return self._recurring[1]
+
+    def _sequences(self, video: str, steps: list[Step], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
+        found: dict[tuple[str, ...], dict] = {}
+        for tokens, window in self._windows(steps):
+            if tokens in recurring:
+                rec = found.setdefault(tokens, {"n": 0, "first": [], "segments": [], "window": window, "entities": []})
+                rec["n"] += 1
+                rec["first"].append(window[0].segment)
+                rec["segments"] += [s.segment for s in window]
+                rec["entities"] += [s.main.entity for s in window]
+        out = []
+        for tokens, rec in found.items():
+            window = rec["window"]
+            texts = [s.text() for s in window]
+            cats = Counter(vocab.category(s.verb) for s in window if not s.is_filler)
+            out.append(ActionSequence.model_construct(
+                title=" -> ".join(texts), steps=texts,
+                activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0] if cats else None],
+                key_objects=_uniq(display(s.main.kind) for s in window), count=rec["n"], confidence=0.0,
+                supporting_episodes=_uniq(rec["first"]), segments=_uniq(rec["segments"]),
+                entities=_uniq(rec["entities"]), videos={video: rec["n"]},
+            ))
+        return out
+
+    # -- per participant ---------------------------------------------------------------
+    def consolidate_participant(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> Consolidation:
+        return Consolidation(
+            participant=memory.participant, videos=[v.video for v in per_video],
+            storage_preferences=self._merge_storage([p for v in per_video for p in v.storage_preferences]),
+            organizational_habits=self._merge_habits([h for v in per_video for h in v.organizational_habits]),
+            workflow_patterns=self._merge_workflows([w for v in per_video for w in v.workflow_patterns]),
+            action_sequences=self._merge_sequences([a for v in per_video for a in v.action_sequences]),
+        )
+
+    def _merge_storage(self, items: list[StoragePreference]) -> list[StoragePreference]:
+        by_object: dict[tuple[str, str], dict[str, list[StoragePreference]]] = defaultdict(lambda: defaultdict(list))
+        for p in items:
+            by_object[(p.object, p.context)][p.preferred_location].append(p)
+        out = []
+        for (kind, context), locations in by_object.items():
+            counts = {loc: sum(p.count for p in ps) for loc, ps in locations.items()}
+            best = min(counts, key=lambda loc: (-counts[loc], loc))
+            ps = locations[best]
+            videos = _merge_videos([p.videos for p in ps])
+            total = sum(counts.values())
+            if len(videos) < self.min_videos or counts[best] < (3 if context == "default" else 2):
+                continue
+            where, place = best, ps[0].place
+            statement = {
+                "storage": f"Typically stores the {display(kind)} {_prep(where)} the {where}",
+                "after_use": f"After using the {display(kind)}, usually puts it {_prep(where)} the {where}",
+                "during_use": f"Usually uses the {display(kind)} at the {where}",
+                "default": f"Usually puts the {display(kind)} {_prep(where)} the {where}",
+            }[context]
+            out.append(StoragePreference(
+                object=kind, object_name=display(kind), statement=statement, preferred_location=where, place=place, context=context,
+                count=counts[best], total=total, alternatives={k: v for k, v in sorted(counts.items()) if k != best},
+                confidence=_conf(counts[best] / total * _support(len(videos))),
+                supporting_episodes=_uniq(s for p in ps for s in p.supporting_episodes),
+                entities=_uniq(e for p in ps for e in p.entities), videos=videos,
+            ))
+        out.sort(key=lambda p: (-p.count, p.object, p.context))
+        kept, per_context = [], Counter()
+        for p in out:
+            per_context[p.context] += 1
+            if per_context[p.context] <= self.caps[p.context]:
+                kept.append(p)
+        return kept
+
+    def _merge_habits(self, items: list[OrganizationalHabit]) -> list[OrganizationalHabit]:
+        groups: dict[tuple[str, str], list[OrganizationalHabit]] = defaultdict(list)
+        trigger_total: Counter[str] = Counter()
+        seen_trigger_video: set[tuple[str, str]] = set()
+        for h in items:
+            groups[(h.trigger, h.next_action)].append(h)
+            video = next(iter(h.videos))
+            if (h.trigger, video) not in seen_trigger_video:  # trigger_count is per video, once per trigger
+                seen_trigger_video.add((h.trigger, video))
+                trigger_total[h.trigger] += h.trigger_count
+        out = []
+        for (trigger, nxt), hs in groups.items():
+            videos = _merge_videos([h.videos for h in hs])
+            count = sum(h.count for h in hs)
+            share = count / max(trigger_total[trigger], 1)
+            if len(videos) < self.min_videos or count < self.habit_min_count or share < self.habit_min_share:
+                continue
+            out.append(OrganizationalHabit(
+                trigger=trigger, next_action=nxt, habit=hs[0].habit, count=count, trigger_count=trigger_total[trigger],
+                objects_involved=hs[0].objects_involved, confidence=_conf(share * _support(len(videos))),
+                supporting_episodes=_uniq(s for h in hs for s in h.supporting_episodes),
+                entities=_uniq(e for h in hs for e in h.entities), videos=videos,
+            ))
+        out.sort(key=lambda h: (-h.count, h.trigger, h.next_action))
+        return out[: self.caps["habit"]]
+
+    def _merge_workflows(self, items: list[WorkflowPattern]) -> list[WorkflowPattern]:
+        groups: dict[tuple[str, str, str], list[WorkflowPattern]] = defaultdict(list)
+        for w in items:
+            groups[(w.category, w.use, w.then)].append(w)
+        out = []
+        for (cat, use, then), ws in groups.items():
+            videos = _merge_videos([w.videos for w in ws])
+            objects = _uniq(o for w in ws for o in w.objects)
+            count = sum(w.count for w in ws)
+            if len(videos) < self.min_videos or len(objects) < 2 or count < self.workflow_min_count:
+                continue
+            head, _, tail = ws[0].pattern.partition(") are usually ")
+            pattern = f"{cat.capitalize()} ({', '.join(objects[:4])}) are usually {tail}"
+            out.append(WorkflowPattern(
+                pattern=pattern, category=cat, use=use, then=then, objects=objects, count=count,
+                confidence=_conf(_support(len(videos)) * min(1.0, len(objects) / 3)),
+                supporting_episodes=_uniq(s for w in ws for s in w.supporting_episodes),
+                entities=_uniq(e for w in ws for e in w.entities), videos=videos,
+            ))
+        out.sort(key=lambda w: (-w.count, w.category, w.use))
+        return out[: self.caps["workflow"]]
+
+    def _merge_sequences(self, items: list[ActionSequence]) -> list[ActionSequence]:
+        groups: dict[tuple[str, ...], list[ActionSequence]] = defaultdict(list)
+        for a in items:
+            groups[tuple(a.steps)].append(a)
+        # Group by the step tokens' text; the same tokens with other destinations are other texts,
+        # which is intended: "put bowl on drying rack" and "put bowl in sink" are different habits.
+        candidates = {}
+        for steps, group in groups.items():
+            videos = _merge_videos([a.videos for a in group])
+            if len(videos) >= self.min_videos:
+                candidates[steps] = (group, videos)
+        kept = []
+        for steps, (group, videos) in candidates.items():
+            n = len(steps)
+            longer = [s for s in candidates if len(s) > n and any(s[i:i + n] == steps for i in range(len(s) - n + 1))]
+            if any(len(candidates[s][1]) >= len(videos) for s in longer):
+                continue  # a longer sequence covers every video this one is seen in
+            a0 = group[0]
+            kept.append(ActionSequence(
+                title=a0.title, steps=list(steps), activity_type=a0.activity_type, key_objects=a0.key_objects,
+                count=sum(a.count for a in group), confidence=_conf(_support(len(videos)) * min(1.0, 0.6 + 0.1 * n)),
+                supporting_episodes=_uniq(s for a in group for s in a.supporting_episodes),
+                segments=_uniq(s for a in group for s in a.segments),
+                entities=_uniq(e for a in group for e in a.entities), videos=videos,
+            ))
+        kept.sort(key=lambda a: (-len(a.videos), -a.count, -len(a.steps), a.title))
+        out, seen = [], set()
+        for a in kept:  # "wash -> rack -> take" and "take -> wash -> rack" are one loop: keep the best rotation
+            loop = (len(a.steps), frozenset(a.steps))
+            if loop not in seen:
+                seen.add(loop)
+                out.append(a)
+        return out[: self.caps["sequence"]]
+
+
+def _lcs(a: list[str], b: list[str]) -> int:
+    prev = [0] * (len(b) + 1)
+    for x in a:
+        cur = [0]
+        for j, y in enumerate(b):
+            cur.append(prev[j] + 1 if x == y else max(prev[j + 1], cur[j]))
+        prev = cur
+    return prev[-1]
+
+
+class RuleEnricher:
+    """Inferred-knowledge enrichment: routine skills from episodes, tool preferences from narrations."""
+
+    name = "deterministic"
+    min_episodes = 2  # a routine is a goal reached at least twice; repetition across videos raises confidence
+    hard_gap = 30.0  # seconds of no action that always end an episode
+    soft_gap = 10.0  # a shorter pause ends one when the kind of work changes
+    min_steps, max_steps, chunk = 3, 15, 12
+    max_canonical_steps = 12
+    key_object_share = 0.4
+    tool_min_count = 2
+    caps = {"routine": 40, "preference": 30}
+
+    def enrich(self, memory: ParticipantMemory, consolidation: Consolidation) -> Enrichment:
+        return Enrichment(participant=memory.participant, routine_skills=self.routine_skills(memory),
+                          generated_preferences=self.tool_preferences(memory))
+
+    # -- routine skills ----------------------------------------------------------------
+    def episodes(self, steps: list[Step]) -> list[list[Step]]:
+        out: list[list[Step]] = []
+        cur: list[Step] = []
+        cur_cat = None
+        for s in steps:
+            cat = vocab.category(s.verb)
+            if cur:
+                gap = s.t - cur[-1].t
+                if gap > self.hard_gap or (gap > self.soft_gap and cat and cur_cat and cat != cur_cat):
+                    out.append(cur)
+                    cur, cur_cat = [], None
+            cur.append(s)
+            cur_cat = cat or cur_cat
+        if cur:
+            out.append(cur)
+        chunks = []
+        for ep in out:
+            if len(ep) > self.max_steps:
+                k = math.ceil(len(ep) / self.chunk)
+                size = math.ceil(len(ep) / k)
+                chunks += [ep[i:i + size] for i in range(0, len(ep), size)]
+            else:
+                chunks.append(ep)
+        return [c for c in chunks if len(c) >= self.min_steps]
+
+    @staticmethod
+    def goal(ep: list[Step]) -> tuple[str, str, str | None]:
+        """(goal text, head object kind, verb category) of an episode."""
+        work = [s for s in ep if not s.is_filler]
+        pool = work or ep
+        verbs = Counter(s.verb for s in pool)
+        top = max(verbs, key=lambda v: (verbs[v], -next(i for i, s in enumerate(pool) if s.verb == v)))
+        objs = Counter(s.main.kind for s in pool if s.verb == top and not s.main.is_fixture) or \
+            Counter(s.main.kind for s in pool if not s.main.is_fixture) or Counter(s.main.kind for s in pool)
+        head = max(objs, key=lambda k: (objs[k], -next(i for i, s in enumerate(pool) if s.main.kind == k)))
+        if work:
+            return f"{vocab.phrase(top)} {display(head)}", head, vocab.category(top)
+        if top in vocab.RELEASING or top == "insert":
+            return f"put away {display(head)}", head, "setup"
+        if top in vocab.TAKING:
+            return f"get {display(head)}", head, "setup"
+        return f"{vocab.phrase(top)} {display(head)}", head, "setup"
+
+    def routine_skills(self, memory: ParticipantMemory) -> list[RoutineSkill]:
+        groups: dict[str, list[tuple[list[Step], str, str | None]]] = defaultdict(list)
+        for video, steps in sorted(memory.steps_by_video().items()):
+            for ep in self.episodes(steps):
+                goal, head, cat = self.goal(ep)
+                groups[goal].append((ep, head, cat))
+        out = []
+        for goal, eps in groups.items():
+            videos = Counter(ep[0].video for ep, _, _ in eps)
+            if len(eps) < self.min_episodes:
+                continue
+            seqs = [[s.token for s in ep] for ep, _, _ in eps]
+            sample = list(range(len(eps)))[:: max(1, len(eps) // 40)][:40]  # bound the O(n^2) medoid search
+            sims = {i: [(2 * _lcs(seqs[i], seqs[j]) / (len(seqs[i]) + len(seqs[j]))) for j in sample if j != i] for i in sample}
+            medoid = max(sample, key=lambda i: (sum(sims[i]) / max(len(sims[i]), 1), -i))
+            cohesion = sum(sims[medoid]) / max(len(sims[medoid]), 1)
+            steps, last = [], None
+            for s in eps[medoid][0]:
+                if s.token != last:
+                    steps.append(s.text())
+                    last = s.token
+            head = eps[0][1]
+            kinds: Counter[str] = Counter()
+            entity_of: dict[str, Counter[str]] = defaultdict(Counter)
+            for ep, _, _ in eps:
+                for k in {o.kind for s in ep for o in s.objects}:
+                    kinds[k] += 1
+                for s in ep:
+                    for o in s.objects:
+                        entity_of[o.kind][o.entity] += 1
+            key_objects = [head] + [k for k, n in sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))
+                                    if k != head and n / len(eps) >= self.key_object_share]
+            key_objects = key_objects[:8]
+            cats = Counter(c for _, _, c in eps)
+            episodes = [Episode(video=ep[0].video, t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2),
+                                segments=_uniq(s.segment for s in ep)) for ep, _, _ in eps]
+            out.append(RoutineSkill(
+                goal=goal, activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0]],
+                canonical_steps=steps[: self.max_canonical_steps], key_objects=[display(k) for k in key_objects],
+                supporting_episodes=[e.segments[0] for e in episodes], segments=_uniq(s for e in episodes for s in e.segments),
+                episodes=episodes, count=len(eps), confidence=_conf(_support(len(videos)) * (0.5 + 0.5 * cohesion)),
+                entities=[entity_of[k].most_common(1)[0][0] for k in key_objects], videos=dict(sorted(videos.items())),
+            ))
+        out.sort(key=lambda r: (-len(r.videos), -r.count, r.goal))  # cross-video routines first
+        return out[: self.caps["routine"]]
+
+    # -- generated preferences ---------------------------------------------------------
+    def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
+        uses: dict[tuple[str, str], dict[str, list[Step]]] = defaultdict(lambda: defaultdict(list))
+        for s in memory.steps:
+            if s.is_filler or s.main.category in vocab.TOOL_CATEGORIES:
+                continue
+            tools = [o for o in s.objects[1:] if o.category in vocab.TOOL_CATEGORIES and not o.is_fixture]
+            for tool in tools[:1]:
+                uses[(s.verb, s.main.kind)][tool.kind].append(s)
+        out = []
+        by_verb: dict[str, dict[str, list[tuple[str, list[Step]]]]] = defaultdict(lambda: defaultdict(list))
+        for (verb, target), tools in uses.items():
+            counts = {t: len(ss) for t, ss in tools.items()}
+            best = min(counts, key=lambda t: (-counts[t], t))
+            by_verb[verb][best].append((target, tools[best]))
+            if counts[best] < self.tool_min_count:
+                continue
+            out.append(self._tool_pref(verb, [target], best, tools[best], {t: n for t, n in counts.items() if t != best}))
+        for verb, tools in by_verb.items():  # the same instrument across several targets of one action
+            for tool, targets in tools.items():
+                if len(targets) < 2 or sum(len(ss) for _, ss in targets) < 3:
+                    continue
+                steps = [s for _, ss in targets for s in ss]
+                out.append(self._tool_pref(verb, [t for t, _ in sorted(targets, key=lambda x: -len(x[1]))], tool, steps, {}))
+        out.sort(key=lambda p: (-p.count, p.preference))
+        return out[: self.caps["preference"]]
+
+    @staticmethod
+    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[Step], alternatives: dict[str, int]) -> GeneratedPreference:
+        names = [display(t) for t in targets]
+        what = names[0] if len(names) == 1 else ", ".join(names[:-1][:3]) + f" or {names[-1]}"
+        statement = f"Usually uses the {display(tool)} to {vocab.phrase(verb)} the {what}"
+        if alternatives:
+            statement += " (rather than the " + " or ".join(display(a) for a in sorted(alternatives)) + ")"
+        videos = Counter(s.video for s in steps)
+        segments = _uniq(s.segment for s in steps)
+        share = len(steps) / (len(steps) + sum(alternatives.values()))
+        keywords = _uniq([display(tool), vocab.phrase(verb), *vocab.SYNONYMS.get(verb, ()), *names])
+        example = steps[0]
+        return GeneratedPreference(
+            subtype="tool", preference=statement, keywords=keywords, objects=_uniq([display(tool), *names]),
+            context=f"{vocab.phrase(verb)} {what}", count=len(steps),
+            confidence=_conf(share * _support(len(segments))),
+            evidence_summary=f"{len(steps)} narrated actions in {len(videos)} video(s), e.g. \"{example.narration}\" ({example.segment})",
+            supporting_evidence_ids=segments, entities=_uniq(o.entity for s in steps for o in s.objects if o.kind in (tool, *targets)),
+            alternatives=alternatives, videos=dict(sorted(videos.items())),
+        )

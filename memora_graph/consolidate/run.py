@@ -1,0 +1,272 @@
+"""Run offline consolidation + enrichment for one participant and store the inferred knowledge.
+
+Flow: load the memory slice -> consolidation per completed video -> participant consolidation ->
+enrichment -> drop any cited id that is not in the bank -> retrieval text + embeddings ->
+Routine / Preference nodes with SUPPORTED_BY / USES / ABOUT edges. The participant's previous
+inferred knowledge is deleted and rewritten in the same transaction, so a re-run never
+duplicates records and a killed run leaves the old records intact.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import polars as pl
+
+from memora_graph.bank import Bank
+from memora_graph.consolidate.memory import ParticipantMemory, load_memory
+from memora_graph.consolidate.processors import Processors, get_processors
+from memora_graph.consolidate.records import Consolidation, Enrichment
+from memora_graph.consolidate.rules import stable_id
+from memora_graph.retrieve.embedding import encode_passages
+from memora_graph.store import Store
+
+ROUTINE_COLUMNS = ("id", "participant", "goal", "activity_type", "canonical_steps", "key_objects", "supporting_episodes",
+                   "source_videos", "count", "confidence", "retrieval_text")
+PREFERENCE_COLUMNS = ("id", "participant", "subtype", "statement", "keywords", "objects", "context", "supporting_episodes",
+                      "source_videos", "count", "confidence", "retrieval_text")
+
+
+@dataclass
+class InferredKnowledge:
+    participant: str
+    consolidation: Consolidation
+    enrichment: Enrichment
+    routines: list[dict] = field(default_factory=list)  # Routine rows (without emb)
+    preferences: list[dict] = field(default_factory=list)
+    supported_by: list[tuple[str, str]] = field(default_factory=list)  # (routine or preference id, segment id)
+    uses: list[tuple[str, str]] = field(default_factory=list)
+    about: list[tuple[str, str]] = field(default_factory=list)
+    dropped_ids: int = 0  # cited ids that do not exist in the bank (an LLM processor can invent some)
+    seconds: dict = field(default_factory=dict)
+
+    def counts(self) -> dict:
+        by_sub: dict[str, int] = {}
+        for p in self.preferences:
+            by_sub[p["subtype"]] = by_sub.get(p["subtype"], 0) + 1
+        by_src: dict[str, int] = {}
+        for r in self.routines:
+            by_src[r["source"]] = by_src.get(r["source"], 0) + 1
+        return {"routines": len(self.routines), "preferences": len(self.preferences),
+                "routines_by_source": by_src, "preferences_by_subtype": by_sub, "dropped_ids": self.dropped_ids}
+
+
+def _words(*parts) -> str:
+    return " ".join(str(p) for p in parts if p)
+
+
+class _Collector:
+    """Turns processor records into rows, keeping only evidence that exists in the bank."""
+
+    def __init__(self, memory: ParticipantMemory, entity_ids: set[str], processor: str):
+        self.p = memory.participant
+        self.segments = memory.segment_ids
+        self.entities = entity_ids
+        self.processor = processor
+        self.out = InferredKnowledge(memory.participant, Consolidation(participant=memory.participant),
+                                     Enrichment(participant=memory.participant))
+        self._ids: set[str] = set()
+
+    def _valid(self, ids, known: set[str]) -> list[str]:
+        ids = list(dict.fromkeys(ids))
+        ok = [i for i in ids if i in known]
+        self.out.dropped_ids += len(ids) - len(ok)
+        return ok
+
+    def _unique(self, rid: str) -> str:
+        base, n = rid, 1
+        while rid in self._ids:
+            n += 1
+            rid = f"{base}.{n}"
+        self._ids.add(rid)
+        return rid
+
+    def routine(self, kind: str, key, *, goal, activity_type, steps, key_objects, episodes, segments, entities,
+                videos: dict, count, confidence, source, detail: dict) -> None:
+        episodes = self._valid(episodes, self.segments)
+        segments = self._valid(segments, self.segments)
+        if not episodes or not segments:
+            return
+        rid = self._unique(stable_id(self.p, kind, *key))
+        text = _words(f"{goal}.", f"Steps: {'; '.join(steps)}." if steps else "",
+                      f"Objects: {', '.join(key_objects)}." if key_objects else "")
+        self.out.routines.append({
+            "id": rid, "participant": self.p, "goal": goal, "activity_type": activity_type, "canonical_steps": list(steps),
+            "key_objects": list(key_objects), "supporting_episodes": episodes, "source_videos": sorted(videos),
+            "count": int(count), "confidence": float(confidence), "retrieval_text": text, "source": source,
+            "processor": self.processor, "detail": json.dumps({"videos": videos, **detail}, sort_keys=True),
+        })
+        self.out.supported_by += [(rid, s) for s in segments]
+        self.out.uses += [(rid, e) for e in self._valid(entities, self.entities)]
+
+    def preference(self, kind: str, key, *, subtype, statement, keywords, objects, context, episodes, entities,
+                   videos: dict, count, confidence, source, evidence_summary, detail: dict) -> None:
+        episodes = self._valid(episodes, self.segments)
+        if not episodes:
+            return
+        rid = self._unique(stable_id(self.p, kind, *key))
+        text = _words(f"{statement}.", f"Keywords: {', '.join(keywords)}." if keywords else "")
+        self.out.preferences.append({
+            "id": rid, "participant": self.p, "subtype": subtype, "statement": statement, "keywords": list(keywords),
+            "objects": list(objects), "context": context, "supporting_episodes": episodes, "source_videos": sorted(videos),
+            "count": int(count), "confidence": float(confidence), "retrieval_text": text, "source": source,
+            "processor": self.processor, "evidence_summary": evidence_summary,
+            "detail": json.dumps({"videos": videos, **detail}, sort_keys=True),
+        })
+        self.out.supported_by += [(rid, s) for s in episodes]
+        self.out.about += [(rid, e) for e in self._valid(entities, self.entities)]
+
+
+def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processors) -> InferredKnowledge:
+    """Run both processors over a loaded slice and collect validated rows (no I/O)."""
+    t0 = time.perf_counter()
+    per_video = [processors.consolidation.consolidate_video(memory, v) for v in memory.videos]
+    consolidation = processors.consolidation.consolidate_participant(memory, per_video)
+    t1 = time.perf_counter()
+    enrichment = processors.enrichment.enrich(memory, consolidation)
+    t2 = time.perf_counter()
+    c = _Collector(memory, entity_ids, processors.name)
+    c.out.consolidation, c.out.enrichment = consolidation, enrichment
+    for s in consolidation.storage_preferences:
+        c.preference("pref", ("storage", s.object, s.context), subtype="storage", statement=s.statement,
+                     keywords=[s.object_name, s.preferred_location, s.context.replace("_", " "), "store", "keep", "put"],
+                     objects=[s.object_name], context=s.context, episodes=s.supporting_episodes, entities=s.entities,
+                     videos=s.videos, count=s.count, confidence=s.confidence, source="consolidation",
+                     evidence_summary=f"{s.count} of {s.total} observations in {len(s.videos)} videos",
+                     detail={"object": s.object, "preferred_location": s.preferred_location, "place": s.place,
+                             "total": s.total, "alternatives": s.alternatives})
+    for h in consolidation.organizational_habits:
+        c.preference("pref", ("habit", h.trigger, h.next_action), subtype="habit", statement=h.habit,
+                     keywords=[*h.trigger.split(), *h.next_action.split()], objects=h.objects_involved,
+                     context=h.trigger, episodes=h.supporting_episodes, entities=h.entities, videos=h.videos,
+                     count=h.count, confidence=h.confidence, source="consolidation",
+                     evidence_summary=f"{h.count} of {h.trigger_count} times in {len(h.videos)} videos",
+                     detail={"trigger": h.trigger, "next_action": h.next_action, "trigger_count": h.trigger_count})
+    for w in consolidation.workflow_patterns:
+        c.preference("pref", ("workflow", w.category, w.use, w.then), subtype="workflow", statement=w.pattern,
+                     keywords=[w.category, *w.objects[:6], *w.use.replace("@", "").split(), *w.then.split()],
+                     objects=w.objects, context=w.category, episodes=w.supporting_episodes, entities=w.entities,
+                     videos=w.videos, count=w.count, confidence=w.confidence, source="consolidation",
+                     evidence_summary=f"{w.count} times with {len(w.objects)} objects in {len(w.videos)} videos",
+                     detail={"category": w.category, "use": w.use, "then": w.then})
+    for a in consolidation.action_sequences:
+        c.routine("seq", tuple(a.steps), goal=a.title, activity_type=a.activity_type, steps=a.steps,
+                  key_objects=a.key_objects, episodes=a.supporting_episodes, segments=a.segments, entities=a.entities,
+                  videos=a.videos, count=a.count, confidence=a.confidence, source="action_sequence", detail={})
+    for r in enrichment.routine_skills:
+        c.routine("routine", (r.goal,), goal=r.goal, activity_type=r.activity_type, steps=r.canonical_steps,
+                  key_objects=r.key_objects, episodes=r.supporting_episodes, segments=r.segments, entities=r.entities,
+                  videos=r.videos, count=r.count, confidence=r.confidence, source="routine_skill",
+                  detail={"episodes": [e.model_dump() for e in r.episodes]})
+    for g in enrichment.generated_preferences:
+        c.preference("pref", ("generated", g.subtype, g.preference), subtype=g.subtype, statement=g.preference,
+                     keywords=g.keywords, objects=g.objects, context=g.context, episodes=g.supporting_evidence_ids,
+                     entities=g.entities, videos=g.videos, count=g.count, confidence=g.confidence, source="enrichment",
+                     evidence_summary=g.evidence_summary, detail={"alternatives": g.alternatives})
+    c.out.seconds = {"consolidation": round(t1 - t0, 3), "enrichment": round(t2 - t1, 3),
+                     "collect": round(time.perf_counter() - t2, 3)}
+    return c.out
+
+
+def _frame(rows: list[dict], columns: tuple[str, ...], extra: tuple[str, ...], vecs: np.ndarray, dim: int) -> pl.DataFrame:
+    schema = {c: (pl.List(pl.String) if c in ("canonical_steps", "key_objects", "supporting_episodes", "source_videos",
+                                               "keywords", "objects") else
+                  pl.Int64 if c == "count" else pl.Float64 if c == "confidence" else pl.String)
+              for c in (*columns, *extra)}
+    df = pl.DataFrame([{c: r[c] for c in schema} for r in rows], schema=schema)
+    emb = pl.Series("emb", np.asarray(vecs, dtype=np.float32).reshape(len(rows), dim), dtype=pl.Array(pl.Float32, dim))
+    return df.select(list(columns)).with_columns(emb).with_columns(df.select(list(extra)))
+
+
+def _embed(store: Store, participant: str, texts: list[str], embedder) -> np.ndarray:
+    """Embeddings of the retrieval texts; a text already stored (a re-run) keeps its vector."""
+    if not texts:
+        return np.zeros((0, embedder.dim), dtype=np.float32)
+    known = {r["text"]: r["emb"] for r in store.fetch("_inferred_embeddings", participant=participant)
+             if r["emb"] is not None}
+    todo = sorted({t for t in texts if t not in known})
+    fresh = dict(zip(todo, encode_passages(embedder, todo))) if todo else {}
+    return np.asarray([fresh[t] if t in fresh else known[t] for t in texts], dtype=np.float32)
+
+
+def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None:
+    """Replace the participant's Routine / Preference records in one transaction."""
+    p = knowledge.participant
+    texts = [r["retrieval_text"] for r in knowledge.routines] + [r["retrieval_text"] for r in knowledge.preferences]
+    vecs = _embed(store, p, texts, embedder)
+    nr = len(knowledge.routines)
+    routines = _frame(knowledge.routines, ROUTINE_COLUMNS, ("source", "processor", "detail"), vecs[:nr], embedder.dim) \
+        if knowledge.routines else None
+    prefs = _frame(knowledge.preferences, PREFERENCE_COLUMNS, ("source", "processor", "evidence_summary", "detail"),
+                   vecs[nr:], embedder.dim) if knowledge.preferences else None
+    routine_ids = {r["id"] for r in knowledge.routines}
+    sup = sorted(set(knowledge.supported_by))
+    sup_r = pl.DataFrame({"from": [a for a, _ in sup if a in routine_ids], "to": [b for a, b in sup if a in routine_ids]})
+    sup_p = pl.DataFrame({"from": [a for a, _ in sup if a not in routine_ids], "to": [b for a, b in sup if a not in routine_ids]})
+    uses = pl.DataFrame({"from": [a for a, _ in sorted(set(knowledge.uses))], "to": [b for _, b in sorted(set(knowledge.uses))]},
+                        schema={"from": pl.String, "to": pl.String})
+    about = pl.DataFrame({"from": [a for a, _ in sorted(set(knowledge.about))], "to": [b for _, b in sorted(set(knowledge.about))]},
+                         schema={"from": pl.String, "to": pl.String})
+    with store.transaction():
+        store.run("_inferred_clear", participant=p)
+        if routines is not None:
+            store.copy("Routine", routines)
+        if prefs is not None:
+            store.copy("Preference", prefs)
+        store.copy("SUPPORTED_BY", sup_r, from_table="Routine", to_table="Segment")
+        store.copy("SUPPORTED_BY", sup_p, from_table="Preference", to_table="Segment")
+        store.copy("USES", uses)
+        store.copy("ABOUT", about)
+
+
+def consolidate_participant(store: Store, participant: str, embedder, processors: str | Processors = "deterministic") -> InferredKnowledge:
+    """Consolidate + enrich one participant's memory in an open read-write store."""
+    procs = get_processors(processors) if isinstance(processors, str) else processors
+    t0 = time.perf_counter()
+    memory = load_memory(store, participant)
+    entity_ids = {r["id"] for r in store.fetch("_consolidate_entity_ids", participant=participant)}
+    t1 = time.perf_counter()
+    knowledge = infer(memory, entity_ids, procs)
+    t2 = time.perf_counter()
+    write_inferred(store, knowledge, embedder)
+    knowledge.seconds.update({"load": round(t1 - t0, 3), "write": round(time.perf_counter() - t2, 3)})
+    knowledge.seconds["total"] = round(time.perf_counter() - t0, 3)
+    return knowledge
+
+
+def clear_inferred(store: Store, participant: str) -> None:
+    with store.transaction():
+        store.run("_inferred_clear", participant=participant)
+
+
+def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = False,
+                       processors: str = "deterministic") -> InferredKnowledge | None:
+    """The step after a participant's build: keyword indexes, then consolidation + enrichment
+    (or, for a MEMORA-Episodic bank, no inferred knowledge at all). Records it in the manifest."""
+    store = Store(bank.db_path(participant), read_only=False)
+    try:
+        store.apply_schema()
+        store.ensure_indexes()
+        if episodic:
+            clear_inferred(store, participant)
+            knowledge = None
+        else:
+            knowledge = consolidate_participant(store, participant, embedder, processors)
+        counts = store.fetch("_inferred_counts", participant=participant)[0]
+    finally:
+        store.close()
+    data = bank.manifest()
+    entry = data["participants"].get(participant)
+    if entry is not None:
+        entry.setdefault("counts", {}).update({"routines": int(counts["routines"]), "preferences": int(counts["preferences"])})
+        entry["consolidated"] = not episodic
+        entry["inferred"] = None if episodic else {"processor": processors, **knowledge.counts()}
+    flags = [e.get("consolidated", False) for e in data["participants"].values()]
+    data["consolidated"] = bool(flags) and all(flags)
+    data["condition"] = "memora_full" if data["consolidated"] else (
+        "memora_episodic" if not any(flags) else "mixed")
+    bank.write_manifest(data)
+    return knowledge

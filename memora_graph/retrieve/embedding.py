@@ -1,0 +1,64 @@
+"""Query embeddings for the tools: one LRU cache per process, encoded on one torch thread.
+
+On the 2-core machines this project targets, torch's default of one intra-op thread per core
+makes a MiniLM forward pass ~2x slower (batch) to ~25x slower (one short query) than a single
+thread, because the two threads spin against each other and against Kùzu. `torch_threads(1)`
+scopes the setting to the encode call and restores it after.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from contextlib import contextmanager
+
+import numpy as np
+
+
+@contextmanager
+def torch_threads(n: int = 1):
+    try:
+        import torch
+    except ImportError:  # an embedder without torch: nothing to scope
+        yield
+        return
+    before = torch.get_num_threads()
+    if before != n:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if before != n:
+            torch.set_num_threads(before)
+
+
+def encode_passages(embedder, texts: list[str]) -> np.ndarray:
+    with torch_threads(1):
+        return embedder.encode(texts, kind="passage")
+
+
+class QueryEncoder:
+    """Embeds tool queries; repeats (an agent re-asking, `search` fanning out) hit the cache."""
+
+    def __init__(self, embedder, size: int = 4096):
+        self.embedder = embedder
+        self.size = size
+        self._cache: OrderedDict[str, np.ndarray] = OrderedDict()
+        self.hits = self.misses = 0
+
+    def __call__(self, text: str) -> np.ndarray:
+        v = self._cache.get(text)
+        if v is not None:
+            self._cache.move_to_end(text)
+            self.hits += 1
+            return v
+        self.misses += 1
+        inner = getattr(self.embedder, "inner", self.embedder)  # skip the build cache: queries are one-offs
+        with torch_threads(1):
+            v = np.asarray(inner.encode([text], kind="query")[0], dtype=np.float32)
+        self._cache[text] = v
+        if len(self._cache) > self.size:
+            self._cache.popitem(last=False)
+        return v
+
+    def clear(self) -> None:
+        self._cache.clear()

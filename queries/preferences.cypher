@@ -1,0 +1,8 @@
+// description: A participant's preferences (storage, habit, workflow, generated), most supported first.
+// params: participant
+// example: memora run BANK preferences -p participant P04
+MATCH (p:Preference)
+WHERE p.participant = $participant
+RETURN p.id AS id, p.subtype AS subtype, p.statement AS statement, p.count AS count, p.confidence AS confidence,
+       p.source_videos AS videos, p.keywords AS keywords
+ORDER BY count DESC, id
