@@ -73,9 +73,11 @@ def main():
 @click.option("--audio/--no-audio", default=None,
               help="Send each clip's audio to the perception model (default: only for audio-capable models, e.g. *Omni*).")
 @click.option("--embed-model", default=None, help="sentence-transformers model name or path (default: bundled all-MiniLM-L6-v2).")
+@click.option("--episodic", is_flag=True,
+              help="Skip offline consolidation and enrichment (no routines or preferences): the MEMORA-Episodic condition.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
-          editor_model, editor_base_url, audio, embed_model, quiet):
+          editor_model, editor_base_url, audio, embed_model, episodic, quiet):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -86,6 +88,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/epic
       memora build banks/p01 --participants P01,P02
       memora build banks/raw --mode raw --participants P01
+      memora build banks/episodic --episodic          # MEMORA-Episodic: no routines / preferences
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct
     """
@@ -98,7 +101,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode and --participants")
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
-        return _build_video(bank, video, backend, embed_model, quiet, video_opts)
+        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic})
     given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply with --video")
@@ -120,7 +123,8 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         progress.update(task["id"], advance=1, description=f"{p} {video}")
 
     with progress:
-        result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video)
+        result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
+                            episodic=episodic)
     rows = []
     for r in result.participants:
         shares = decision_shares(r.decisions)
@@ -129,13 +133,16 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
             "segments": r.counts.get("segments"), "entities": r.counts.get("entities"),
             "state_events": r.counts.get("state_events"), "places": r.counts.get("places"),
             "NOOP%": shares["NOOP"], "UPDATE%": shares["UPDATE"], "ADD%": shares["ADD"], "DELETE%": shares["DELETE"],
-            "compression": round(r.compression, 1), "seconds": round(r.timings.total, 1),
+            "compression": round(r.compression, 1), "routines": result.inferred.get(r.participant, {}).get("routines"),
+            "preferences": result.inferred.get(r.participant, {}).get("preferences"), "seconds": round(r.timings.total, 1),
         })
     click.echo(render(pl.DataFrame(rows)))
     t = result.timings
     click.echo(f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s "
                f"(perception {t.perception:.1f} s, editor {t.editor:.1f} s, embedding {t.embedding:.1f} s, "
                f"graph {t.graph:.1f} s)")
+    click.echo("inferred knowledge: none (MEMORA-Episodic)" if episodic or mode == "raw" else
+               f"inferred knowledge (consolidation + enrichment, keyword indexes): {result.inferred_seconds:.1f} s")
 
 
 def _build_video(bank, video, backend, embed_model, quiet, opts):
@@ -327,6 +334,11 @@ _register_perf_video()
 
 
 def _register_optional_groups() -> None:
+    from memora_graph.retrieve.cli import perf_tools_cmd, tool_cmd, tools_cmd
+
+    main.add_command(tools_cmd, "tools")
+    main.add_command(tool_cmd, "tool")
+    perf.add_command(perf_tools_cmd, "tools")
     try:
         from memora_graph.bench.cli import bench_group
     except ImportError:

@@ -1,0 +1,211 @@
+"""`memora perf tools`: latency of every tool on a bank, the exact-search floor, and recall@10.
+
+For every participant and retrieval recipe, each tool is called over a fixed query set twice:
+cold (the query embedding cache is cleared first, so the call embeds the query) and warm (the
+embedding is cached). One untimed call per tool warms the view (prepared statements, matrices);
+that one-off cost is reported separately as `open`. The floor is what any tool must pay: embed
+the query and take the exact numpy top-10 over the participant's segment embeddings. Recall@10
+compares each vector search (Kùzu brute force, and Kùzu HNSW built on a temporary copy) with
+exact numpy search over the same vectors.
+"""
+
+from __future__ import annotations
+
+import shutil
+import statistics
+import tempfile
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import polars as pl
+
+from memora_graph.bank import Bank
+from memora_graph.retrieve.registry import call_tool
+from memora_graph.retrieve.view import MemoryView
+
+OBJECT_QUERIES = ["knife", "bowl", "wooden spoon", "kettle", "plate", "chopping board", "sponge", "frying pan",
+                  "fridge", "mug", "spatula", "tap"]
+ACTIVITY_QUERIES = ["wash the dishes", "cut vegetables on the board", "make a cup of tea", "fry an egg in the pan",
+                    "put plates away in the cupboard", "rinse the sponge", "stir the pot", "take milk from the fridge",
+                    "pour water into the kettle", "peel potatoes", "throw rubbish in the bin", "wipe the counter"]
+PATTERN_QUERIES = ["where are the knives kept", "what happens after washing a plate", "how are dishes dried",
+                   "which tool is used to stir", "food stored in the fridge", "what is done after cooking",
+                   "cleaning the sink", "cutlery after washing", "spices", "breakfast routine", "bread", "cups"]
+ROUTINE_QUERIES = ["wash bowl", "make tea", "cut onion", "cook eggs", "clean the pan", "prepare breakfast",
+                   "put away groceries", "make coffee", "wash vegetables", "set the table", "make a sandwich", "boil pasta"]
+PREFERENCE_QUERIES = ["spatula or fork for eggs", "where to store cutlery", "knife", "drying rack", "sponge",
+                      "which tool to stir", "where does the milk go", "after washing", "pan", "plates", "",
+                      "chopping board"]
+
+
+def _queries(tool: str, view: MemoryView, n: int) -> list[dict]:
+    if tool == "search":
+        qs = [q for pair in zip(ACTIVITY_QUERIES, OBJECT_QUERIES) for q in pair]
+        return [{"query": q} for q in qs[:n]]
+    if tool == "search_objects":
+        return [{"query": q} for q in OBJECT_QUERIES[:n]]
+    if tool == "search_activities":
+        return [{"query": q} for q in ACTIVITY_QUERIES[:n]]
+    if tool == "search_patterns":
+        return [{"query": q} for q in PATTERN_QUERIES[:n]]
+    if tool == "get_routine_skill":
+        return [{"goal_query": q} for q in ROUTINE_QUERIES[:n]]
+    if tool == "get_preferences":
+        return [{"query": q} for q in PREFERENCE_QUERIES[:n]]
+    if tool == "get_object_history":
+        return [{"object_query": q} for q in OBJECT_QUERIES[:n]]
+    if tool == "get_state_at_time":
+        out = []
+        videos = sorted(view.videos.values(), key=lambda v: v["id"])
+        fractions = (0.25, 0.5, 0.75, 0.1, 0.9, 0.33, 0.66, 0.05, 0.95, 0.5)
+        for i in range(n):
+            v = videos[i % len(videos)]
+            out.append({"time_seconds": round((v["duration"] or 60.0) * fractions[i % len(fractions)], 1), "video": v["id"]})
+        return out
+    raise ValueError(tool)
+
+
+TOOLS = ("search", "search_objects", "get_object_history", "get_state_at_time", "search_activities", "search_patterns",
+         "get_routine_skill", "get_preferences")
+
+
+def _pct(xs: list[float], p: float) -> float:
+    if not xs:
+        return float("nan")
+    xs = sorted(xs)
+    return xs[min(len(xs) - 1, max(0, int(round(p * (len(xs) - 1)))))]
+
+
+@dataclass
+class PerfReport:
+    latency: pl.DataFrame
+    recall: pl.DataFrame
+    summary: list[str] = field(default_factory=list)
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return (time.perf_counter() - t0) * 1e3
+
+
+def _recall(a: list[str], b: list[str]) -> float:
+    return len(set(a) & set(b)) / max(len(b), 1)
+
+
+def run_perf(bank_path: str | Path, participants: list[str] | None = None, n_queries: int = 10,
+             recipes: list[str] | None = None, hnsw: bool = True, echo=print) -> PerfReport:
+    from memora_graph.embed import get_embedder
+    from memora_graph.retrieve.embedding import torch_threads
+
+    bank = Bank(bank_path)
+    pids = participants or bank.participants()
+    recipes = recipes or ["hybrid"]
+    embedder = get_embedder()
+    with torch_threads(1):
+        embedder.inner.encode(["warm up"], kind="query")
+    cold: dict[tuple[str, str], list[float]] = defaultdict(list)
+    warm: dict[tuple[str, str], list[float]] = defaultdict(list)
+    opens: dict[str, list[float]] = defaultdict(list)
+    floor_cold, floor_warm = [], []
+    recall_rows: dict[tuple[str, str], list[float]] = defaultdict(list)
+    method_ms: dict[tuple[str, str], list[float]] = defaultdict(list)
+    for recipe in recipes:
+        for p in pids:
+            t0 = time.perf_counter()
+            view = MemoryView.open(bank_path, p, embedder, config=recipe)
+            try:
+                view.warm()
+                for tool in TOOLS:  # one untimed call each: prepared statements
+                    call_tool(view, tool, _queries(tool, view, 1)[0])
+                opens[recipe].append((time.perf_counter() - t0) * 1e3)
+                for tool in TOOLS:
+                    qs = _queries(tool, view, n_queries)
+                    for args in qs:
+                        view.encoder.clear()
+                        cold[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
+                    for args in qs:
+                        warm[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
+                if recipe == recipes[0]:
+                    segs = view.vectors("segment")
+                    for q in ACTIVITY_QUERIES[:n_queries]:
+                        view.encoder.clear()
+                        floor_cold.append(_timed(lambda: segs.topk(view.embed(q), 10)))
+                        floor_warm.append(_timed(lambda: segs.topk(view.embed(q), 10)))
+                    _kuzu_recall(view, n_queries, recall_rows, method_ms)
+            finally:
+                view.close()
+        echo(f"timed recipe {recipe} over {len(pids)} participants")
+    if hnsw:
+        _hnsw_recall(bank, pids, embedder, n_queries, recall_rows, method_ms, echo)
+
+    rows = []
+    for (recipe, tool), xs in cold.items():
+        ws = warm[(recipe, tool)]
+        rows.append({"recipe": recipe, "tool": tool, "calls": len(xs),
+                     "cold_p50_ms": round(_pct(xs, .5), 2), "cold_p95_ms": round(_pct(xs, .95), 2),
+                     "warm_p50_ms": round(_pct(ws, .5), 2), "warm_p95_ms": round(_pct(ws, .95), 2)})
+    rows.append({"recipe": "floor", "tool": "embed + numpy top-10", "calls": len(floor_cold),
+                 "cold_p50_ms": round(_pct(floor_cold, .5), 2), "cold_p95_ms": round(_pct(floor_cold, .95), 2),
+                 "warm_p50_ms": round(_pct(floor_warm, .5), 2), "warm_p95_ms": round(_pct(floor_warm, .95), 2)})
+    latency = pl.DataFrame(rows)
+    recall = pl.DataFrame([{"search": m, "table": t, "queries": len(xs), "recall@10": round(statistics.fmean(xs), 4),
+                            "p50_ms": round(_pct(method_ms[(m, t)], .5), 2), "p95_ms": round(_pct(method_ms[(m, t)], .95), 2)}
+                           for (m, t), xs in sorted(recall_rows.items())])
+    summary = [f"view open + warm-up (per participant, {r}): p50 {_pct(xs, .5):.0f} ms, max {max(xs):.0f} ms"
+               for r, xs in opens.items()]
+    summary.append(f"participants {len(pids)}, {n_queries} queries per tool; targets p50 <= 5 ms, p95 <= 20 ms per call, "
+                   f"recall@10 >= 0.95")
+    return PerfReport(latency, recall, summary)
+
+
+def _kuzu_recall(view: MemoryView, n: int, out: dict, ms: dict) -> None:
+    for table, qs in (("segment", ACTIVITY_QUERIES), ("entity", OBJECT_QUERIES)):
+        exact_table = view.vectors(table)
+        for q in qs[:n]:
+            v = view.embed(q)
+            exact = [i for i, _ in exact_table.topk(v, 10)]
+            ms[("numpy exact", table)].append(_timed(lambda: exact_table.topk(v, 10)))
+            t0 = time.perf_counter()
+            rows = view.fetch(f"_tool_knn_{table}", vector=v.tolist())[:10]
+            ms[("kuzu brute force", table)].append((time.perf_counter() - t0) * 1e3)
+            out[("kuzu brute force", table)].append(_recall([r["id"] for r in rows], exact))
+            out[("numpy exact", table)].append(1.0)
+
+
+def _hnsw_recall(bank: Bank, pids: list[str], embedder, n: int, out: dict, ms: dict, echo) -> None:
+    from memora_graph.store import Store
+
+    with tempfile.TemporaryDirectory(prefix="memora-hnsw-") as tmp:
+        build_s = 0.0
+        for p in pids:
+            src = bank.db_path(p)
+            dst = Path(tmp) / src.name
+            shutil.copy(src, dst)
+            if src.with_name(src.name + ".wal").exists():
+                shutil.copy(src.with_name(src.name + ".wal"), dst.with_name(dst.name + ".wal"))
+            t0 = time.perf_counter()
+            with Store(dst, read_only=False) as s:
+                s.ensure_indexes(optional=True)
+            build_s += time.perf_counter() - t0
+            store = Store(dst, read_only=True)
+            view = MemoryView(store, p, embedder, config="hnsw", owns_store=True)
+            try:
+                for table, qs in (("segment", ACTIVITY_QUERIES), ("entity", OBJECT_QUERIES)):
+                    exact_table = view.vectors(table)
+                    for q in qs[:n]:
+                        v = view.embed(q)
+                        exact = [i for i, _ in exact_table.topk(v, 10)]
+                        view.fetch(f"_tool_hnsw_{table}", vector=v.tolist())  # prepared once
+                        t0 = time.perf_counter()
+                        rows = view.fetch(f"_tool_hnsw_{table}", vector=v.tolist())[:10]
+                        ms[("kuzu hnsw", table)].append((time.perf_counter() - t0) * 1e3)
+                        out[("kuzu hnsw", table)].append(_recall([r["id"] for r in rows], exact))
+            finally:
+                view.close()
+        echo(f"built HNSW indexes on a copy of {len(pids)} participants in {build_s:.1f} s")
+
+
+__all__ = ["PerfReport", "run_perf", "TOOLS"]

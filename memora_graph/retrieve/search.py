@@ -1,0 +1,202 @@
+"""Search primitives of the retrieval tools: exact vector top-k, keyword scoring, RRF fusion, dedup.
+
+Every variant is a `SearchConfig`; the named recipes in `RECIPES` are the ones `memora perf
+tools` measures side by side, so a reader sees every retrieval variant in one place:
+
+- vector: "numpy" (exact cosine over the participant's embedding matrix, loaded once through a
+  named query), "kuzu" (exact `array_cosine_similarity` inside Kùzu per call) or "hnsw" (Kùzu's
+  HNSW index; optional, built on a copy by the benchmark only).
+- keyword: "fts" (Kùzu's full-text index, BM25, porter stemmer), "bm25" (the same scoring over
+  the same texts in process) or "none".
+- fusion: reciprocal-rank fusion of the vector and keyword ranks plus a small graph term, so a
+  record found by both signals beats one found by either alone.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+DEFAULT_TOP_K = 10
+MAX_TOP_K = 30
+
+
+class SearchConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    vector: Literal["numpy", "kuzu", "hnsw"] = "numpy"
+    keyword: Literal["fts", "bm25", "none"] = "fts"
+    rrf_k: int = 60
+    graph_weight: float = 0.5  # a graph score of 1.0 is worth half a rank-1 RRF vote
+    dedup_cosine: float = 0.95
+    pool: int = 50  # candidates taken from each signal before fusion
+
+
+RECIPES: dict[str, SearchConfig] = {
+    "hybrid": SearchConfig(),  # exact vectors in process + Kùzu FTS (the default)
+    "memory": SearchConfig(keyword="bm25"),  # no Kùzu round trip for ranking at all
+    "kuzu": SearchConfig(vector="kuzu"),  # both signals computed inside Kùzu
+    "hnsw": SearchConfig(vector="hnsw"),  # needs `ensure_indexes(optional=True)` on the database
+    "vector": SearchConfig(keyword="none"),
+}
+
+
+# -- vectors ---------------------------------------------------------------------------------
+class VectorTable:
+    """The embedding matrix of one table of one participant (rows L2-normalized)."""
+
+    def __init__(self, ids: list[str], vectors: np.ndarray):
+        self.ids = ids
+        self.index = {i: n for n, i in enumerate(ids)}
+        mat = np.asarray(vectors, dtype=np.float32).reshape(len(ids), -1) if ids else np.zeros((0, 1), np.float32)
+        norms = np.linalg.norm(mat, axis=1, keepdims=True) if len(ids) else np.ones((0, 1), np.float32)
+        self.mat = np.divide(mat, norms, out=np.zeros_like(mat), where=norms > 0)
+
+    @classmethod
+    def from_rows(cls, rows: list[dict]) -> VectorTable:
+        rows = [r for r in rows if r["emb"] is not None]
+        return cls([r["id"] for r in rows], np.asarray([r["emb"] for r in rows], dtype=np.float32))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def sims(self, q: np.ndarray) -> np.ndarray:
+        return self.mat @ q if len(self.ids) else np.zeros(0, np.float32)
+
+    def topk(self, q: np.ndarray, k: int) -> list[tuple[str, float]]:
+        """Exact top-k by cosine; ties broken by id so results are deterministic."""
+        s = self.sims(q)
+        if not len(s):
+            return []
+        k = min(k, len(s))
+        part = np.argpartition(-s, k - 1)[:k] if k < len(s) else np.arange(len(s))
+        order = sorted(part, key=lambda i: (-float(s[i]), self.ids[i]))
+        return [(self.ids[i], float(s[i])) for i in order]
+
+    def vec(self, rid: str) -> np.ndarray | None:
+        n = self.index.get(rid)
+        return None if n is None else self.mat[n]
+
+
+# -- keywords --------------------------------------------------------------------------------
+STOPWORDS = frozenset(
+    "a an and are as at be by for from has have how i in into is it its me my of on or s that the their them then "
+    "there these they this to was were what when where which while who whom why will with you your do does did".split()
+)
+_WORD = re.compile(r"[a-z]+")
+
+
+def stem(word: str) -> str:
+    """A light suffix stemmer (the FTS index uses Porter; this agrees on plurals and -ing/-ed)."""
+    for suffix, keep in (("ies", "y"), ("sses", "ss"), ("ing", ""), ("ed", ""), ("es", ""), ("s", "")):
+        if word.endswith(suffix) and len(word) - len(suffix) >= 3 and not word.endswith("ss"):
+            word = word[: len(word) - len(suffix)] + keep
+            break
+    if len(word) > 3 and word[-1] == word[-2] and word[-1] not in "lsz":
+        word = word[:-1]
+    return word
+
+
+def tokens(text: str) -> list[str]:
+    """Lower-case words without digits (as Kùzu's FTS indexes them), stopwords dropped, stemmed."""
+    return [stem(w) for w in _WORD.findall(text.lower()) if w not in STOPWORDS]
+
+
+class Bm25:
+    """Okapi BM25 over a small corpus, in process (k1 = 1.2, b = 0.75, as Kùzu's FTS)."""
+
+    def __init__(self, ids: list[str], texts: list[str], k1: float = 1.2, b: float = 0.75):
+        self.ids, self.k1, self.b = ids, k1, b
+        self.postings: dict[str, list[tuple[int, int]]] = defaultdict(list)
+        self.lengths = []
+        for n, text in enumerate(texts):
+            toks = tokens(text)
+            self.lengths.append(len(toks))
+            for t, c in Counter(toks).items():
+                self.postings[t].append((n, c))
+        self.avg = (sum(self.lengths) / len(self.lengths)) if self.lengths else 1.0
+        self.n = len(ids)
+
+    def search(self, query: str, k: int) -> list[tuple[str, float]]:
+        scores: dict[int, float] = defaultdict(float)
+        for t in set(tokens(query)):
+            plist = self.postings.get(t)
+            if not plist:
+                continue
+            idf = math.log(1 + (self.n - len(plist) + 0.5) / (len(plist) + 0.5))
+            for doc, tf in plist:
+                norm = tf + self.k1 * (1 - self.b + self.b * self.lengths[doc] / self.avg)
+                scores[doc] += idf * tf * (self.k1 + 1) / norm
+        best = sorted(scores.items(), key=lambda kv: (-kv[1], self.ids[kv[0]]))[:k]
+        return [(self.ids[d], s) for d, s in best]
+
+
+# -- fusion ----------------------------------------------------------------------------------
+@dataclass
+class Candidate:
+    id: str
+    similarity: float = 0.0  # cosine to the query, whether or not the vector signal ranked it
+    vector_rank: int | None = None
+    keyword: float | None = None
+    keyword_rank: int | None = None
+    graph: float | None = None
+    fused: float = 0.0
+    duplicates: list[str] = field(default_factory=list)
+
+    def breakdown(self) -> dict:
+        """Why this record was returned: each signal's raw score and rank, and the fused score."""
+        return {
+            "vector": round(self.similarity, 4), "vector_rank": self.vector_rank,
+            "keyword": None if self.keyword is None else round(self.keyword, 4), "keyword_rank": self.keyword_rank,
+            "graph": None if self.graph is None else round(self.graph, 4), "fused": round(self.fused, 6),
+        }
+
+
+def fuse(vector_hits: list[tuple[str, float]], keyword_hits: list[tuple[str, float]], table: VectorTable | None,
+         q: np.ndarray | None, config: SearchConfig) -> dict[str, Candidate]:
+    """Candidates from both signals with their ranks; cosine filled in for keyword-only hits."""
+    cands: dict[str, Candidate] = {}
+    for rank, (rid, sim) in enumerate(vector_hits, 1):
+        cands[rid] = Candidate(rid, similarity=sim, vector_rank=rank)
+    for rank, (rid, score) in enumerate(keyword_hits, 1):
+        c = cands.setdefault(rid, Candidate(rid))
+        c.keyword, c.keyword_rank = score, rank
+        if c.vector_rank is None and table is not None and q is not None:
+            v = table.vec(rid)
+            c.similarity = float(v @ q) if v is not None else 0.0
+    return cands
+
+
+def rank(cands: dict[str, Candidate], config: SearchConfig) -> list[Candidate]:
+    k = config.rrf_k
+    for c in cands.values():
+        c.fused = ((1.0 / (k + c.vector_rank)) if c.vector_rank else 0.0) + \
+                  ((1.0 / (k + c.keyword_rank)) if c.keyword_rank else 0.0) + \
+                  ((config.graph_weight * c.graph / (k + 1)) if c.graph else 0.0)
+    return sorted(cands.values(), key=lambda c: (-c.fused, -c.similarity, c.id))
+
+
+def dedup(ranked: list[Candidate], table: VectorTable | None, threshold: float, top_k: int) -> list[Candidate]:
+    """Walk in rank order; a record whose embedding has cosine >= threshold with one already kept
+    collapses into it (listed in its `duplicates`)."""
+    kept: list[Candidate] = []
+    kept_vecs: list[np.ndarray] = []
+    for c in ranked:
+        v = table.vec(c.id) if table is not None else None
+        if v is not None and kept_vecs and float(np.linalg.norm(v)) > 0:
+            sims = np.asarray(kept_vecs) @ v
+            j = int(np.argmax(sims))
+            if sims[j] >= threshold:
+                kept[j].duplicates.append(c.id)
+                continue
+        if len(kept) >= top_k:
+            continue  # still absorb duplicates of kept records, but take no new ones
+        kept.append(c)
+        kept_vecs.append(v if v is not None else np.zeros(table.mat.shape[1] if table is not None else 1, np.float32))
+    return kept

@@ -1,0 +1,504 @@
+"""The MEMORA retrieval tools over one participant's memory (a `MemoryView`).
+
+Each tool returns a JSON-serializable dict: the tool name, the participant, the arguments, the
+records, and for every record the ids of the bank nodes that support it (`evidence`) and a
+per-signal score breakdown (`score`: vector, keyword, graph, fused) that says why it was
+returned. Records whose embeddings have cosine >= 0.95 with a better-ranked one collapse into it
+(`duplicates`). Field names follow METHOD_NOTES section 3.3.
+
+"How to do it" lives in `get_routine_skill` / `search_activities` / `search_patterns`; "which
+object and where" in `search_objects` / `get_object_history` / `get_state_at_time`; `search`
+dispatches one query to every store.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import numpy as np
+
+from memora_graph.perceive.vocab import PLACE_NAMES
+from memora_graph.records import segment_id
+from memora_graph.retrieve.search import (
+    DEFAULT_TOP_K, MAX_TOP_K, Candidate, dedup, fuse, rank, stem, tokens,
+)
+from memora_graph.retrieve.view import MemoryView, ToolError
+
+ACTION_WORDS = frozenset(stem(w) for w in (
+    "wash", "cut", "cook", "stir", "mix", "pour", "put", "take", "open", "close", "rinse", "dry", "peel", "fry", "boil",
+    "clean", "prepare", "make", "chop", "slice", "fill", "empty", "turn", "scrub", "wipe", "bake", "heat", "spread",
+))
+PREFERENCE_WORDS = frozenset(stem(w) for w in (
+    "prefer", "preference", "usually", "typically", "often", "always", "habit", "tend", "like", "favorite", "favourite",
+    "store", "keep", "routine",
+))
+
+
+def _k(top_k: int | None, default: int = DEFAULT_TOP_K) -> int:
+    k = default if top_k is None else int(top_k)
+    if k < 1:
+        raise ToolError("top_k must be at least 1")
+    return min(k, MAX_TOP_K)
+
+
+def _query(query: str | None, name: str = "query") -> str:
+    q = (query or "").strip()
+    if not q:
+        raise ToolError(f"{name} must be a non-empty string")
+    return q
+
+
+def _envelope(view: MemoryView, tool: str, args: dict, **body) -> dict:
+    out = {"tool": tool, "participant": view.participant, "arguments": args, **body}
+    if view.notes:
+        out["notes"] = list(view.notes)
+    return out
+
+
+def _place_name(location: str) -> str:
+    return PLACE_NAMES.get(location, (location or "").replace("_", " "))
+
+
+def grounded_entities(view: MemoryView, query: str) -> set[str]:
+    """Entity ids whose kind or name shares a word with the query ("wash the bowl" -> bowls)."""
+    index = view.__dict__.get("_entity_words")
+    if index is None:
+        index = {}
+        for eid, e in view.entities.items():
+            for t in set(tokens(f"{e['kind']} {e['name']}".replace("_", " "))):
+                index.setdefault(t, set()).add(eid)
+        view.__dict__["_entity_words"] = index
+    out: set[str] = set()
+    for t in tokens(query):
+        out |= index.get(t, set())
+    return out
+
+
+def _hybrid(view: MemoryView, table: str, query: str, q: np.ndarray, pool: int) -> dict[str, Candidate]:
+    cfg = view.config
+    vec_hits = view.knn(table, q, pool)
+    kw_hits = view.keyword(table, query, pool)
+    vt = view.vectors(table) if cfg.vector == "numpy" or kw_hits else None
+    cands = fuse(vec_hits, kw_hits, vt, q, cfg)
+    if cfg.vector != "numpy":  # exact cosine for every candidate, whatever ranked it
+        vt = view.vectors(table)
+        for c in cands.values():
+            v = vt.vec(c.id)
+            if v is not None and c.vector_rank is None:
+                c.similarity = float(v @ q)
+    return cands
+
+
+def _finish(view: MemoryView, table: str, cands: dict[str, Candidate], top_k: int) -> list[Candidate]:
+    cfg = view.config
+    ranked = rank(cands, cfg)
+    return dedup(ranked, view.vectors(table), cfg.dedup_cosine, top_k)
+
+
+# -- objects -------------------------------------------------------------------------------------
+def _object_record(view: MemoryView, c: Candidate) -> dict:
+    e = view.entities[c.id]
+    places = view.graph.entity_places.get(c.id, Counter())
+    used = view.graph.used_with(c.id, 5)
+    visual = {k: e[k] for k in ("color", "material", "size") if e[k]}
+    first_seg = segment_id(e["first_video"], int(e["first_turn"])) if e["first_video"] else None
+    last_seg = segment_id(e["last_video"], int(e["last_turn"])) if e["last_video"] else None
+    return {
+        "object_id": e["object_id"], "entity_id": e["id"], "name": e["name"], "kind": e["kind"], "category": e["category"],
+        "visual_properties": visual,
+        "spatial_info": {"location": e["location"], "place": _place_name(e["location"]), "is_fixture": e["is_fixture"]},
+        "state": {"current_state": e["state"], "held_by": e["held_by"] or None, "status": e["status"]},
+        "places": [{"location": loc, "place": _place_name(loc), "observations": n}
+                   for loc, n in sorted(places.items(), key=lambda kv: (-kv[1], kv[0]))[:3]],
+        "used_with": [{"entity_id": u, "name": view.entities[u]["name"] if u in view.entities else u, "segments": n}
+                      for u, n in used],
+        "time_seen_seconds": {"first": {"video": e["first_video"], "t": e["first_seen"]},
+                              "last": {"video": e["last_video"], "t": e["last_seen"]}},
+        "n_observations": e["n_observations"],
+        "similarity": round(c.similarity, 4),
+        "score": c.breakdown(),
+        "evidence": [x for x in (e["id"], first_seg, last_seg) if x],
+        **({"duplicates": c.duplicates} if c.duplicates else {}),
+    }
+
+
+def search_objects(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+    """Objects (entity memory) matching a description: identity, attributes, current state and
+    place, the places it was seen at and the objects used with it."""
+    query, k = _query(query), _k(top_k)
+    return _envelope(view, "search_objects", {"query": query, "top_k": k},
+                     results=_search_objects(view, query, view.embed(query), k))
+
+
+def _search_objects(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+    cands = _hybrid(view, "entity", query, q, view.config.pool)
+    active = {i: e for i, e in view.entities.items() if e["status"] == "active"}
+    top = max((e["n_observations"] or 0 for e in active.values()), default=0)
+    for c in cands.values():
+        n = (view.entities.get(c.id) or {}).get("n_observations") or 0
+        c.graph = np.log1p(n) / np.log1p(top) if top else None  # usage degree: HAS_STATE edges
+    cands = {i: c for i, c in cands.items() if i in active}
+    return [_object_record(view, c) for c in _finish(view, "entity", cands, k)]
+
+
+# -- activities ----------------------------------------------------------------------------------
+def _steps(raw: str) -> list[dict]:
+    try:
+        steps = json.loads(raw or "[]")
+    except json.JSONDecodeError:
+        return []
+    return [{"t": f"{s.get('timestamp', 0):.1f}-{min(s.get('end', 0), 99.9):.1f}s", "action": s.get("action", ""),
+             "object": s.get("object", ""), "narration": s.get("narration", "")} for s in steps]
+
+
+def _environment(view: MemoryView, location: str) -> str:
+    p = view.places.get(location)
+    zones = ", ".join(p["zones"][:8]) if p and p["zones"] else ""
+    text = _place_name(location) + (f" (zones: {zones})" if zones else "")
+    return text[:150]
+
+
+def _neighbour(seg: dict, delta: int) -> str:
+    return segment_id(seg["video"], int(seg["turn"]) + delta)
+
+
+def _activity_record(view: MemoryView, seg: dict, rows: dict[str, dict], c: Candidate | None) -> dict:
+    prev, nxt = rows.get(_neighbour(seg, -1)), rows.get(_neighbour(seg, 1))
+    scene = sorted({view.entities[e]["name"] for e in view.graph.segment_entities.get(seg["id"], ()) if e in view.entities})
+    rec = {
+        "segment_id": seg["id"], "source_video": seg["video"], "turn_id": seg["turn"],
+        "time": {"start": seg["t_start"], "end": seg["t_end"]},
+        "summary": seg["summary"], "detailed_narrative": seg["narrative"], "action_breakdown": _steps(seg["action_breakdown"]),
+        "previous_action": (prev["summary"][:100] if prev else None), "next_action": (nxt["summary"][:100] if nxt else None),
+        "scene_objects": scene[:10], "environment": _environment(view, seg["location"]),
+    }
+    if c is not None:
+        rec.update({"similarity": round(c.similarity, 4), "score": c.breakdown()})
+        if c.duplicates:
+            rec["duplicates"] = c.duplicates
+    rec["evidence"] = [seg["id"]]
+    return rec
+
+
+def search_activities(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+    """Episodes (10 s activity records) matching a query, with what came before and after."""
+    query, k = _query(query), _k(top_k)
+    return _envelope(view, "search_activities", {"query": query, "top_k": k},
+                     results=_search_activities(view, query, view.embed(query), k))
+
+
+def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+    cands = _hybrid(view, "segment", query, q, view.config.pool)
+    grounded = grounded_entities(view, query)
+    if grounded:  # share of the query's objects (by kind) that the segment observed
+        kinds = {view.entities[e]["kind"] for e in grounded}
+        for c in cands.values():
+            seen = {view.entities[e]["kind"] for e in view.graph.segment_entities.get(c.id, ()) if e in view.entities}
+            c.graph = len(seen & kinds) / len(kinds)
+    kept = _finish(view, "segment", cands, k)
+    ids = [c.id for c in kept]
+    wanted = set(ids)
+    for c in kept:
+        video, turn = c.id.rsplit("#t", 1)
+        wanted |= {segment_id(video, int(turn) - 1), segment_id(video, int(turn) + 1)}
+    rows = {r["id"]: r for r in view.fetch("_tool_segments", ids=sorted(wanted))}
+    return [_activity_record(view, rows[c.id], rows, c) for c in kept if c.id in rows]
+
+
+# -- places ----------------------------------------------------------------------------------------
+def search_environment(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+    """Places (environment memory): zones, features, how much they are used, what is there now."""
+    query, k = _query(query), _k(top_k)
+    return _envelope(view, "search_environment", {"query": query, "top_k": k},
+                     results=_search_places(view, query, view.embed(query), k))
+
+
+def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+    cands = _hybrid(view, "place", query, q, view.config.pool)
+    by_id = {p["id"]: p for p in view.places.values()}
+    top = max((p["turn_count"] or 0 for p in by_id.values()), default=0)
+    for c in cands.values():
+        if c.id in by_id and top:
+            c.graph = (by_id[c.id]["turn_count"] or 0) / top
+    out = []
+    for c in _finish(view, "place", cands, k):
+        p = by_id.get(c.id)
+        if p is None:
+            continue
+        here = sorted((e for e in view.entities.values() if e["status"] == "active" and e["location"] == p["location_id"]),
+                      key=lambda e: (-(e["n_observations"] or 0), e["id"]))
+        out.append({
+            "place_id": p["location_id"], "name": p["name"], "zones": p["zones"], "features": p["features"],
+            "turns": p["turn_count"], "first_seen": {"video": p["first_video"], "t": p["first_seen"]},
+            "last_seen": {"video": p["last_video"], "t": p["last_seen"]},
+            "objects_here": [e["name"] for e in here[:10]],
+            "similarity": round(c.similarity, 4), "score": c.breakdown(), "evidence": [p["id"]],
+            **({"duplicates": c.duplicates} if c.duplicates else {}),
+        })
+    return out
+
+
+# -- inferred knowledge ------------------------------------------------------------------------------
+def _links(view: MemoryView) -> dict[str, set[str]]:
+    links = view.__dict__.get("_links")
+    if links is None:
+        links = {}
+        for r in view.fetch("_tool_inferred_links"):
+            links.setdefault(r["id"], set()).add(r["entity"])
+        view.__dict__["_links"] = links
+    return links
+
+
+def _inferred_graph(view: MemoryView, cands: dict[str, Candidate], query: str) -> None:
+    """Graph signal for routines / preferences: share of the query's objects they use (USES / ABOUT)."""
+    grounded = grounded_entities(view, query)
+    if not grounded:
+        return
+    kinds = {view.entities[e]["kind"] for e in grounded}
+    links = _links(view)
+    for c in cands.values():
+        used = {view.entities[e]["kind"] for e in links.get(c.id, ()) if e in view.entities}
+        c.graph = len(used & kinds) / len(kinds)
+
+
+def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> dict:
+    rec = {
+        "routine_id": r["id"], "goal": r["goal"], "activity_type": r["activity_type"],
+        "canonical_steps": [{"action": s} for s in r["canonical_steps"]],
+        "key_objects": [{"object": o} for o in r["key_objects"]],
+        "supporting_episodes": r["supporting_episodes"], "source_videos": r["source_videos"], "count": r["count"],
+        "confidence": r["confidence"],
+        "source": "routine_skill" if r["source"] == "routine_skill" else "procedure_template",
+        "kind": r["source"], "processor": r["processor"],
+    }
+    if c is not None:
+        rec.update({"similarity": round(c.similarity, 4), "score": c.breakdown()})
+        if c.duplicates:
+            rec["duplicates"] = c.duplicates
+    rec["evidence"] = [r["id"], *r["supporting_episodes"]]
+    return rec
+
+
+def _preference_record(view: MemoryView, p: dict, c: Candidate | None) -> dict:
+    rec = {
+        "preference_id": p["id"], "preference": p["statement"], "subtype": p["subtype"], "keywords": p["keywords"],
+        "objects": p["objects"], "context": p["context"], "evidence_summary": p["evidence_summary"],
+        "confidence": p["confidence"], "count": p["count"], "supporting_episodes": p["supporting_episodes"],
+        "source_videos": p["source_videos"],
+        "source": "generated_preference" if p["source"] == "enrichment" else "consolidated_preference",
+        "processor": p["processor"],
+    }
+    if c is not None:
+        rec.update({"similarity": round(c.similarity, 4), "score": c.breakdown()})
+        if c.duplicates:
+            rec["duplicates"] = c.duplicates
+    else:
+        rec["similarity"] = -1
+    rec["evidence"] = [p["id"], *p["supporting_episodes"]]
+    return rec
+
+
+def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> dict:
+    """Routine skills (goal, canonical steps, key objects, supporting episodes) for a goal."""
+    query, k = _query(goal_query, "goal_query"), _k(top_k, 3)
+    args = {"goal_query": query, "top_k": k}
+    if not view.routines:
+        return _envelope(view, "get_routine_skill", args, routines=[],
+                         error="no routine skills in this memory (a MEMORA-Episodic bank, or too little repetition)")
+    return _envelope(view, "get_routine_skill", args, routines=_search_routines(view, query, view.embed(query), k))
+
+
+def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+    cands = _hybrid(view, "routine", query, q, view.config.pool)
+    _inferred_graph(view, cands, query)
+    return [_routine_record(view, view.routines[c.id], c) for c in _finish(view, "routine", cands, k) if c.id in view.routines]
+
+
+def get_preferences(view: MemoryView, query: str = "", top_k: int = 5) -> dict:
+    """Preferences (storage, habit, workflow, generated) by similarity to a query, or by
+    confidence when the query is empty."""
+    query, k = (query or "").strip(), _k(top_k, 5)
+    args = {"query": query, "top_k": k}
+    if not query:
+        ranked = sorted(view.preferences.values(), key=lambda p: (-p["confidence"], -p["count"], p["id"]))[:k]
+        return _envelope(view, "get_preferences", args, preferences=[_preference_record(view, p, None) for p in ranked])
+    return _envelope(view, "get_preferences", args, preferences=_search_preferences(view, query, view.embed(query), k))
+
+
+def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+    cands = _hybrid(view, "preference", query, q, view.config.pool)
+    _inferred_graph(view, cands, query)
+    return [_preference_record(view, view.preferences[c.id], c)
+            for c in _finish(view, "preference", cands, k) if c.id in view.preferences]
+
+
+def search_patterns(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+    """Consolidated patterns: preferences, habits, workflows, routines and recurring sequences."""
+    query, k = _query(query), _k(top_k)
+    return _envelope(view, "search_patterns", {"query": query, "top_k": k},
+                     results=_search_patterns(view, query, view.embed(query), k))
+
+
+def _pattern(rec: dict, kind: str) -> dict:
+    if kind == "routine":
+        desc = rec["goal"] + (": " + "; ".join(s["action"] for s in rec["canonical_steps"]) if rec["canonical_steps"] else "")
+        category = "routine" if rec["kind"] == "routine_skill" else "action_sequence"
+        pid = rec["routine_id"]
+    else:
+        desc, category, pid = rec["preference"], rec["subtype"], rec["preference_id"]
+    return {"category": category, "pattern_id": pid, "description": desc, "source": rec["source"],
+            "supporting_episodes": rec["supporting_episodes"][:3], "confidence": rec["confidence"], "count": rec["count"],
+            "similarity": rec["similarity"], "score": rec["score"], "evidence": rec["evidence"],
+            **({"duplicates": rec["duplicates"]} if rec.get("duplicates") else {})}
+
+
+def _search_patterns(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+    if not view.routines and not view.preferences:
+        return []
+    merged = [(_pattern(r, "routine"), r["score"]["fused"]) for r in _search_routines(view, query, q, k)] + \
+             [(_pattern(p, "preference"), p["score"]["fused"]) for p in _search_preferences(view, query, q, k)]
+    merged.sort(key=lambda x: (-x[1], -x[0]["similarity"], x[0]["pattern_id"]))
+    return [m for m, _ in merged[:k]]
+
+
+# -- object history and state ------------------------------------------------------------------------
+def resolve_object(view: MemoryView, text: str) -> tuple[list[str], str]:
+    """Entity ids for an object reference, best first, and how they matched: exact (id, object
+    id, kind or name), substring, or embedding (cosine > 0.6 over entity identities)."""
+    t = text.strip().lower()
+    slug = t.replace(" ", "_")
+    ents = view.entities
+
+    def order(ids):
+        return sorted(ids, key=lambda i: (ents[i]["status"] != "active", -(ents[i]["n_observations"] or 0), i))
+
+    exact = [i for i, e in ents.items() if t in (i.lower(), e["object_id"], e["kind"], e["name"].lower())
+             or slug in (e["object_id"], e["kind"])]
+    if exact:
+        return order(exact), "exact"
+    sub = [i for i, e in ents.items() if slug in e["object_id"] or t in e["name"].lower()]
+    if sub:
+        return order(sub), "substring"
+    q = view.embed(text)
+    hits = [(i, s) for i, s in view.vectors("entity").topk(q, 3) if s > 0.6]
+    return [i for i, _ in hits], "embedding"
+
+
+def get_object_history(view: MemoryView, object_query: str, max_entries: int = 60) -> dict:
+    """One object's state history across videos: states, locations, moves, first / last seen."""
+    query = _query(object_query, "object_query")
+    args = {"object_query": query, "max_entries": max_entries}
+    ids, how = resolve_object(view, query)
+    if not ids:
+        return _envelope(view, "get_object_history", args, found=False,
+                         error=f"no object matching {query!r}; try search_objects first")
+    e = view.entities[ids[0]]
+    rows = view.fetch("_tool_history", entity=e["id"])
+    transitions = []
+    for prev, cur in zip(rows, rows[1:]):
+        if cur["location"] != prev["location"] and cur["location"]:
+            transitions.append({"video": cur["video"], "t": cur["t"], "from": prev["location"], "to": cur["location"],
+                                "segment_id": cur["segment"], "event_id": cur["id"]})
+    history = [{"event_id": r["id"], "segment_id": r["segment"], "video": r["video"], "turn_id": r["turn"],
+                "time_seconds": r["t"], "state": r["state"], "location": r["location"], "zone": r["zone"] or None,
+                "held_by": r["held_by"] or None, "relative_to": r["relative_to"] or None, "relation": r["relation"] or None,
+                "action": r["action"] or None, "narration": r["narration"], "editor_op": r["op"]} for r in rows]
+    shown = history[-max_entries:] if max_entries and len(history) > max_entries else history
+    return _envelope(
+        view, "get_object_history", args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
+        match_type=how, status=e["status"], current_state=e["state"], current_location=e["location"],
+        all_states_observed=sorted({r["state"] for r in rows if r["state"]}),
+        all_locations_observed=sorted({r["location"] for r in rows if r["location"]}),
+        location_transitions=transitions[-max_entries:] if max_entries else transitions,
+        state_history=shown, history_total=len(history), history_shown=len(shown),
+        first_seen={"video": e["first_video"], "t": e["first_seen"]}, last_seen={"video": e["last_video"], "t": e["last_seen"]},
+        other_matches=[{"entity_id": i, "name": view.entities[i]["name"], "status": view.entities[i]["status"]} for i in ids[1:6]],
+        evidence=[e["id"], *sorted({r["segment"] for r in rows})[:20]],
+    )
+
+
+def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None = None, window: float = 60.0) -> dict:
+    """What was where, in which state, at `time_seconds` of a video, from the state history: every
+    object seen in the video by then and again after (or within `window` s before), each in its
+    last recorded state at that time."""
+    try:
+        t = float(time_seconds)
+    except (TypeError, ValueError) as exc:
+        raise ToolError("time_seconds must be a number of seconds") from exc
+    videos = sorted(view.videos)
+    if video is None:
+        if len(videos) != 1:
+            raise ToolError(f"get_state_at_time needs `video` (one of: {', '.join(videos)})")
+        video = videos[0]
+    if video not in view.videos:
+        raise ToolError(f"no video {video!r} in {view.participant}'s memory (has: {', '.join(videos)})")
+    args = {"time_seconds": t, "video": video, "window": window}
+    rows = view.fetch("_tool_video_events", video=video)
+    first: dict[str, float] = {}
+    last_seen: dict[str, float] = {}
+    state: dict[str, dict] = {}
+    for r in rows:  # ordered by t, ord
+        first.setdefault(r["entity"], r["t"])
+        last_seen[r["entity"]] = r["t"]
+        if r["t"] <= t:
+            state[r["entity"]] = r
+    visible = []
+    for ent, r in state.items():
+        if not (first[ent] <= t <= last_seen[ent] + window):
+            continue
+        info = view.entities.get(ent, {})
+        visible.append({
+            "entity_id": ent, "object_id": info.get("object_id"), "name": info.get("name", ent),
+            "state": r["state"], "location": r["location"], "zone": r["zone"] or None, "held_by": r["held_by"] or None,
+            "relative_to": r["relative_to"] or None, "relation": r["relation"] or None,
+            "since_seconds": r["t"], "last_action": r["action"] or None, "event_id": r["id"], "segment_id": r["segment"],
+        })
+    visible.sort(key=lambda v: (-v["since_seconds"], v["entity_id"]))
+    turn = int(t // 10)
+    seg_ids = [segment_id(video, turn)]
+    segs = {s["id"]: s for s in view.fetch("_tool_segments", ids=seg_ids)}
+    seg = segs.get(seg_ids[0])
+    return _envelope(
+        view, "get_state_at_time", args, segment_id=seg["id"] if seg else None,
+        current_activity=seg["summary"] if seg else None,
+        environment=_environment(view, seg["location"]) if seg else None, visible_objects=visible,
+        evidence=([seg["id"]] if seg else []) + [v["event_id"] for v in visible],
+    )
+
+
+# -- unified ---------------------------------------------------------------------------------------
+CATEGORIES = ("objects", "activities", "places", "patterns")
+_ALIASES = {"environment": "places", "objects": "objects", "object": "objects", "activities": "activities",
+            "activity": "activities", "places": "places", "place": "places", "patterns": "patterns", "pattern": "patterns"}
+
+
+def search(view: MemoryView, query: str, category: str | None = None, top_k_per_category: int = 3) -> dict:
+    """One query over every store (objects, activities, places, patterns), top few per store.
+    Action queries get twice the activities; preference queries get three times the patterns."""
+    query, k = _query(query), _k(top_k_per_category, 3)
+    cats = CATEGORIES
+    if category:
+        if category.lower() not in _ALIASES:
+            raise ToolError(f"category must be one of: {', '.join(CATEGORIES)}")
+        cats = (_ALIASES[category.lower()],)
+    words = set(tokens(query))
+    k_of = {c: k for c in cats}
+    routing = []
+    if words & ACTION_WORDS and "activities" in k_of:
+        k_of["activities"] = min(2 * k, MAX_TOP_K)
+        routing.append("action query: 2x activities")
+    if words & PREFERENCE_WORDS and "patterns" in k_of:
+        k_of["patterns"] = min(3 * k, MAX_TOP_K)
+        routing.append("preference query: 3x patterns")
+    q = view.embed(query)
+    run = {"objects": _search_objects, "activities": _search_activities, "places": _search_places, "patterns": _search_patterns}
+    body = {c: run[c](view, query, q, k_of[c]) for c in cats}
+    return _envelope(view, "search", {"query": query, "category": category, "top_k_per_category": k},
+                     routing=routing, **body)
+
+
+__all__ = [
+    "get_object_history", "get_preferences", "get_routine_skill", "get_state_at_time", "resolve_object", "search",
+    "search_activities", "search_environment", "search_objects", "search_patterns",
+]

@@ -1,0 +1,188 @@
+"""A participant's memory opened for the retrieval tools: one read-only store, one participant.
+
+The view is the unit of scoping: it holds exactly one participant's database and binds that
+participant into every named query it runs, so no tool can return another person's records.
+Small tables that every call needs (the entity registry, places, videos, inferred knowledge,
+embedding matrices, the entity-segment observation graph) are loaded once, through named
+queries, the first time a tool needs them; per call the tools run the keyword search and fetch
+the large tables (segments, state history) with prepared named queries.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from memora_graph.bank import Bank
+from memora_graph.errors import BankError, MemoraError
+from memora_graph.retrieve.embedding import QueryEncoder
+from memora_graph.retrieve.search import RECIPES, Bm25, SearchConfig, VectorTable
+from memora_graph.store import Store
+
+TABLES = ("segment", "entity", "place", "routine", "preference")
+_FTS = {t: f"{t}_fts" for t in TABLES}
+_HNSW = {"segment": "segment_hnsw", "entity": "entity_hnsw"}
+
+
+class ToolError(MemoraError):
+    """A tool called with arguments it cannot answer (the message says what would work)."""
+
+
+class MemoryView:
+    def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str = "hybrid",
+                 owns_store: bool = False):
+        self.store = store
+        self.participant = participant
+        self.config = RECIPES[config] if isinstance(config, str) else config
+        self._embedder = embedder
+        self._owns = owns_store
+        self.notes: list[str] = []  # degradations a caller should know about (e.g. no FTS index)
+        migrations = set(store.migrations())
+        if "002_inferred.cypher" not in migrations:
+            raise BankError(f"{store.path}: built before inferred knowledge existed (schema 002 missing); "
+                            "rebuild it with `memora build`")
+        if self.config.keyword == "fts":
+            have = set(store.indexes())
+            missing = sorted(set(_FTS.values()) - have)
+            if missing:
+                self.notes.append(f"no keyword index ({', '.join(missing)}); keyword signal computed in process")
+                self.config = self.config.model_copy(update={"keyword": "bm25"})
+        if self.config.vector == "hnsw" and not set(_HNSW.values()) <= set(store.indexes()):
+            raise ToolError(f"{store.path}: has no HNSW index; the 'hnsw' recipe needs Store.ensure_indexes(optional=True)")
+
+    @classmethod
+    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = "hybrid") -> MemoryView:
+        store = Bank(bank).open(participant, read_only=True)
+        try:
+            return cls(store, participant, embedder, config, owns_store=True)
+        except BaseException:
+            store.close()
+            raise
+
+    def close(self) -> None:
+        if self._owns:
+            self.store.close()
+
+    def __enter__(self) -> MemoryView:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- queries and embeddings ---------------------------------------------------------
+    def fetch(self, name: str, **params) -> list[dict]:
+        return self.store.fetch(name, participant=self.participant, **params)
+
+    @cached_property
+    def encoder(self) -> QueryEncoder:
+        if self._embedder is None:
+            from memora_graph.embed import get_embedder
+
+            self._embedder = get_embedder()
+        return QueryEncoder(self._embedder)
+
+    def embed(self, text: str) -> np.ndarray:
+        return self.encoder(text)
+
+    # -- loaded once ----------------------------------------------------------------------
+    def vectors(self, table: str) -> VectorTable:
+        cache = self.__dict__.setdefault("_vectors", {})
+        if table not in cache:
+            cache[table] = VectorTable.from_rows(self.fetch(f"_tool_vectors_{table}"))
+        return cache[table]
+
+    @cached_property
+    def entities(self) -> dict[str, dict]:
+        return {r["id"]: r for r in self.fetch("_tool_entities")}
+
+    @cached_property
+    def places(self) -> dict[str, dict]:
+        """location_id -> place row."""
+        return {r["location_id"]: r for r in self.fetch("_tool_places")}
+
+    @cached_property
+    def videos(self) -> dict[str, dict]:
+        return {r["id"]: r for r in self.fetch("_tool_videos")}
+
+    @cached_property
+    def routines(self) -> dict[str, dict]:
+        return {r["id"]: {**r, "detail": json.loads(r["detail"] or "{}")} for r in self.fetch("_tool_routines")}
+
+    @cached_property
+    def preferences(self) -> dict[str, dict]:
+        return {r["id"]: {**r, "detail": json.loads(r["detail"] or "{}")} for r in self.fetch("_tool_preferences")}
+
+    @cached_property
+    def graph(self) -> ObservationGraph:
+        return ObservationGraph(self.fetch("_tool_observations"))
+
+    # -- signals ---------------------------------------------------------------------------
+    def knn(self, table: str, q: np.ndarray, k: int) -> list[tuple[str, float]]:
+        if self.config.vector == "numpy":
+            return self.vectors(table).topk(q, k)
+        if self.config.vector == "hnsw" and table in _HNSW:
+            rows = self.fetch(f"_tool_hnsw_{table}", vector=q.tolist())
+        else:
+            rows = self.fetch(f"_tool_knn_{table}", vector=q.tolist())
+        return [(r["id"], float(r["sim"])) for r in rows[:k]]
+
+    def keyword(self, table: str, query: str, k: int) -> list[tuple[str, float]]:
+        if self.config.keyword == "none" or not query.strip():
+            return []
+        if self.config.keyword == "fts":
+            if not any(c.isalpha() for c in query):
+                return []  # Kùzu's FTS drops digits; a query without letters matches nothing
+            return [(r["id"], float(r["score"])) for r in self.fetch(f"_tool_fts_{table}", query=query)[:k]]
+        return self._bm25(table).search(query, k)
+
+    def _bm25(self, table: str) -> Bm25:
+        cache = self.__dict__.setdefault("_bm25", {})
+        if table not in cache:
+            if table == "segment":
+                rows = self.fetch("_tool_segment_texts")
+                docs = [(r["id"], f"{r['summary']} {r['narrative']}") for r in rows]
+            elif table == "entity":
+                docs = [(i, f"{e['name']} {e['kind']} {e['category']}") for i, e in self.entities.items() if e["status"] == "active"]
+            elif table == "place":
+                docs = [(p["id"], p["name"]) for p in self.places.values()]
+            elif table == "routine":
+                docs = [(i, r["retrieval_text"]) for i, r in self.routines.items()]
+            else:
+                docs = [(i, r["retrieval_text"]) for i, r in self.preferences.items()]
+            cache[table] = Bm25([d[0] for d in docs], [d[1] for d in docs])
+        return cache[table]
+
+    def warm(self) -> None:
+        """Load everything the tools read once (what the first call would otherwise pay)."""
+        for t in TABLES:
+            self.vectors(t)
+        _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph
+        if self.config.keyword == "bm25":
+            for t in TABLES:
+                self._bm25(t)
+
+
+class ObservationGraph:
+    """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen."""
+
+    def __init__(self, rows: list[dict]):
+        self.segment_entities: dict[str, set[str]] = defaultdict(set)
+        self.entity_segments: dict[str, set[str]] = defaultdict(set)
+        self.entity_places: dict[str, Counter[str]] = defaultdict(Counter)
+        for r in rows:
+            self.segment_entities[r["segment"]].add(r["entity"])
+            self.entity_segments[r["entity"]].add(r["segment"])
+            if r["location"]:
+                self.entity_places[r["entity"]][r["location"]] += int(r["n"])
+
+    def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
+        """The entities seen in the most of this entity's segments."""
+        counts: Counter[str] = Counter()
+        for seg in self.entity_segments.get(entity, ()):
+            counts.update(self.segment_entities[seg])
+        counts.pop(entity, None)
+        return sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[:k]

@@ -1,0 +1,6 @@
+// description: Every segment embedding of a participant, for exact top-k search in process.
+// params: participant
+MATCH (n:Segment)
+WHERE n.participant = $participant
+RETURN n.id AS id, n.emb AS emb
+ORDER BY id
