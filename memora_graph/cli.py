@@ -176,7 +176,7 @@ def _build_video(bank, video, backend, embed_model, quiet, opts):
                f"UPDATE {shares['UPDATE']}% ADD {shares['ADD']}% DELETE {shares['DELETE']}%")
     click.echo(f"{len(res.calls)} model calls ({sum(not r.ok for r in res.calls)} failed, {tokens} tokens) in "
                f"{res.wall_seconds:.1f} s: waiting for the model {res.model_seconds:.1f} s, decoding "
-               f"{res.decode_seconds:.1f} s, graph work {res.graph_seconds:.1f} s")
+               f"{res.decode_seconds:.1f} s, graph work {res.graph_seconds:.1f} s, consolidation {res.inferred_seconds:.1f} s")
     failed = sum(r["failed_turns"] for r in rows)
     if failed:
         click.echo(f"{failed} turn(s) were not written because the model's reply stayed invalid; "
