@@ -176,6 +176,7 @@ _REL_RE = re.compile(r"^(.+?)\s+(" + "|".join(r.replace("_", "[ _]") for r in SP
 _NUMBERED = re.compile(r"^(.*?)_?(\d+)$")
 _TRAJECTORY_SPLIT = re.compile(r"\s*(?:->|→|=>|\bto\b|,|;)\s*")
 _ADJECTIVES = COLORS | MATERIALS | SIZES
+_NOBODY = {"", "none", "null", "nobody", "no one", "no", "n/a", "nothing"}
 
 
 def normalize_location(text: str | None, default: str = DEFAULT_PLACE) -> str:
@@ -269,7 +270,7 @@ def to_segment(reply: PerceptionReply, clip: VideoClip, participant: str, workin
             relative_to=slug(sp.relative_to) if sp.relative_to else "", is_fixture=fixture,
         )
         t0 = clamp(obj.first_seen)
-        held = None if fixture else (obj.state.held_by or None)
+        held = None if fixture or (obj.state.held_by or "").strip().lower() in _NOBODY else obj.state.held_by.strip()
         state = (obj.state.current_state or "observed").strip().lower()
         if len(stops) < 2:
             objects.append(ObjectObservation(**base, location=final_loc, state=state, held_by=held, t_rel=t0,
