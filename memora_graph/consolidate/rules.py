@@ -76,7 +76,9 @@ class RuleConsolidator:
     workflow_min_count = 3
     sequence_lengths = (3, 4, 5)
     sequence_span = 60.0  # seconds an action sequence may span
-    caps = {"storage": 15, "after_use": 15, "during_use": 10, "default": 5, "habit": 25, "workflow": 15, "sequence": 20}
+    # At most this many records of each kind per participant, the best supported first: every record
+    # costs an embedding at build time and a line in an agent's context at read time.
+    caps = {"storage": 10, "after_use": 10, "during_use": 6, "default": 4, "habit": 15, "workflow": 10, "sequence": 12}
 
     def __init__(self):
         self._recurring: tuple[int, set[tuple[str, ...]]] | None = None
@@ -397,7 +399,7 @@ class RuleEnricher:
     max_canonical_steps = 12
     key_object_share = 0.4
     tool_min_count = 2
-    caps = {"routine": 40, "preference": 30}
+    caps = {"routine": 30, "preference": 20}
 
     def enrich(self, memory: ParticipantMemory, consolidation: Consolidation) -> Enrichment:
         return Enrichment(participant=memory.participant, routine_skills=self.routine_skills(memory),

@@ -91,7 +91,7 @@ class _Collector:
         if not episodes or not segments:
             return
         rid = self._unique(stable_id(self.p, kind, *key))
-        text = _words(f"{goal}.", f"Steps: {'; '.join(steps)}." if steps else "",
+        text = _words(f"{goal}.", f"Steps: {'; '.join(steps[:8])}." if steps else "",
                       f"Objects: {', '.join(key_objects)}." if key_objects else "")
         self.out.routines.append({
             "id": rid, "participant": self.p, "goal": goal, "activity_type": activity_type, "canonical_steps": list(steps),

@@ -123,7 +123,7 @@ def tools_cmd(fmt):
 @click.option("--participant", required=True, help="Whose memory to search (P01); tools never see another's.")
 @click.option("--arg", "args", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="A tool argument (see `memora tools`). Repeatable.")
-@click.option("--recipe", type=click.Choice(["hybrid", "memory", "kuzu", "vector"]), default="hybrid", show_default=True,
+@click.option("--recipe", type=click.Choice(["inprocess", "fts", "kuzu", "vector"]), default="inprocess", show_default=True,
               help="Retrieval variant (see memora_graph/retrieve/search.py).")
 @output_options
 def tool_cmd(bank, name, text, participant, args, recipe, fmt):
@@ -164,7 +164,7 @@ def tool_cmd(bank, name, text, participant, args, recipe, fmt):
 @click.argument("bank", type=click.Path(exists=True, file_okay=False), default="banks/epic")
 @click.option("--participants", default="all", show_default=True, help="Comma-separated ids or 'all'.")
 @click.option("--queries", "n_queries", default=10, show_default=True, help="Queries per tool and participant.")
-@click.option("--recipes", default="hybrid,memory,kuzu", show_default=True,
+@click.option("--recipes", default="inprocess,fts,kuzu", show_default=True,
               help="Retrieval variants to time (see memora_graph/retrieve/search.py).")
 @click.option("--hnsw/--no-hnsw", default=True, show_default=True,
               help="Also build HNSW indexes on a temporary copy of a few participants and measure them.")

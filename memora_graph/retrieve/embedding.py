@@ -31,9 +31,19 @@ def torch_threads(n: int = 1):
             torch.set_num_threads(before)
 
 
-def encode_passages(embedder, texts: list[str]) -> np.ndarray:
-    with torch_threads(1):
-        return embedder.encode(texts, kind="passage")
+def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndarray:
+    """Batch passage encoding on one torch thread, in batches of 32 (on these CPUs a batch of 128
+    short texts is ~1.6x slower per text than 16-32)."""
+    inner = getattr(embedder, "inner", embedder)
+    before = getattr(inner, "batch_size", None)
+    if before is not None:
+        inner.batch_size = min(before, batch_size)
+    try:
+        with torch_threads(1):
+            return embedder.encode(texts, kind="passage")
+    finally:
+        if before is not None:
+            inner.batch_size = before
 
 
 class QueryEncoder:

@@ -395,22 +395,34 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
                          error=f"no object matching {query!r}; try search_objects first")
     e = view.entities[ids[0]]
     rows = view.fetch("_tool_history", entity=e["id"])
+    for r in rows:  # the segment a state entry was observed in (its OBSERVED_IN edge) is its video's turn
+        r["segment"] = segment_id(r["video"], int(r["turn"]))
     transitions = []
     for prev, cur in zip(rows, rows[1:]):
         if cur["location"] != prev["location"] and cur["location"]:
             transitions.append({"video": cur["video"], "t": cur["t"], "from": prev["location"], "to": cur["location"],
-                                "segment_id": cur["segment"], "event_id": cur["id"]})
+                                "across_videos": cur["video"] != prev["video"], "segment_id": cur["segment"],
+                                "event_id": cur["id"]})
     history = [{"event_id": r["id"], "segment_id": r["segment"], "video": r["video"], "turn_id": r["turn"],
                 "time_seconds": r["t"], "state": r["state"], "location": r["location"], "zone": r["zone"] or None,
                 "held_by": r["held_by"] or None, "relative_to": r["relative_to"] or None, "relation": r["relation"] or None,
                 "action": r["action"] or None, "narration": r["narration"], "editor_op": r["op"]} for r in rows]
     shown = history[-max_entries:] if max_entries and len(history) > max_entries else history
+    per_video: dict[str, dict] = {}
+    for r in rows:  # the history across videos at a glance: where and in which states, per video
+        v = per_video.setdefault(r["video"], {"video": r["video"], "observations": 0, "first_t": r["t"], "last_t": r["t"],
+                                              "states": [], "locations": [], "final_state": "", "final_location": ""})
+        v["observations"] += 1
+        v["last_t"], v["final_state"], v["final_location"] = r["t"], r["state"], r["location"]
+        for key, val in (("states", r["state"]), ("locations", r["location"])):
+            if val and val not in v[key]:
+                v[key].append(val)
     return _envelope(
         view, "get_object_history", args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
         match_type=how, status=e["status"], current_state=e["state"], current_location=e["location"],
         all_states_observed=sorted({r["state"] for r in rows if r["state"]}),
         all_locations_observed=sorted({r["location"] for r in rows if r["location"]}),
-        location_transitions=transitions[-max_entries:] if max_entries else transitions,
+        videos=list(per_video.values()), location_transitions=transitions[-max_entries:] if max_entries else transitions,
         state_history=shown, history_total=len(history), history_shown=len(shown),
         first_seen={"video": e["first_video"], "t": e["first_seen"]}, last_seen={"video": e["last_video"], "t": e["last_seen"]},
         other_matches=[{"entity_id": i, "name": view.entities[i]["name"], "status": view.entities[i]["status"]} for i in ids[1:6]],
@@ -452,7 +464,8 @@ def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None =
             "entity_id": ent, "object_id": info.get("object_id"), "name": info.get("name", ent),
             "state": r["state"], "location": r["location"], "zone": r["zone"] or None, "held_by": r["held_by"] or None,
             "relative_to": r["relative_to"] or None, "relation": r["relation"] or None,
-            "since_seconds": r["t"], "last_action": r["action"] or None, "event_id": r["id"], "segment_id": r["segment"],
+            "since_seconds": r["t"], "last_action": r["action"] or None, "event_id": r["id"],
+            "segment_id": segment_id(video, int(r["turn"])),
         })
     visible.sort(key=lambda v: (-v["since_seconds"], v["entity_id"]))
     turn = int(t // 10)

@@ -20,7 +20,7 @@ import numpy as np
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
-from memora_graph.retrieve.search import RECIPES, Bm25, SearchConfig, VectorTable
+from memora_graph.retrieve.search import DEFAULT_RECIPE, RECIPES, Bm25, SearchConfig, VectorTable
 from memora_graph.store import Store
 
 TABLES = ("segment", "entity", "place", "routine", "preference")
@@ -33,10 +33,12 @@ class ToolError(MemoraError):
 
 
 class MemoryView:
-    def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str = "hybrid",
+    def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
                  owns_store: bool = False):
         self.store = store
         self.participant = participant
+        if isinstance(config, str) and config not in RECIPES:
+            raise ToolError(f"no retrieval recipe {config!r}; recipes: {', '.join(RECIPES)}")
         self.config = RECIPES[config] if isinstance(config, str) else config
         self._embedder = embedder
         self._owns = owns_store
@@ -55,7 +57,7 @@ class MemoryView:
             raise ToolError(f"{store.path}: has no HNSW index; the 'hnsw' recipe needs Store.ensure_indexes(optional=True)")
 
     @classmethod
-    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = "hybrid") -> MemoryView:
+    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
         store = Bank(bank).open(participant, read_only=True)
         try:
             return cls(store, participant, embedder, config, owns_store=True)
@@ -90,7 +92,7 @@ class MemoryView:
 
     # -- loaded once ----------------------------------------------------------------------
     def vectors(self, table: str) -> VectorTable:
-        cache = self.__dict__.setdefault("_vectors", {})
+        cache = self.__dict__.setdefault("_vector_cache", {})
         if table not in cache:
             cache[table] = VectorTable.from_rows(self.fetch(f"_tool_vectors_{table}"))
         return cache[table]
@@ -140,7 +142,7 @@ class MemoryView:
         return self._bm25(table).search(query, k)
 
     def _bm25(self, table: str) -> Bm25:
-        cache = self.__dict__.setdefault("_bm25", {})
+        cache = self.__dict__.setdefault("_bm25_cache", {})
         if table not in cache:
             if table == "segment":
                 rows = self.fetch("_tool_segment_texts")
@@ -167,7 +169,8 @@ class MemoryView:
 
 
 class ObservationGraph:
-    """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen."""
+    """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
+    the entity co-occurrence counts (segments two entities share) computed once as M @ M.T."""
 
     def __init__(self, rows: list[dict]):
         self.segment_entities: dict[str, set[str]] = defaultdict(set)
@@ -178,11 +181,19 @@ class ObservationGraph:
             self.entity_segments[r["entity"]].add(r["segment"])
             if r["location"]:
                 self.entity_places[r["entity"]][r["location"]] += int(r["n"])
+        self.entities = sorted(self.entity_segments)
+        self._row = {e: i for i, e in enumerate(self.entities)}
+        segs = {s: i for i, s in enumerate(sorted(self.segment_entities))}
+        incidence = np.zeros((len(self.entities), len(segs)), dtype=np.float32)
+        for e, ss in self.entity_segments.items():
+            incidence[self._row[e], [segs[s] for s in ss]] = 1.0
+        self.cooccur = incidence @ incidence.T
 
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""
-        counts: Counter[str] = Counter()
-        for seg in self.entity_segments.get(entity, ()):
-            counts.update(self.segment_entities[seg])
-        counts.pop(entity, None)
-        return sorted(counts.items(), key=lambda kv: (-kv[1], kv[0]))[:k]
+        i = self._row.get(entity)
+        if i is None:
+            return []
+        row = self.cooccur[i]
+        order = sorted((j for j in np.flatnonzero(row) if j != i), key=lambda j: (-row[j], self.entities[j]))[:k]
+        return [(self.entities[j], int(row[j])) for j in order]

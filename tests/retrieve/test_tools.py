@@ -85,11 +85,12 @@ def _calls(view: MemoryView, words: list[str], videos: list[str]) -> list[tuple[
     return calls
 
 
-def test_no_tool_returns_another_participants_records(merged, embedder):
+@pytest.mark.parametrize("recipe", ["inprocess", "fts", "kuzu"])
+def test_no_tool_returns_another_participants_records(merged, embedder, recipe):
     rng = random.Random(7)
     names = {p: sorted(r["name"] for r in MemoryView(merged, p, embedder).entities.values()) for p in SMALL}
     for a, b in ((SMALL[0], SMALL[1]), (SMALL[1], SMALL[0])):
-        view = MemoryView(merged, a, embedder)
+        view = MemoryView(merged, a, embedder, config=recipe)
         # the other participant's own object words, so a leak would be the best match
         words = rng.sample(names[b], 3) + rng.sample(names[a], 2) + ["wash the dishes", "where is the knife kept"]
         videos = sorted(view.videos)
@@ -105,6 +106,27 @@ def test_no_tool_returns_another_participants_records(merged, embedder):
         other_video = sorted(MemoryView(merged, b, embedder).videos)[0]
         with pytest.raises(ToolError, match="no video"):
             call_tool(view, "get_state_at_time", {"time_seconds": 10, "video": other_video})
+
+
+def test_every_tool_query_is_scoped_even_when_asked_for_the_other_participant(merged, embedder):
+    """Each named query the tools and consolidation run, asked about P37's ids as P09 (and the
+    other way round), returns only the asking participant's records."""
+    from memora_graph.queries import load_queries
+
+    views = {p: MemoryView(merged, p, embedder) for p in SMALL}
+    probe = {p: {"ids": sorted(views[p].vectors("segment").ids)[:20] + sorted(views[p].entities)[:10],
+                 "entity": sorted(views[p].entities)[0], "video": sorted(views[p].videos)[0],
+                 "vector": views[p].vectors("segment").mat[0].tolist(), "query": "take put wash knife plate"}
+             for p in SMALL}
+    names = [n for n in load_queries() if n.startswith(("_tool_", "_consolidate_", "_inferred_")) and
+             not n.startswith("_tool_hnsw") and not load_queries()[n].writes]
+    assert len(names) > 20
+    for a, b in ((SMALL[0], SMALL[1]), (SMALL[1], SMALL[0])):
+        for name in names:
+            params = {k: v for k, v in probe[b].items() if k in load_queries()[name].params}
+            rows = merged.fetch(name, participant=a, **params)
+            leaked = {i for i in _ids(rows) if i.startswith(b)}
+            assert not leaked, f"{name} as {a} returned {b}'s {sorted(leaked)[:3]}"
 
 
 def test_state_at_time_follows_the_hand_built_history(hand_store, embedder):
@@ -231,9 +253,10 @@ def test_perf_tools_reports_every_tool_and_recall(small_bank):
     from memora_graph.retrieve.perf import TOOLS, run_perf
 
     path, _ = small_bank
-    report = run_perf(path, ["P37"], n_queries=2, recipes=["hybrid"], hnsw=True, echo=lambda *_: None)
+    report = run_perf(path, ["P37"], n_queries=2, recipes=["inprocess", "fts"], hnsw=True, echo=lambda *_: None)
     lat = report.latency
-    assert set(lat.filter(pl.col("recipe") == "hybrid")["tool"]) == set(TOOLS)
+    for recipe in ("inprocess", "fts"):
+        assert set(lat.filter(pl.col("recipe") == recipe)["tool"]) == set(TOOLS)
     assert (lat["calls"] > 0).all() and "floor" in lat["recipe"].to_list()
     rec = {(r["search"], r["table"]): r["recall@10"] for r in report.recall.to_dicts()}
     assert rec[("numpy exact", "segment")] == 1.0 and rec[("kuzu brute force", "segment")] >= 0.9
