@@ -195,14 +195,14 @@ def dedup(ranked: list[Candidate], table: VectorTable | None, threshold: float, 
         return ranked[:top_k]
     rows = [table.index.get(c.id) for c in ranked]
     vecs = np.stack([table.mat[r] if r is not None else np.zeros(table.mat.shape[1], np.float32) for r in rows])
-    gram = vecs @ vecs.T  # every pairwise cosine of the pool at once (rows are unit length or zero)
+    gram = (vecs @ vecs.T).tolist()  # every pairwise cosine of the pool (rows are unit length or zero)
     kept: list[int] = []
     for i, c in enumerate(ranked):
         if kept and rows[i] is not None:
-            sims = gram[i, kept]
-            j = int(np.argmax(sims))
-            if sims[j] >= threshold:
-                ranked[kept[j]].duplicates.append(c.id)
+            row = gram[i]
+            j = max(kept, key=row.__getitem__)
+            if row[j] >= threshold:
+                ranked[j].duplicates.append(c.id)
                 continue
         if len(kept) < top_k:
             kept.append(i)  # once full, later records can still collapse into kept ones, never join

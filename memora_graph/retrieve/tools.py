@@ -133,8 +133,7 @@ def search_objects(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> 
 
 def _search_objects(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
     cands = _hybrid(view, "entity", query, q, view.config.pool)
-    active = {i: e for i, e in view.entities.items() if e["status"] == "active"}
-    top = max((e["n_observations"] or 0 for e in active.values()), default=0)
+    active, top = view.active_entities, view.max_observations
     for c in cands.values():
         n = (view.entities.get(c.id) or {}).get("n_observations") or 0
         c.graph = np.log1p(n) / np.log1p(top) if top else None  # usage degree: HAS_STATE edges

@@ -32,9 +32,28 @@ class ToolError(MemoraError):
     """A tool called with arguments it cannot answer (the message says what would work)."""
 
 
+_BLAS_LIMITED = False
+
+
+def _single_thread_blas() -> None:
+    """Tool calls do small matrix products (a query against <= 1.4k rows); on the 2-core
+    machines this project targets, OpenBLAS' worker threads turn a 0.1 ms product into 8 ms
+    (the same spin as torch's). Limit BLAS to one thread, once per process."""
+    global _BLAS_LIMITED
+    if _BLAS_LIMITED:
+        return
+    _BLAS_LIMITED = True
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(limits=1, user_api="blas")
+
+
 class MemoryView:
     def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
                  owns_store: bool = False):
+        _single_thread_blas()
         self.store = store
         self.participant = participant
         if isinstance(config, str) and config not in RECIPES:
@@ -100,6 +119,14 @@ class MemoryView:
     @cached_property
     def entities(self) -> dict[str, dict]:
         return {r["id"]: r for r in self.fetch("_tool_entities")}
+
+    @cached_property
+    def active_entities(self) -> dict[str, dict]:
+        return {i: e for i, e in self.entities.items() if e["status"] == "active"}
+
+    @cached_property
+    def max_observations(self) -> int:
+        return max((e["n_observations"] or 0 for e in self.active_entities.values()), default=0)
 
     @cached_property
     def places(self) -> dict[str, dict]:
