@@ -31,11 +31,24 @@ def _jsonable(df: pl.DataFrame) -> list[dict]:
     return df.drop(drop).to_dicts()
 
 
+def _flat(df: pl.DataFrame) -> pl.DataFrame:
+    """CSV has no nested values: lists become '; '-joined text, structs JSON, embeddings are dropped."""
+    cols = []
+    for c, t in df.schema.items():
+        if isinstance(t, pl.Array):
+            continue
+        if isinstance(t, pl.List):
+            cols.append(pl.col(c).list.eval(pl.element().cast(pl.String)).list.join("; ").alias(c))
+        elif isinstance(t, pl.Struct):
+            cols.append(pl.col(c).struct.json_encode().alias(c))
+        else:
+            cols.append(pl.col(c))
+    return df.select(cols)
+
+
 def render(df: pl.DataFrame, fmt: str = "table") -> str:
     if fmt == "csv":
-        flat = df.with_columns([pl.col(c).cast(pl.String) if isinstance(t, (pl.List, pl.Array, pl.Struct)) else pl.col(c)
-                                for c, t in df.schema.items()]) if df.width else df
-        return flat.write_csv()
+        return _flat(df).write_csv()
     if fmt == "json":
         return json.dumps(_jsonable(df), indent=2, default=str)
     if fmt == "nl":

@@ -73,3 +73,13 @@ def test_help_has_examples():
     for cmd in ("build", "query", "queries", "run", "stats"):
         r = invoke(cmd, "--help")
         assert r.exit_code == 0 and "Example" in r.output, cmd
+
+
+def test_csv_flattens_list_columns(small_bank):
+    path, _ = small_bank
+    q = "MATCH (p:Place) WHERE p.participant = $participant RETURN p.location_id AS place, p.zones AS zones ORDER BY place"
+    r = invoke("query", path, q, "-p", "participant", "P37", "--csv")
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(io.StringIO(r.output)))
+    js = json.loads(invoke("query", path, q, "-p", "participant", "P37", "--json").output)
+    assert [row["zones"] for row in rows] == ["; ".join(x["zones"]) for x in js]
