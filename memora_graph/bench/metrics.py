@@ -17,6 +17,8 @@ from collections import defaultdict
 from statistics import mean
 from typing import Any, Iterable, Literal
 
+from memora_graph.sequences import lcs_length
+
 # =============================================================================================
 # EAM-QA
 # =============================================================================================
@@ -409,14 +411,7 @@ def _reference_text(step: Any) -> str:
 # Planning: OrderExec
 # =============================================================================================
 
-def _lcs(a: list[str], b: list[str]) -> int:
-    prev = [0] * (len(b) + 1)
-    for x in a:
-        cur = [0]
-        for j, y in enumerate(b):
-            cur.append(prev[j] + 1 if x == y else max(prev[j + 1], cur[j]))
-        prev = cur
-    return prev[-1]
+_lcs = lcs_length
 
 
 def order_exec(plan: list[str], reference: list[Any], mode: Literal["lcs", "prefix"] = "lcs",

@@ -23,6 +23,7 @@ from memora_graph.consolidate.records import (
     StoragePreference, VideoConsolidation, WorkflowPattern,
 )
 from memora_graph.perceive.vocab import VERB_STATE
+from memora_graph.sequences import lcs_length
 
 
 def _conf(x: float) -> float:
@@ -378,14 +379,7 @@ class RuleConsolidator:
         return out[: self.caps["sequence"]]
 
 
-def _lcs(a: list[str], b: list[str]) -> int:
-    prev = [0] * (len(b) + 1)
-    for x in a:
-        cur = [0]
-        for j, y in enumerate(b):
-            cur.append(prev[j] + 1 if x == y else max(prev[j + 1], cur[j]))
-        prev = cur
-    return prev[-1]
+_lcs = lcs_length
 
 
 class RuleEnricher:
