@@ -344,16 +344,8 @@ def _from_json_blocks(text: str, tools: _Tools):
     if out:
         return out
     # A bare JSON object in the prose: {"name": "search", "arguments": {...}}.
-    decoder = json.JSONDecoder()
-    position = 0
-    while (start := text.find("{", position)) != -1:
-        try:
-            value, end = decoder.raw_decode(text, start)
-        except json.JSONDecodeError:
-            position = start + 1
-            continue
+    for _, _, value in _json_objects(text):
         out.extend(_call_from_object(value))
-        position = end
     return out
 
 
@@ -562,7 +554,8 @@ def _remove_gemma_calls(text: str) -> str:
     return text
 
 
-def _remove_bare_json_calls(text: str) -> str:
+def _json_objects(text: str):
+    """Yield (start, end, value) for each JSON value that starts at a '{' in the text, left to right."""
     decoder = json.JSONDecoder()
     position = 0
     while (start := text.find("{", position)) != -1:
@@ -571,9 +564,12 @@ def _remove_bare_json_calls(text: str) -> str:
         except json.JSONDecodeError:
             position = start + 1
             continue
-        if _call_from_object(value):
-            text = text[:start] + text[end:]
-            position = start
-        else:
-            position = end
+        yield start, end, value
+        position = end
+
+
+def _remove_bare_json_calls(text: str) -> str:
+    spans = [(start, end) for start, end, value in _json_objects(text) if _call_from_object(value)]
+    for start, end in reversed(spans):
+        text = text[:start] + text[end:]
     return text
