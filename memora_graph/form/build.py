@@ -193,7 +193,7 @@ class ParticipantBuilder:
                 continue
             edits.append((seg, result))
             kept.append((seg, vec))
-            ip, sp, _, _ = self.places.merge(seg)
+            ip, sp = self.places.merge(seg)
             in_place += ip
             spatial += sp
         t.editor = time.perf_counter() - t0

@@ -39,14 +39,14 @@ class PlaceMemory:
         self.participant = participant
         self.places: dict[str, PlaceState] = {p.location_id: p for p in places or []}
 
-    def merge(self, seg: LayeredSegment) -> tuple[list[dict], list[dict], set[str], set[str]]:
-        """Returns (IN_PLACE rows, SPATIAL rows, location ids added, location ids updated)."""
+    def merge(self, seg: LayeredSegment) -> tuple[list[dict], list[dict]]:
+        """Returns (IN_PLACE rows, SPATIAL rows)."""
         env = seg.environment
         locations = list(dict.fromkeys([env.location_id, *env.places, *(o.location for o in seg.objects)]))
         zones_at: dict[str, list[str]] = {}
         for name, zone in env.zones.items():
             zones_at.setdefault(zone.position, []).append(name)
-        in_place, added, updated = [], set(), set()
+        in_place = []
         for loc in locations:
             zones = sorted(zones_at.get(loc, []))
             p = self.places.get(loc)
@@ -55,10 +55,8 @@ class PlaceMemory:
                                name=PLACE_NAMES.get(loc, loc.replace("_", " ")), first_seen=seg.t_start,
                                first_video=seg.video_id)
                 self.places[loc] = p
-                added.add(loc)
                 op = "ADD"
             else:
-                updated.add(loc)
                 op = "UPDATE"
             p.zones = sorted(set(p.zones) | set(zones))
             p.features = sorted(set(p.features) | set(zones))
@@ -73,4 +71,4 @@ class PlaceMemory:
             if a and b and a != b:
                 spatial.append({"from": place_id(self.participant, a), "to": place_id(self.participant, b),
                                 "relation": r.relation, "video": seg.video_id, "turn": seg.turn_id})
-        return in_place, spatial, added, updated - added
+        return in_place, spatial
