@@ -62,13 +62,29 @@ class QueryEncoder:
             self.hits += 1
             return v
         self.misses += 1
-        inner = getattr(self.embedder, "inner", self.embedder)  # skip the build cache: queries are one-offs
+        # through the embedder's own cache when it has one (the process-wide CachedEmbedder): a
+        # query asked of several memories (the seven bench conditions) or warmed by `prefetch`
+        # is encoded once
         with torch_threads(1):
-            v = np.asarray(inner.encode([text], kind="query")[0], dtype=np.float32)
+            v = np.asarray(self.embedder.encode([text], kind="query")[0], dtype=np.float32)
         self._cache[text] = v
         if len(self._cache) > self.size:
             self._cache.popitem(last=False)
         return v
+
+    def prefetch(self, texts: list[str]) -> None:
+        """Encode the texts not yet cached in one batch (an agent response carrying several calls
+        costs about one forward pass instead of one per call)."""
+        stripped = (t.strip() for t in texts if isinstance(t, str))  # the tools strip their queries too
+        todo = list(dict.fromkeys(t for t in stripped if t and t not in self._cache))
+        if not todo:
+            return
+        with torch_threads(1):
+            vecs = np.asarray(self.embedder.encode(todo, kind="query"), dtype=np.float32)
+        for t, v in zip(todo, vecs):
+            self._cache[t] = v
+        while len(self._cache) > self.size:
+            self._cache.popitem(last=False)
 
     def clear(self) -> None:
         self._cache.clear()
