@@ -19,3 +19,8 @@ class QueryError(MemoraError):
 
 class BankError(MemoraError):
     """A bank directory that is missing, damaged or incomplete."""
+
+
+class ConsolidationError(MemoraError):
+    """Offline consolidation produced nothing usable (every model step failed); the participant's
+    inferred knowledge is left as it was."""

@@ -2,21 +2,30 @@
 
 `ConsolidationProcessor` runs per completed video and then once per participant;
 `EnrichmentProcessor` turns the participant slice plus its consolidation into routine skills and
-generated preferences. The deterministic policies are the default (CPU, no model). An LLM
-processor (roles "consolidation" and "enrichment" of `memora_graph.llm`) registers under its own
-name with `register_processor` and returns the same records; evidence checking and storage do
-not change.
+generated preferences. The deterministic policies are the default (CPU, no model). The LLM
+processor (roles "consolidation" and "enrichment" of `memora_graph.llm`, in
+`memora_graph.consolidate.llm`) is registered as "llm" and returns the same records; evidence
+checking and storage do not change. A factory takes options, so one that needs a model server
+is configured through the same lookup:
+
+    get_processors("deterministic")
+    get_processors("llm", options={"backend": "openai", "base_url": "http://127.0.0.1:8000/v1",
+                                   "model": "Qwen/Qwen3.6-35B-A3B"})
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from memora_graph.consolidate.memory import ParticipantMemory
 from memora_graph.consolidate.records import Consolidation, Enrichment, VideoConsolidation
 from memora_graph.errors import MemoraError
+
+if TYPE_CHECKING:
+    from memora_graph.llm.backends import CallLog
 
 
 class ConsolidationProcessor(Protocol):
@@ -36,26 +45,51 @@ class EnrichmentProcessor(Protocol):
         """Routine skills and generated preferences, citing segment ids of `memory` only."""
 
 
+@dataclass
+class StepReport:
+    """One model step of a processor (a video's consolidation, the participant pass, routine
+    skills, preferences) and whether it produced records; a failed step contributes none."""
+
+    participant: str
+    step: str
+    ok: bool
+    error: str = ""
+
+
 @dataclass(frozen=True)
 class Processors:
+    """The two processors of one run. Model-backed ones also bring the log their calls go to and
+    the list they report their steps in; `infer` picks up what each participant added."""
+
     name: str
     consolidation: ConsolidationProcessor
     enrichment: EnrichmentProcessor
+    call_log: CallLog | None = None
+    reports: list[StepReport] | None = None
 
 
-_REGISTRY: dict[str, Callable[[], Processors]] = {}
+_REGISTRY: dict[str, Callable[..., Processors]] = {}
 
 
-def register_processor(name: str, factory: Callable[[], Processors]) -> None:
+def register_processor(name: str, factory: Callable[..., Processors]) -> None:
+    """`factory(**options)` returns the processors; options are whatever `get_processors` is given."""
     if name in _REGISTRY:
         raise MemoraError(f"consolidation processor {name!r} is already registered")
     _REGISTRY[name] = factory
 
 
-def get_processors(name: str = "deterministic") -> Processors:
+def get_processors(name: str = "deterministic", options: dict[str, Any] | None = None) -> Processors:
+    """The processors registered as `name`, built with `options` (a factory's keyword arguments)."""
     if name not in _REGISTRY:
         raise MemoraError(f"no consolidation processor {name!r}; registered: {', '.join(sorted(_REGISTRY))}")
-    return _REGISTRY[name]()
+    factory = _REGISTRY[name]
+    if not options:
+        return factory()
+    try:
+        inspect.signature(factory).bind(**options)
+    except TypeError as exc:
+        raise MemoraError(f"consolidation processor {name!r} does not take these options ({exc})") from None
+    return factory(**options)
 
 
 def processor_names() -> list[str]:
@@ -68,4 +102,11 @@ def _deterministic() -> Processors:
     return Processors("deterministic", RuleConsolidator(), RuleEnricher())
 
 
+def _llm(**options) -> Processors:
+    from memora_graph.consolidate.llm import make_llm_processors
+
+    return make_llm_processors(**options)
+
+
 register_processor("deterministic", _deterministic)
+register_processor("llm", _llm)

@@ -5,22 +5,30 @@ enrichment -> drop any cited id that is not in the bank -> retrieval text + embe
 Routine / Preference nodes with SUPPORTED_BY / USES / ABOUT edges. The participant's previous
 inferred knowledge is deleted and rewritten in the same transaction, so a re-run never
 duplicates records and a killed run leaves the old records intact.
+
+A model-backed processor's calls are written as `ModelCall` nodes (roles "consolidation" and
+"enrichment", appended: they are what the runs cost, failed calls included). When every model
+step of a participant fails, nothing but those calls is written and `ConsolidationError` says so.
 """
 
 from __future__ import annotations
 
 import json
 import time
+import uuid
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 
 import numpy as np
 import polars as pl
 
 from memora_graph.bank import Bank
 from memora_graph.consolidate.memory import ParticipantMemory, load_memory
-from memora_graph.consolidate.processors import Processors, get_processors
+from memora_graph.consolidate.processors import Processors, StepReport, get_processors
 from memora_graph.consolidate.records import Consolidation, Enrichment
 from memora_graph.consolidate.rules import stable_id
+from memora_graph.errors import ConsolidationError
+from memora_graph.llm.backends import CallRecord
 from memora_graph.retrieve.embedding import encode_passages
 from memora_graph.store import Store
 
@@ -41,7 +49,14 @@ class InferredKnowledge:
     uses: list[tuple[str, str]] = field(default_factory=list)
     about: list[tuple[str, str]] = field(default_factory=list)
     dropped_ids: int = 0  # cited ids that do not exist in the bank (an LLM processor can invent some)
+    dropped_records: int = 0  # records left without any existing evidence, so not written
+    calls: list[CallRecord] = field(default_factory=list)  # model calls of this participant's run
+    steps: list[StepReport] = field(default_factory=list)  # model steps and whether they produced records
     seconds: dict = field(default_factory=dict)
+
+    @property
+    def failed_steps(self) -> list[StepReport]:
+        return [s for s in self.steps if not s.ok]
 
     def counts(self) -> dict:
         by_sub: dict[str, int] = {}
@@ -50,8 +65,13 @@ class InferredKnowledge:
         by_src: dict[str, int] = {}
         for r in self.routines:
             by_src[r["source"]] = by_src.get(r["source"], 0) + 1
-        return {"routines": len(self.routines), "preferences": len(self.preferences),
-                "routines_by_source": by_src, "preferences_by_subtype": by_sub, "dropped_ids": self.dropped_ids}
+        out = {"routines": len(self.routines), "preferences": len(self.preferences),
+               "routines_by_source": by_src, "preferences_by_subtype": by_sub, "dropped_ids": self.dropped_ids,
+               "dropped_records": self.dropped_records}
+        if self.calls or self.steps:
+            out.update(model_calls=len(self.calls), failed_calls=sum(not c.ok for c in self.calls),
+                       failed_steps=[f"{s.step}: {s.error}" for s in self.failed_steps])
+        return out
 
 
 def _words(*parts) -> str:
@@ -89,6 +109,7 @@ class _Collector:
         episodes = self._valid(episodes, self.segments)
         segments = self._valid(segments, self.segments)
         if not episodes or not segments:
+            self.out.dropped_records += 1
             return
         rid = self._unique(stable_id(self.p, kind, *key))
         text = _words(f"{goal}.", f"Steps: {'; '.join(steps[:8])}." if steps else "",
@@ -106,6 +127,7 @@ class _Collector:
                    videos: dict, count, confidence, source, evidence_summary, detail: dict) -> None:
         episodes = self._valid(episodes, self.segments)
         if not episodes:
+            self.out.dropped_records += 1
             return
         rid = self._unique(stable_id(self.p, kind, *key))
         text = _words(f"{statement}.", f"Keywords: {', '.join(keywords)}." if keywords else "")
@@ -120,8 +142,20 @@ class _Collector:
         self.out.about += [(rid, e) for e in self._valid(entities, self.entities)]
 
 
+def _calls_since(processors: Processors, mark: int, participant: str) -> list[CallRecord]:
+    if processors.call_log is None:
+        return []
+    return [r for r in processors.call_log.records[mark:] if r.tags.get("participant", participant) == participant]
+
+
+def _marks(processors: Processors) -> tuple[int, int]:
+    return (len(processors.call_log.records) if processors.call_log is not None else 0,
+            len(processors.reports) if processors.reports is not None else 0)
+
+
 def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processors) -> InferredKnowledge:
     """Run both processors over a loaded slice and collect validated rows (no I/O)."""
+    call_mark, report_mark = _marks(processors)
     t0 = time.perf_counter()
     per_video = [processors.consolidation.consolidate_video(memory, v) for v in memory.videos]
     consolidation = processors.consolidation.consolidate_participant(memory, per_video)
@@ -166,6 +200,8 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
                      keywords=g.keywords, objects=g.objects, context=g.context, episodes=g.supporting_evidence_ids,
                      entities=g.entities, videos=g.videos, count=g.count, confidence=g.confidence, source="enrichment",
                      evidence_summary=g.evidence_summary, detail={"alternatives": g.alternatives})
+    c.out.calls = _calls_since(processors, call_mark, memory.participant)
+    c.out.steps = [r for r in (processors.reports or [])[report_mark:] if r.participant == memory.participant]
     c.out.seconds = {"consolidation": round(t1 - t0, 3), "enrichment": round(t2 - t1, 3),
                      "collect": round(time.perf_counter() - t2, 3)}
     return c.out
@@ -192,8 +228,32 @@ def _embed(store: Store, participant: str, texts: list[str], embedder) -> np.nda
     return np.asarray([fresh[t] if t in fresh else known[t] for t in texts], dtype=np.float32)
 
 
+def _call_frame(participant: str, records: list[CallRecord]) -> pl.DataFrame:
+    """ModelCall rows of consolidation calls: they belong to a video (the per-video pass) or to
+    none (turn -1, no segment). Ids carry a run id, so the calls of every run are kept."""
+    from memora_graph.form.build import MODEL_CALL_SCHEMA
+
+    run = uuid.uuid4().hex[:10]
+    return pl.DataFrame([{
+        "id": f"{participant}:inferred:{run}:call{i:04d}", "participant": participant, "video": r.tags.get("video", ""),
+        "turn": -1, "segment": "", "role": r.role, "backend": r.backend, "model": r.model or "",
+        "prompt_hash": r.prompt_hash, "prompt_version": r.tags.get("prompt", ""), "tokens_in": r.tokens_in,
+        "tokens_out": r.tokens_out, "latency_s": r.latency_s, "retries": r.retries, "repairs": r.repairs,
+        "ok": r.ok, "error": r.error or "",
+        "started_at": datetime.fromisoformat(r.started_at).astimezone(timezone.utc).replace(tzinfo=None),
+    } for i, r in enumerate(records)], schema=MODEL_CALL_SCHEMA)
+
+
+def write_calls(store: Store, participant: str, records: list[CallRecord]) -> None:
+    """Record model calls on their own (a run that wrote no inferred knowledge still cost them)."""
+    if records:
+        with store.transaction():
+            store.copy("ModelCall", _call_frame(participant, records))
+
+
 def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None:
-    """Replace the participant's Routine / Preference records in one transaction."""
+    """Replace the participant's Routine / Preference records in one transaction (with the
+    model calls that made them, if any)."""
     p = knowledge.participant
     texts = [r["retrieval_text"] for r in knowledge.routines] + [r["retrieval_text"] for r in knowledge.preferences]
     vecs = _embed(store, p, texts, embedder)
@@ -220,17 +280,37 @@ def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None
         store.copy("SUPPORTED_BY", sup_p, from_table="Preference", to_table="Segment")
         store.copy("USES", uses)
         store.copy("ABOUT", about)
+        if knowledge.calls:
+            store.copy("ModelCall", _call_frame(p, knowledge.calls))
 
 
 def consolidate_participant(store: Store, participant: str, embedder, processors: str | Processors = "deterministic") -> InferredKnowledge:
-    """Consolidate + enrich one participant's memory in an open read-write store."""
+    """Consolidate + enrich one participant's memory in an open read-write store.
+
+    A model server that fails raises (after its calls are recorded); a model step whose reply
+    stayed invalid only loses that step's records, unless every step failed: then the previous
+    inferred knowledge stays and ConsolidationError is raised."""
     procs = get_processors(processors) if isinstance(processors, str) else processors
     t0 = time.perf_counter()
     memory = load_memory(store, participant)
     entity_ids = {r["id"] for r in store.fetch("_consolidate_entity_ids", participant=participant)}
     t1 = time.perf_counter()
-    knowledge = infer(memory, entity_ids, procs)
+    call_mark, _ = _marks(procs)
+    try:
+        knowledge = infer(memory, entity_ids, procs)
+    except BaseException:
+        try:  # best effort: the calls a failed run made are still worth recording
+            write_calls(store, participant, _calls_since(procs, call_mark, participant))
+        except Exception:  # noqa: BLE001 - the original error is the one to report
+            pass
+        raise
     t2 = time.perf_counter()
+    if knowledge.steps and not any(s.ok for s in knowledge.steps):
+        write_calls(store, participant, knowledge.calls)
+        first = knowledge.steps[0]
+        raise ConsolidationError(
+            f"{participant}: every model step failed ({len(knowledge.steps)}; first: {first.step}: {first.error}). "
+            f"Its inferred knowledge was left as it was; the failed calls are in `memora stats BANK --calls failed`.")
     write_inferred(store, knowledge, embedder)
     knowledge.seconds.update({"load": round(t1 - t0, 3), "write": round(time.perf_counter() - t2, 3)})
     knowledge.seconds["total"] = round(time.perf_counter() - t0, 3)
@@ -243,9 +323,11 @@ def clear_inferred(store: Store, participant: str) -> None:
 
 
 def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = False,
-                       processors: str = "deterministic") -> InferredKnowledge | None:
-    """The step after a participant's build: keyword indexes, then consolidation + enrichment
-    (or, for a MEMORA-Episodic bank, no inferred knowledge at all). Records it in the manifest."""
+                       processors: str | Processors = "deterministic") -> InferredKnowledge | None:
+    """The step after a participant's build (or `memora consolidate`): keyword indexes, then
+    consolidation + enrichment (or, for a MEMORA-Episodic bank, no inferred knowledge at all).
+    Records it in the manifest."""
+    name = processors if isinstance(processors, str) else processors.name
     store = Store(bank.db_path(participant), read_only=False)
     try:
         store.apply_schema()
@@ -263,7 +345,7 @@ def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = 
     if entry is not None:
         entry.setdefault("counts", {}).update({"routines": int(counts["routines"]), "preferences": int(counts["preferences"])})
         entry["consolidated"] = not episodic
-        entry["inferred"] = None if episodic else {"processor": processors, **knowledge.counts()}
+        entry["inferred"] = None if episodic else {"processor": name, **knowledge.counts()}
     flags = [e.get("consolidated", False) for e in data["participants"].values()]
     data["consolidated"] = bool(flags) and all(flags)
     data["condition"] = "memora_full" if data["consolidated"] else (
