@@ -28,6 +28,30 @@ def bank_stats(bank_path: str | Path, participants: list[str] | None = None) -> 
     return pl.DataFrame(rows)
 
 
+def memory_formation(bank_path: str | Path, participant: str) -> dict:
+    """The editor's effect on one participant's Entity Memory, segment by segment (videos in id
+    order, turns in order): cumulative records without editing (one per observation) and with
+    the editor (ADD minus DELETE: the live entities), plus the decision counts. The data of the
+    report's compression curve and decision-mix figures."""
+    with Bank(bank_path).open(participant) as store:
+        rows = store.rows("compression_curve", participant=participant)
+        decisions = {r["op"]: int(r["n"]) for r in store.rows("decision_mix", participant=participant)}
+    per: dict[tuple[str, int], list[int]] = {}
+    for r in rows:  # one row per segment and side (observations; decisions), merged here
+        acc = per.setdefault((r["video"], int(r["turn"])), [0, 0])
+        acc[0] += int(r["observations"])
+        acc[1] += int(r["adds"]) - int(r["deletes"])
+    raw = edited = 0
+    without, with_editor = [], []
+    for key in sorted(per):  # videos in id order, turns in order (sorted here, not by Kùzu)
+        raw += per[key][0]
+        edited += per[key][1]
+        without.append(raw)
+        with_editor.append(edited)
+    return {"participant": participant, "segments": len(per), "without_editor": without, "with_editor": with_editor,
+            "compression": round(raw / edited, 2) if edited else None, "decisions": decisions}
+
+
 CALL_VIEWS = {"role": "model_calls_by_role", "segment": "model_calls_by_segment", "failed": "model_calls_failed"}
 
 

@@ -5,13 +5,16 @@ Tables: EAM-QA accuracy / E-selection / per-type accuracy per condition; the thr
 (full; MEMORA-committed; parametric-missed + MEMORA-committed), pooled and macro over participants;
 MEMORA against the best baseline per type and the consolidation lift (MEMORA - MEMORA-Episodic) per
 type; the planning panel per condition and split (OrderExec, KeyObj, PrefAdh, RGP, Exec, KBGround,
-ObjGT-F1, GF1); tool calls per condition and tool; latency (model / tools / other).
-Figures are drawn only when matplotlib is installed.
+ObjGT-F1, GF1); tool calls per condition, per tool and per store; memory formation (compression,
+decision mix); latency (model / tools / other).
+Figures (matplotlib, PNG next to the report): RGP per condition and split with MEMORA's change
+against the best baseline; the compression curve; the editor's decision mix.
 """
 
 from __future__ import annotations
 
 import html
+import re
 import json
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -98,6 +101,8 @@ def build_report(run: str | Path) -> dict[str, Any]:
             tools[c][call["name"]] += 1
             tools[c]["_duplicate"] += bool(call.get("duplicate"))
     out["tool_calls"] = {c: dict(sorted(tools[c].items())) for c in _order(tools)}
+    out["tool_calls_per_store"] = _per_store(out["tool_calls"])
+    out["memory_formation"] = _formation(Path(run))
     lat: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for c, r in all_recs:
         for k, v in (r.get("time") or {}).items():
@@ -105,6 +110,63 @@ def build_report(run: str | Path) -> dict[str, Any]:
     out["latency_s"] = {c: {k: round(mean(v), 4) for k, v in lat[c].items()} | {"items": len(lat[c]["total_s"])}
                         for c in _order(lat)}
     return out
+
+
+# the typed store each tool reads (the paper's per-store tool-use figure); a baseline's `search`
+# reads its one representation, MEMORA's `search` fans out over every store
+TOOL_STORES = {
+    "search_objects": "Entity", "get_object_history": "Entity", "get_state_at_time": "Activity",
+    "search_activities": "Activity", "search_environment": "Environment", "get_routine_skill": "Inferred",
+    "get_preferences": "Inferred", "search_patterns": "Inferred",
+}
+STORES = ("Entity", "Activity", "Environment", "Inferred", "unified search", "Flat-1D records", "Graph-2D graph")
+
+
+def _store_of(condition: str, tool: str) -> str:
+    if tool in TOOL_STORES:
+        return TOOL_STORES[tool]
+    if tool == "search":
+        if condition.startswith("flat_1d"):
+            return "Flat-1D records"
+        if condition.startswith("graph_2d"):
+            return "Graph-2D graph"
+        return "unified search"
+    return tool
+
+
+def _per_store(tool_calls: dict[str, dict[str, int]]) -> dict[str, dict[str, Any]]:
+    """Calls per condition and store, with each store's share of the condition's calls."""
+    out = {}
+    for c, counts in tool_calls.items():
+        per: Counter = Counter()
+        for tool, n in counts.items():
+            if not tool.startswith("_"):
+                per[_store_of(c, tool)] += n
+        total = sum(per.values())
+        out[c] = {"total": total, "calls": dict(per),
+                  "share": {k: round(v / total, 4) for k, v in per.items()} if total else {}}
+    return out
+
+
+def _formation(run: Path) -> dict[str, Any] | None:
+    """The memory-formation data the run saved per participant (bench run writes it)."""
+    folder = run / "memory_formation"
+    files = sorted(folder.glob("*.json")) if folder.is_dir() else []
+    if not files:
+        return None
+    per = {f.stem: json.loads(f.read_text()) for f in files}
+    decisions: Counter = Counter()
+    for v in per.values():
+        decisions.update(v["decisions"])
+    total = sum(decisions.values())
+    ratios = sorted(v["compression"] for v in per.values() if v["compression"])
+    return {
+        "participants": per, "decisions": dict(decisions),
+        "decision_share": {k: round(n / total, 4) for k, n in decisions.items()} if total else {},
+        "compression": {p: v["compression"] for p, v in per.items()},
+        "median_compression": ratios[len(ratios) // 2] if len(ratios) % 2 else
+        (round((ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2]) / 2, 2) if ratios else None),
+    }
 
 
 def _by_participant(records: list[dict]) -> dict[str, list[dict]]:
@@ -237,6 +299,25 @@ def render_markdown(rep: dict[str, Any]) -> str:
         parts.append(_table(["Condition", *names, "repeated"],
                             [[_label(c), *[v.get(n, 0) for n in names], v.get("_duplicate", 0)]
                              for c, v in rep["tool_calls"].items()]))
+    if rep.get("tool_calls_per_store"):
+        stores = [st for st in STORES if any(st in v["calls"] for v in rep["tool_calls_per_store"].values())]
+        parts += ["", "## Tool calls per store (calls, share of the condition's calls)", ""]
+        parts.append(_table(["Condition", "calls", *stores], [
+            [_label(c), v["total"], *[f"{v['calls'].get(st, 0)} ({_pct(v['share'].get(st, 0.0))}%)" for st in stores]]
+            for c, v in rep["tool_calls_per_store"].items()]))
+    form = rep.get("memory_formation")
+    if form:
+        parts += ["", "## Memory formation (the MEMORA bank)", ""]
+        parts.append(_table(["", *sorted(form["compression"]), "median"],
+                            [["Compression (observations / live entities)",
+                              *[f"{form['compression'][p]:.1f}x" if form["compression"][p] else "-"
+                                for p in sorted(form["compression"])],
+                              f"{form['median_compression']:.1f}x" if form["median_compression"] else "-"]]))
+        ops = [o for o in ("NOOP", "UPDATE", "ADD", "DELETE") if o in form["decisions"]]
+        parts.append("\n" + _table(["Editor decisions", *ops, "n"], [
+            ["share %", *[_pct(form["decision_share"].get(o)) for o in ops], sum(form["decisions"].values())]]))
+    if rep.get("figures"):
+        parts += ["", "## Figures", ""] + [f"![{f}]({f})" for f in rep["figures"]]
     if rep.get("latency_s"):
         parts += ["", "## Latency per item (mean seconds)", ""]
         parts.append(_table(["Condition", "items", "model", "tools", "other", "total"],
@@ -268,6 +349,8 @@ def render_html(markdown: str) -> str:
             body.append(f"<h2>{html.escape(line[3:])}</h2>")
         elif line.startswith("# "):
             body.append(f"<h1>{html.escape(line[2:])}</h1>")
+        elif (m := re.fullmatch(r"!\[([^\]]*)\]\(([^)]+)\)", line.strip())):
+            body.append(f"<p><img src='{html.escape(m[2])}' alt='{html.escape(m[1])}'></p>")
         elif line.strip():
             body.append(f"<p>{html.escape(line.lstrip('> '))}</p>")
     flush()
@@ -277,29 +360,76 @@ def render_html(markdown: str) -> str:
 
 
 def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
-    try:
-        import matplotlib
+    """rgp.png (RGP per condition and split, MEMORA's change against the best non-MEMORA
+    baseline written over its bar), compression.png (cumulative Entity Memory records with and
+    without the editor, median over participants), decisions.png (the editor's decision mix)."""
+    import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return []
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     paths = []
-    for split in ("replay", "generalize"):
-        rows = [(p["label"], p[split]["rgp"]) for p in rep.get("planning", {}).values()
-                if split in p and p[split]["rgp"] is not None]
-        if rows:
-            fig, ax = plt.subplots(figsize=(7, 3))
-            ax.bar([r[0] for r in rows], [r[1] for r in rows])
+    plan = rep.get("planning") or {}
+    splits = [sp for sp in ("replay", "generalize") if any(sp in p for p in plan.values())]
+    if splits:
+        fig, axes = plt.subplots(1, len(splits), figsize=(6 * len(splits), 3.6), squeeze=False)
+        for ax, split in zip(axes[0], splits):
+            rows = [(c, p["label"], p[split]["rgp"]) for c, p in plan.items()
+                    if split in p and p[split]["rgp"] is not None]
+            colors = ["tab:red" if c == MEMORA else "tab:orange" if c == EPISODIC else
+                      "tab:gray" if c == PARAMETRIC else "tab:blue" for c, _, _ in rows]
+            ax.bar(range(len(rows)), [r[2] for r in rows], color=colors)
+            ax.set_xticks(range(len(rows)), [r[1] for r in rows], rotation=35, ha="right", fontsize=8)
             ax.set_ylabel("RGP")
-            ax.set_title(f"RGP, {split}")
-            ax.tick_params(axis="x", rotation=30)
-            fig.tight_layout()
-            path = out / f"rgp_{split}.png"
-            fig.savefig(path)
-            plt.close(fig)
-            paths.append(path)
+            vs = (rep.get("planning_vs_best_baseline") or {}).get(split) or {}
+            title = f"{split.capitalize()}"
+            if vs.get("delta") is not None:
+                i = [r[0] for r in rows].index(MEMORA)
+                ax.annotate(f"{vs['delta']:+.3f} vs {_label(vs['best_baseline'])}", (i, rows[i][2]),
+                            xytext=(0, 4), textcoords="offset points", ha="center", fontsize=8)
+                ax.axhline(vs["best_baseline_rgp"], color="tab:blue", linestyle=":", linewidth=1)
+            ax.set_title(title)
+            ax.set_ylim(0, max([r[2] for r in rows] + [0.1]) * 1.2)
+        fig.tight_layout()
+        paths.append(_save(fig, out / "rgp.png", plt))
+    form = rep.get("memory_formation")
+    if form:
+        import numpy as np
+
+        per = list(form["participants"].values())
+        n = min(150, max(len(v["without_editor"]) for v in per))
+        without = np.array([[v["without_editor"][min(i, len(v["without_editor"]) - 1)] for i in range(n)]
+                            for v in per if v["without_editor"]])
+        edited = np.array([[v["with_editor"][min(i, len(v["with_editor"]) - 1)] for i in range(n)]
+                           for v in per if v["with_editor"]])
+        fig, ax = plt.subplots(figsize=(5.5, 3.6))
+        x = np.arange(1, n + 1)
+        ax.plot(x, np.median(without, axis=0), label="without editor (one record per observation)")
+        ax.plot(x, np.median(edited, axis=0), label="MEMORA editor (live entities)")
+        ax.set_xlabel("segments with object observations (10 s each)")
+        ax.set_ylabel("Entity Memory records (median)")
+        ax.set_title(f"Cumulative records, {len(per)} participants; median compression "
+                     f"{form['median_compression']:.1f}x", fontsize=9)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        paths.append(_save(fig, out / "compression.png", plt))
+        ops = [o for o in ("NOOP", "UPDATE", "ADD", "DELETE") if o in form["decisions"]]
+        fig, ax = plt.subplots(figsize=(4.5, 3.2))
+        shares = [100 * form["decision_share"][o] for o in ops]
+        ax.bar(ops, shares, color=["tab:gray", "tab:blue", "tab:green", "tab:red"][:len(ops)])
+        for i, v in enumerate(shares):
+            ax.annotate(f"{v:.1f}%", (i, v), xytext=(0, 3), textcoords="offset points", ha="center", fontsize=8)
+        ax.set_ylabel("% of object observations")
+        ax.set_title(f"Editor decisions (n={sum(form['decisions'].values()):,})", fontsize=9)
+        fig.tight_layout()
+        paths.append(_save(fig, out / "decisions.png", plt))
     return paths
+
+
+def _save(fig, path: Path, plt) -> Path:
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
 
 def write_report(run: str | Path) -> dict[str, Path]:
@@ -308,11 +438,13 @@ def write_report(run: str | Path) -> dict[str, Path]:
         raise MemoraError(f"{run}: not a run directory (no records/); create one with `memora bench run`")
     rep = build_report(run)
     write_results_table(run)
+    figures = _figures(rep, run)
+    rep["figures"] = [p.name for p in figures]
     md = render_markdown(rep)
     paths = {"json": run / "report.json", "markdown": run / "report.md", "html": run / "report.html"}
     paths["json"].write_text(json.dumps(rep, indent=2, default=str))
     paths["markdown"].write_text(md)
     paths["html"].write_text(render_html(md))
-    for i, p in enumerate(_figures(rep, run)):
-        paths[f"figure{i}"] = p
+    for p in figures:
+        paths[p.stem] = p
     return paths

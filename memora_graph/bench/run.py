@@ -8,6 +8,8 @@ Layout of a run directory:
     records/planning/<condition>.jsonl   (Replay and Generalize; `split` says which)
     scoring_memory/<PID>.json     the MEMORA-full routines, preferences and object names the
                                   planning metrics read (the paper scores every condition against it)
+    memory_formation/<PID>.json   the MEMORA bank's records per segment with and without the editor,
+                                  and its decision counts (the report's compression / decision figures)
     results.parquet               one row per item (the latest record of each), written at the end
     model_calls.jsonl             one line per model call (model backends only)
 
@@ -36,6 +38,7 @@ from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
 from memora_graph.bench.metrics import extract_plan, parse_answer_letter, score_plan
 from memora_graph.bench.tasks import BenchSuite, load_suite
 from memora_graph.errors import MemoraError
+from memora_graph.stats import memory_formation
 
 RUN_FORMAT = 1
 KINDS = ("eam_qa", "replay", "generalize")
@@ -293,6 +296,8 @@ def _run_plan(out, bank, banks, conds, kinds, plan, suite, policy, summary, on_i
         memory = scoring_memory(bank, pid)
         (out / "scoring_memory").mkdir(exist_ok=True)
         (out / "scoring_memory" / f"{pid}.json").write_text(json.dumps(memory, indent=1))
+        (out / "memory_formation").mkdir(exist_ok=True)
+        (out / "memory_formation" / f"{pid}.json").write_text(json.dumps(memory_formation(bank, pid)))
         for cond in conds:
             t_cond = time.perf_counter()
             for kind in kinds:

@@ -13,6 +13,7 @@ from memora_graph.bench.metrics import planning_panel
 from memora_graph.bench.report import build_report, write_report
 from memora_graph.bench.run import load_run, run_bench
 from memora_graph.cli import main
+from memora_graph.stats import bank_stats
 
 CONDS = "no_memory,flat_1d_raw,flat_1d_edited,graph_2d_raw,graph_2d_edited"
 
@@ -71,7 +72,7 @@ def test_a_failing_item_is_recorded_and_the_run_goes_on(small_bank, tiny_tasks, 
 
 def test_report_numbers_equal_hand_computed_metrics(small_bank, small_raw_bank, tiny_tasks, tmp_path):
     bank, _ = small_bank
-    _run(bank, small_raw_bank, tiny_tasks, tmp_path / "r")
+    _run(bank, small_raw_bank, tiny_tasks, tmp_path / "r", conds=CONDS + ",memora_full")
     run = load_run(tmp_path / "r")
     rep = build_report(tmp_path / "r")
     for c, recs in run["eam_qa"].items():
@@ -88,6 +89,32 @@ def test_report_numbers_equal_hand_computed_metrics(small_bank, small_raw_bank, 
     md = paths["markdown"].read_text()
     assert "not an LLM" in md and "Flat-1D (raw)" in md and "OrderExec" in md
     assert "<table>" in paths["html"].read_text() and json.loads(paths["json"].read_text())["planning"]
+    # figures: real PNGs, linked from the markdown and the HTML
+    for name in ("rgp", "compression", "decisions"):
+        assert paths[name].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and f"({name}.png)" in md
+    assert "<img src='rgp.png'" in paths["html"].read_text()
+    # tool calls per store add up to the calls in the records, each tool in its store
+    for c, recs in {**run["eam_qa"], **{k: run["eam_qa"].get(k, []) + v for k, v in run["planning"].items()}}.items():
+        calls = [t["name"] for r in recs for t in r["tool_calls"]]
+        per = rep["tool_calls_per_store"].get(c, {"total": 0, "calls": {}})
+        assert per["total"] == len(calls)
+        if c == "memora_full":
+            assert per["calls"].get("Inferred", 0) == sum(n in ("get_routine_skill", "get_preferences") for n in calls)
+            assert per["calls"].get("Entity", 0) == sum(n in ("search_objects", "get_object_history") for n in calls)
+    # memory formation: the bank's compression and decision counts
+    form = rep["memory_formation"]
+    stats = bank_stats(bank, ["P37"]).to_dicts()[0]
+    assert form["decisions"] == stats_decisions(bank) and sum(form["decisions"].values()) == stats["decisions"]
+    curve = form["participants"]["P37"]
+    assert curve["without_editor"][-1] == stats["state_events"] and curve["with_editor"][-1] == stats["entities"]
+    assert curve["without_editor"] == sorted(curve["without_editor"])  # cumulative
+
+
+def stats_decisions(bank) -> dict[str, int]:
+    from memora_graph.bank import Bank
+
+    with Bank(bank).open("P37") as store:
+        return {r["op"]: int(r["n"]) for r in store.rows("decision_mix", participant="P37")}
 
 
 def _write(run, kind, cond, recs):
