@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import os
 import re
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import polars as pl
@@ -69,8 +71,55 @@ class Bank:
 
     def record_participant(self, participant: str, videos: list[str], counts: dict) -> None:
         data = self.manifest()
-        data["participants"][participant] = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": counts}
+        entry = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": counts}
+        if "indexes" in data["participants"].get(participant, {}):  # the database keeps its indexes
+            entry["indexes"] = data["participants"][participant]["indexes"]
+        data["participants"][participant] = entry
         self.write_manifest(data)
+
+    # -- optional indexes ----------------------------------------------------------------
+    @staticmethod
+    def set_indexes(data: dict, participant: str, names: list[str]) -> None:
+        """Record in a manifest `data` the indexes a participant's database has, and per kind
+        whether every participant has all of them (`data["indexes"]`, e.g. {"fts": false})."""
+        from memora_graph.store import INDEX_KINDS, index_names
+
+        entry = data["participants"].get(participant)
+        if entry is not None:
+            entry["indexes"] = sorted(names)
+        parts = data["participants"].values()
+        data["indexes"] = {kind: bool(parts) and all(set(index_names(kind)) <= set(e.get("indexes", [])) for e in parts)
+                           for kind in INDEX_KINDS}
+
+    def build_indexes(self, participants: list[str] | None = None, fts: bool = False, hnsw: bool = False,
+                      on_participant: Callable[[str, dict], None] | None = None) -> dict[str, dict]:
+        """Add the optional indexes to existing databases (a build makes none unless asked): `fts`
+        for the 'fts' / 'kuzu' / 'hnsw' retrieval recipes, `hnsw` for the 'hnsw' recipe. An index a
+        database already has is kept (never dropped and re-created). Returns, per participant, the
+        indexes created now, those it has, and the seconds spent."""
+        if not (fts or hnsw):
+            raise BankError("nothing to build: ask for the full-text (fts) and/or the HNSW (hnsw) indexes")
+        known = self.participants()
+        pids = participants or known
+        missing = sorted(set(pids) - set(known))
+        if missing:
+            raise BankError(f"{self.path}: participant(s) {', '.join(missing)} not in this bank (has: {', '.join(known) or 'none'})")
+        out = {}
+        for p in pids:
+            t0 = time.perf_counter()
+            store = self.open(p, read_only=False)
+            try:
+                created = store.ensure_indexes(fts=fts, hnsw=hnsw)
+                have = sorted(store.indexes())
+            finally:
+                store.close()
+            data = self.manifest()
+            self.set_indexes(data, p, have)
+            self.write_manifest(data)
+            out[p] = {"created": created, "indexes": have, "seconds": time.perf_counter() - t0}
+            if on_participant:
+                on_participant(p, out[p])
+        return out
 
     # -- participants ------------------------------------------------------------------
     def participants(self) -> list[str]:

@@ -75,9 +75,12 @@ def main():
 @click.option("--embed-model", default=None, help="sentence-transformers model name or path (default: bundled all-MiniLM-L6-v2).")
 @click.option("--episodic", is_flag=True,
               help="Skip offline consolidation and enrichment (no routines or preferences): the MEMORA-Episodic condition.")
+@click.option("--fts", is_flag=True,
+              help="Also build Kùzu's full-text indexes, for the 'fts' / 'kuzu' / 'hnsw' retrieval recipes only "
+                   "(the default recipe needs none; `memora index` adds them later).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
-          editor_model, editor_base_url, audio, embed_model, episodic, quiet):
+          editor_model, editor_base_url, audio, embed_model, episodic, fts, quiet):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -89,6 +92,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/p01 --participants P01,P02
       memora build banks/raw --mode raw --participants P01
       memora build banks/episodic --episodic          # MEMORA-Episodic: no routines / preferences
+      memora build banks/epic --fts                   # also the full-text indexes (recipes fts, kuzu)
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct
     """
@@ -101,7 +105,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode and --participants")
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
-        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic})
+        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts})
     given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply with --video")
@@ -124,7 +128,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
 
     with progress:
         result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
-                            episodic=episodic)
+                            episodic=episodic, fts=fts)
     rows = []
     for r in result.participants:
         shares = decision_shares(r.decisions)
@@ -137,12 +141,13 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
             "preferences": result.inferred.get(r.participant, {}).get("preferences"), "seconds": round(r.timings.total, 1),
         })
     click.echo(render(pl.DataFrame(rows)))
-    t = result.timings
-    click.echo(f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s "
-               f"(perception {t.perception:.1f} s, editor {t.editor:.1f} s, embedding {t.embedding:.1f} s, "
-               f"graph {t.graph:.1f} s)")
+    click.echo(f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s: "
+               f"embedding {result.embedding_seconds:.1f} s, model load {result.model_seconds:.1f} s, graph work "
+               f"{result.graph_seconds:.1f} s (`memora perf build` splits it)")
     click.echo("inferred knowledge: none (MEMORA-Episodic)" if episodic or mode == "raw" else
-               f"inferred knowledge (consolidation + enrichment, keyword indexes): {result.inferred_seconds:.1f} s")
+               f"inferred knowledge (consolidation + enrichment): {result.finish.get('consolidation', 0.0):.1f} s")
+    if fts:
+        click.echo(f"full-text indexes: {result.finish.get('indexes', 0.0):.1f} s")
 
 
 def _build_video(bank, video, backend, embed_model, quiet, opts):
@@ -181,6 +186,35 @@ def _build_video(bank, video, backend, embed_model, quiet, opts):
     if failed:
         click.echo(f"{failed} turn(s) were not written because the model's reply stayed invalid; "
                    f"see `memora stats {bank} --calls failed`", err=True)
+
+
+@main.command()
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.option("--fts", is_flag=True, help="Full-text indexes: the 'fts' and 'kuzu' retrieval recipes (and 'hnsw').")
+@click.option("--hnsw", is_flag=True, help="HNSW vector indexes on segments and entities: the 'hnsw' recipe.")
+@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
+@output_options
+def index(bank, fts, hnsw, participants, fmt):
+    """Add Kùzu's optional indexes to a built bank (a build makes none unless `--fts`).
+
+    The default retrieval recipe ('inprocess') needs no index; 'fts' and 'kuzu' read the
+    full-text indexes, 'hnsw' both kinds. An index a database has is kept (never dropped and
+    re-created); rows added by a later build join it. The manifest records which exist.
+
+    \b
+    Examples:
+      memora index banks/epic --fts
+      memora index banks/epic --fts --hnsw --participants P01
+    """
+    from memora_graph.bank import Bank
+
+    if not (fts or hnsw):
+        raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
+    pids = None if participants.strip().lower() == "all" else [p.strip() for p in participants.split(",") if p.strip()]
+    done = Bank(bank).build_indexes(pids, fts=fts, hnsw=hnsw)
+    rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),
+             "seconds": round(r["seconds"], 1)} for p, r in done.items()]
+    click.echo(render(pl.DataFrame(rows), fmt))
 
 
 @main.command()

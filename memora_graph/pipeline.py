@@ -18,16 +18,45 @@ from memora_graph.perceive.annotations import load_annotations, load_class_table
 @dataclass
 class BankBuild:
     participants: list[ParticipantBuild] = field(default_factory=list)
-    timings: Timings = field(default_factory=Timings)
-    load_seconds: float = 0.0
-    model_seconds: float = 0.0
+    timings: Timings = field(default_factory=Timings)  # the builder's own split, per video
+    load_seconds: float = 0.0  # reading the annotations
+    model_seconds: float = 0.0  # loading the embedding model
     wall_seconds: float = 0.0
     inferred: dict[str, dict] = field(default_factory=dict)  # participant -> routine / preference counts
-    inferred_seconds: float = 0.0  # keyword indexes + offline consolidation and enrichment
+    inferred_seconds: float = 0.0  # everything after each participant's bulk load (see `finish`)
+    embedding_seconds: float = 0.0  # every text encoded: segments, identities, places, inferred knowledge
+    setup_seconds: float = 0.0  # per participant: opening its database, reloading its registry, checkpoint on close
+    finish: dict[str, float] = field(default_factory=dict)  # the step after each bulk load, summed (finish_participant)
 
     @property
     def segments(self) -> int:
         return sum(p.segments for p in self.participants)
+
+    def phases(self) -> dict[str, float]:
+        """Where the wall time went, every phase once; they sum to `wall_seconds` ('other' is
+        what no phase timed: bank manifest set-up, progress callbacks)."""
+        t, f = self.timings, self.finish
+        # the builder counts the place texts it encodes during its bulk load as graph time
+        load_encoding = max(self.embedding_seconds - t.embedding - f.get("embedding", 0.0), 0.0)
+        out = {
+            "load annotations": self.load_seconds,
+            "load embedding model": self.model_seconds,
+            "perception": t.perception,
+            "editor": t.editor,
+            "embedding": self.embedding_seconds,
+            "graph staging + bulk load": max(t.graph - load_encoding, 0.0),
+            "database open / registry / checkpoint": self.setup_seconds + f.get("open", 0.0) + f.get("checkpoint", 0.0),
+            "consolidation + enrichment": f.get("consolidation", 0.0),
+            "indexes (--fts)": f.get("indexes", 0.0),
+            "manifest": f.get("manifest", 0.0),
+        }
+        out["other"] = max(self.wall_seconds - sum(out.values()), 0.0)
+        return out
+
+    @property
+    def graph_seconds(self) -> float:
+        """Graph work: everything except embedding and loading the embedding model."""
+        return max(self.wall_seconds - self.embedding_seconds - self.model_seconds, 0.0)
 
 
 def build_bank(
@@ -40,10 +69,12 @@ def build_bank(
     on_video: Callable[[str, str, int], None] | None = None,
     stop_after: int | None = None,
     episodic: bool = False,
+    fts: bool = False,
 ) -> BankBuild:
     """Build (or resume) a bank. `participants=None` means every participant in the annotations.
     After each participant, offline consolidation and enrichment write its inferred knowledge,
-    unless `episodic` (the MEMORA-Episodic condition) or a raw bank."""
+    unless `episodic` (the MEMORA-Episodic condition) or a raw bank. `fts` also builds the
+    full-text indexes (only the 'fts' / 'kuzu' / 'hnsw' retrieval recipes read them)."""
     t_start = time.perf_counter()
     out = BankBuild()
     t0 = time.perf_counter()
@@ -65,20 +96,27 @@ def build_bank(
     t0 = time.perf_counter()
     embedder = get_embedder(embed_model)
     out.model_seconds = time.perf_counter() - t0
+    emb0 = getattr(embedder, "seconds", 0.0)
     bank = Bank(bank_path)
     bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
     for p in found:
+        t0 = time.perf_counter()
         res = build_participant(
             bank, p, df, durations, classes, embedder, mode=mode,
             on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, stop_after=stop_after,
         )
+        out.setup_seconds += max(time.perf_counter() - t0 - res.timings.total, 0.0)
         out.participants.append(res)
         out.timings.add(res.timings)
         t0 = time.perf_counter()
-        knowledge = finish_participant(bank, p, embedder, episodic=episodic or mode == "raw")
+        spent: dict[str, float] = {}
+        knowledge = finish_participant(bank, p, embedder, episodic=episodic or mode == "raw", fts=fts, timings=spent)
+        for k, v in spent.items():
+            out.finish[k] = out.finish.get(k, 0.0) + v
         out.inferred[p] = knowledge.counts() if knowledge else {"routines": 0, "preferences": 0}
         res.counts.update({k: out.inferred[p][k] for k in ("routines", "preferences")})
         out.inferred_seconds += time.perf_counter() - t0
+    out.embedding_seconds = getattr(embedder, "seconds", 0.0) - emb0
     out.wall_seconds = time.perf_counter() - t_start
     return out
 
@@ -100,7 +138,7 @@ class VideoBuild:
     model_seconds: float = 0.0  # waiting for model replies (sum of call latencies)
     load_seconds: float = 0.0  # loading the embedding model
     finish_seconds: float = 0.0  # the bulk load into the graph
-    inferred_seconds: float = 0.0  # offline consolidation and enrichment after the build
+    inferred_seconds: float = 0.0  # offline consolidation and enrichment after the build (and --fts indexes)
     wall_seconds: float = 0.0
 
     @property
@@ -146,6 +184,7 @@ def build_from_video(
     on_video: Callable[[str, int], None] | None = None,
     on_segment: Callable[[str, int, str | None], None] | None = None,
     episodic: bool = False,
+    fts: bool = False,
 ) -> VideoBuild:
     """Build (or resume) one participant's memory from a video file or a directory of videos:
     10 s clips -> VLM perception -> LLM entity editor -> the participant's graph.
@@ -227,7 +266,7 @@ def build_from_video(
     finally:
         builder.close()
     t0 = time.perf_counter()
-    finish_participant(bank, participant, embedder, episodic=episodic)
+    finish_participant(bank, participant, embedder, episodic=episodic, fts=fts)
     out.inferred_seconds = time.perf_counter() - t0
     out.calls = list(log.records)
     out.model_seconds = sum(r.latency_s for r in log.records)

@@ -195,28 +195,45 @@ class Store:
         df = self._execute("CALL SHOW_INDEXES() RETURN index_name, table_name").get_as_pl()
         return dict(df.iter_rows())
 
-    def ensure_indexes(self, optional: bool = False, folder: Path = INDEX_DIR) -> list[str]:
-        """Create the indexes of schema/indexes/*.cypher that are missing; returns those created.
-        `optional=True` adds schema/indexes/optional/ (HNSW, measured by `memora perf tools`).
+    def ensure_indexes(self, fts: bool = True, hnsw: bool = False, folder: Path = INDEX_DIR) -> list[str]:
+        """Create the missing indexes of the kinds asked for; returns those created.
+        `fts`: schema/indexes/fts.cypher (the 'fts' / 'kuzu' / 'hnsw' retrieval recipes);
+        `hnsw`: schema/indexes/hnsw.cypher (the 'hnsw' recipe). Builds make neither by default.
 
         Index DDL runs outside any transaction (Kùzu's rule) and after bulk loads (an index is
         built once over the loaded rows; later rows join it automatically). An index is never
         dropped and re-created (a known Kùzu bug with vector indexes)."""
         have = set(self.indexes())
         created = []
-        files = sorted(folder.glob("*.cypher")) + (sorted((folder / "optional").glob("*.cypher")) if optional else [])
-        for f in files:
-            for statement in (s.strip() for s in _strip_comments(f.read_text()).split(";")):
-                m = _INDEX_DDL.search(statement)
-                if not m:
-                    continue
-                if m.group(2) not in have:
+        for kind in [k for k, on in (("fts", fts), ("hnsw", hnsw)) if on]:
+            for name, statement in index_statements(kind, folder):
+                if name not in have:
                     self._execute(statement)
-                    created.append(m.group(2))
+                    created.append(name)
         return created
 
     def migrations(self) -> list[str]:
         return self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id").get_as_pl()["m.id"].to_list()
+
+
+INDEX_KINDS = ("fts", "hnsw")
+
+
+def index_statements(kind: str, folder: Path = INDEX_DIR) -> list[tuple[str, str]]:
+    """(index name, DDL) of one kind of index, from schema/indexes/<kind>.cypher."""
+    if kind not in INDEX_KINDS:
+        raise StoreError(f"no index kind {kind!r}; kinds: {', '.join(INDEX_KINDS)}")
+    out = []
+    for statement in (s.strip() for s in _strip_comments((folder / f"{kind}.cypher").read_text()).split(";")):
+        m = _INDEX_DDL.search(statement)
+        if m:
+            out.append((m.group(2), statement))
+    return out
+
+
+def index_names(kind: str) -> list[str]:
+    """The names of the indexes of one kind ('fts' or 'hnsw') a database can have."""
+    return [name for name, _ in index_statements(kind)]
 
 
 def _strip_comments(text: str) -> str:

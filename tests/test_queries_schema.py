@@ -11,7 +11,7 @@ from memora_graph.store import Store
 def empty_store(tmp_path):
     store = Store(tmp_path / "P01.kuzu", read_only=False)
     store.apply_schema()
-    store.ensure_indexes(optional=True)  # FTS / HNSW indexes the retrieval queries read
+    store.ensure_indexes(fts=True, hnsw=True)  # FTS / HNSW indexes the retrieval queries read
     yield store
     store.close()
 

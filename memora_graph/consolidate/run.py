@@ -323,32 +323,54 @@ def clear_inferred(store: Store, participant: str) -> None:
 
 
 def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = False,
-                       processors: str | Processors = "deterministic") -> InferredKnowledge | None:
-    """The step after a participant's build (or `memora consolidate`): keyword indexes, then
-    consolidation + enrichment (or, for a MEMORA-Episodic bank, no inferred knowledge at all).
-    Records it in the manifest."""
+                       processors: str | Processors = "deterministic", fts: bool = False,
+                       timings: dict | None = None) -> InferredKnowledge | None:
+    """The step after a participant's build (or `memora consolidate`): consolidation + enrichment
+    (or, for a MEMORA-Episodic bank, no inferred knowledge at all), then, only if `fts`, the
+    full-text indexes (read by the 'fts' / 'kuzu' / 'hnsw' retrieval recipes only; the default
+    recipe needs none; an index the database has is kept and new rows join it). Records it all,
+    with the indexes the database has, in the manifest.
+
+    `timings`, if given, receives the seconds of each step: open (and schema check),
+    consolidation (without its embedding), embedding, indexes, checkpoint (closing the
+    database), manifest."""
     name = processors if isinstance(processors, str) else processors.name
+    emb0 = getattr(embedder, "seconds", 0.0)
+    t0 = time.perf_counter()
     store = Store(bank.db_path(participant), read_only=False)
+    spent: dict[str, float] = {}
     try:
         store.apply_schema()
-        store.ensure_indexes()
+        t1 = time.perf_counter()
         if episodic:
             clear_inferred(store, participant)
             knowledge = None
         else:
             knowledge = consolidate_participant(store, participant, embedder, processors)
         counts = store.fetch("_inferred_counts", participant=participant)[0]
+        t2 = time.perf_counter()
+        if fts:
+            store.ensure_indexes(fts=True)
+        indexes = sorted(store.indexes())
+        t3 = time.perf_counter()
+        spent["embedding"] = getattr(embedder, "seconds", 0.0) - emb0
+        spent.update(open=t1 - t0, consolidation=t2 - t1 - spent["embedding"], indexes=t3 - t2)
     finally:
+        t3 = time.perf_counter()
         store.close()
+    t4 = time.perf_counter()
     data = bank.manifest()
     entry = data["participants"].get(participant)
     if entry is not None:
         entry.setdefault("counts", {}).update({"routines": int(counts["routines"]), "preferences": int(counts["preferences"])})
         entry["consolidated"] = not episodic
         entry["inferred"] = None if episodic else {"processor": name, **knowledge.counts()}
+    bank.set_indexes(data, participant, indexes)
     flags = [e.get("consolidated", False) for e in data["participants"].values()]
     data["consolidated"] = bool(flags) and all(flags)
     data["condition"] = "memora_full" if data["consolidated"] else (
         "memora_episodic" if not any(flags) else "mixed")
     bank.write_manifest(data)
+    if timings is not None:
+        timings.update(spent, checkpoint=t4 - t3, manifest=time.perf_counter() - t4)
     return knowledge

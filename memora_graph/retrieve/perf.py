@@ -7,6 +7,10 @@ that one-off cost is reported separately as `open`. The floor is what any tool m
 the query and take the exact numpy top-10 over the participant's segment embeddings. Recall@10
 compares each vector search (Kùzu brute force, and Kùzu HNSW built on a temporary copy) with
 exact numpy search over the same vectors.
+
+Banks have no FTS or HNSW index unless built with them (`memora build --fts`, `memora index`):
+a recipe that needs an index the bank lacks is timed on a temporary copy with the index built,
+and the bank itself is never written.
 """
 
 from __future__ import annotations
@@ -23,7 +27,9 @@ import polars as pl
 
 from memora_graph.bank import Bank
 from memora_graph.retrieve.registry import call_tool
+from memora_graph.retrieve.search import RECIPES
 from memora_graph.retrieve.view import MemoryView
+from memora_graph.store import Store, index_names
 
 OBJECT_QUERIES = ["knife", "bowl", "wooden spoon", "kettle", "plate", "chopping board", "sponge", "frying pan",
                   "fridge", "mug", "spatula", "tap"]
@@ -112,35 +118,38 @@ def run_perf(bank_path: str | Path, participants: list[str] | None = None, n_que
     floor_cold, floor_warm = [], []
     recall_rows: dict[tuple[str, str], list[float]] = defaultdict(list)
     method_ms: dict[tuple[str, str], list[float]] = defaultdict(list)
-    for recipe in recipes:
-        for p in pids:
-            t0 = time.perf_counter()
-            view = MemoryView.open(bank_path, p, embedder, config=recipe)
-            try:
-                view.warm()
-                for tool in TOOLS:  # one untimed call each: prepared statements
-                    call_tool(view, tool, _queries(tool, view, 1)[0])
-                opens[recipe].append((time.perf_counter() - t0) * 1e3)
-                for tool in TOOLS:
-                    qs = _queries(tool, view, n_queries)
-                    for args in qs:
-                        view.encoder.clear()
-                        cold[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
-                    for args in qs:  # the same call again, its query embedding now cached
-                        call_tool(view, tool, args)
-                        warm[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
-                if recipe == recipes[0]:
-                    segs = view.vectors("segment")
-                    for q in ACTIVITY_QUERIES[:n_queries]:
-                        view.encoder.clear()
-                        floor_cold.append(_timed(lambda: segs.topk(view.embed(q), 10)))
-                        floor_warm.append(_timed(lambda: segs.topk(view.embed(q), 10)))
-                    _kuzu_recall(view, n_queries, recall_rows, method_ms)
-            finally:
-                view.close()
-        echo(f"timed recipe {recipe} over {len(pids)} participants")
-    if hnsw:
-        _hnsw_recall(bank, pids, embedder, n_queries, recall_rows, method_ms, echo)
+    with _IndexedCopy(bank, pids, echo) as copy:
+        for recipe in recipes:
+            path = copy.bank_with(_needs(recipe))  # the bank itself where it has what the recipe reads
+            for p in pids:
+                t0 = time.perf_counter()
+                view = MemoryView.open(path, p, embedder, config=recipe)
+                try:
+                    view.warm()
+                    for tool in TOOLS:  # one untimed call each: prepared statements
+                        call_tool(view, tool, _queries(tool, view, 1)[0])
+                    opens[recipe].append((time.perf_counter() - t0) * 1e3)
+                    for tool in TOOLS:
+                        qs = _queries(tool, view, n_queries)
+                        for args in qs:
+                            view.encoder.clear()
+                            cold[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
+                        for args in qs:  # the same call again, its query embedding now cached
+                            call_tool(view, tool, args)
+                            warm[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
+                    if recipe == recipes[0]:
+                        segs = view.vectors("segment")
+                        for q in ACTIVITY_QUERIES[:n_queries]:
+                            view.encoder.clear()
+                            floor_cold.append(_timed(lambda: segs.topk(view.embed(q), 10)))
+                            floor_warm.append(_timed(lambda: segs.topk(view.embed(q), 10)))
+                        _kuzu_recall(view, n_queries, recall_rows, method_ms)
+                finally:
+                    view.close()
+            echo(f"timed recipe {recipe} over {len(pids)} participants"
+                 + ("" if path == bank.path else " (on a copy with its indexes built)"))
+        if hnsw:
+            _hnsw_recall(copy.bank_with({"fts", "hnsw"}), pids, embedder, n_queries, recall_rows, method_ms)
 
     rows = []
     for (recipe, tool), xs in cold.items():
@@ -176,37 +185,79 @@ def _kuzu_recall(view: MemoryView, n: int, out: dict, ms: dict) -> None:
             out[("numpy exact", table)].append(1.0)
 
 
-def _hnsw_recall(bank: Bank, pids: list[str], embedder, n: int, out: dict, ms: dict, echo) -> None:
-    from memora_graph.store import Store
+def _needs(recipe: str) -> set[str]:
+    """The optional index kinds a recipe reads ('fts', 'hnsw')."""
+    cfg = RECIPES[recipe] if recipe in RECIPES else None
+    if cfg is None:
+        return set()  # MemoryView reports the unknown recipe
+    return {k for k, on in (("fts", cfg.keyword == "fts"), ("hnsw", cfg.vector == "hnsw")) if on}
 
-    with tempfile.TemporaryDirectory(prefix="memora-hnsw-") as tmp:
-        build_s = 0.0
-        for p in pids:
-            src = bank.db_path(p)
-            dst = Path(tmp) / src.name
-            shutil.copy(src, dst)
-            if src.with_name(src.name + ".wal").exists():
-                shutil.copy(src.with_name(src.name + ".wal"), dst.with_name(dst.name + ".wal"))
+
+class _IndexedCopy:
+    """The bank, or where it lacks an index a measurement needs, a temporary copy of the measured
+    participants (databases and manifest) with those indexes built. The bank is never written."""
+
+    def __init__(self, bank: Bank, pids: list[str], echo):
+        self.bank, self.pids, self.echo = bank, pids, echo
+        self._tmp: tempfile.TemporaryDirectory | None = None
+        self._bank_has = set.intersection(*(self._indexes(bank.db_path(p)) for p in pids)) if pids else set()
+        self._copy_has: set[str] = set()
+
+    @staticmethod
+    def _indexes(db: Path) -> set[str]:
+        with Store(db) as s:
+            return set(s.indexes())
+
+    def __enter__(self) -> _IndexedCopy:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def bank_with(self, kinds: set[str]) -> Path:
+        if all(set(index_names(k)) <= self._bank_has for k in kinds):
+            return self.bank.path
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="memora-perf-")
+            dst = Path(self._tmp.name)
+            shutil.copy(self.bank.manifest_path, dst / self.bank.manifest_path.name)
+            for p in self.pids:
+                src = self.bank.db_path(p)
+                for f in (src, src.with_name(src.name + ".wal")):
+                    if f.exists():
+                        shutil.copy(f, dst / f.name)
+            self._copy_has = set(self._bank_has)
+        dst = Path(self._tmp.name)
+        for kind in sorted(kinds):
+            if set(index_names(kind)) <= self._copy_has:
+                continue
             t0 = time.perf_counter()
-            with Store(dst, read_only=False) as s:
-                s.ensure_indexes(optional=True)
-            build_s += time.perf_counter() - t0
-            store = Store(dst, read_only=True)
-            view = MemoryView(store, p, embedder, config="hnsw", owns_store=True)
-            try:
-                for table, qs in (("segment", ACTIVITY_QUERIES), ("entity", OBJECT_QUERIES)):
-                    exact_table = view.vectors(table)
-                    for q in qs[:n]:
-                        v = view.embed(q)
-                        exact = [i for i, _ in exact_table.topk(v, 10)]
-                        view.fetch(f"_tool_hnsw_{table}", vector=v.tolist())  # prepared once
-                        t0 = time.perf_counter()
-                        rows = view.fetch(f"_tool_hnsw_{table}", vector=v.tolist())[:10]
-                        ms[("kuzu hnsw", table)].append((time.perf_counter() - t0) * 1e3)
-                        out[("kuzu hnsw", table)].append(_recall([r["id"] for r in rows], exact))
-            finally:
-                view.close()
-        echo(f"built HNSW indexes on a copy of {len(pids)} participants in {build_s:.1f} s")
+            for p in self.pids:
+                with Store(dst / self.bank.db_path(p).name, read_only=False) as s:
+                    s.ensure_indexes(fts=kind == "fts", hnsw=kind == "hnsw")
+            self._copy_has |= set(index_names(kind))
+            self.echo(f"built {kind.upper()} indexes on a copy of {len(self.pids)} participants in "
+                      f"{time.perf_counter() - t0:.1f} s")
+        return dst
+
+
+def _hnsw_recall(path: Path, pids: list[str], embedder, n: int, out: dict, ms: dict) -> None:
+    for p in pids:
+        view = MemoryView.open(path, p, embedder, config="hnsw")
+        try:
+            for table, qs in (("segment", ACTIVITY_QUERIES), ("entity", OBJECT_QUERIES)):
+                exact_table = view.vectors(table)
+                for q in qs[:n]:
+                    v = view.embed(q)
+                    exact = [i for i, _ in exact_table.topk(v, 10)]
+                    view.fetch(f"_tool_hnsw_{table}", vector=v.tolist())  # prepared once
+                    t0 = time.perf_counter()
+                    rows = view.fetch(f"_tool_hnsw_{table}", vector=v.tolist())[:10]
+                    ms[("kuzu hnsw", table)].append((time.perf_counter() - t0) * 1e3)
+                    out[("kuzu hnsw", table)].append(_recall([r["id"] for r in rows], exact))
+        finally:
+            view.close()
 
 
 __all__ = ["PerfReport", "run_perf", "TOOLS"]

@@ -14,7 +14,8 @@ tools` measures side by side, so a reader sees every retrieval variant in one pl
 The default ("inprocess") is the measured fastest: on the 18-participant bank, exact numpy top-k
 takes ~0.1 ms where a Kùzu brute-force or HNSW query takes ~3 ms (HNSW recall@10 ~0.97), and an
 FTS query costs 2-8 ms per store, which alone breaks a 5 ms budget for `search` (five stores).
-The FTS indexes are still built with every bank; `fts`, `kuzu` and `hnsw` use Kùzu per call.
+`fts`, `kuzu` and `hnsw` use Kùzu per call and need its FTS (and HNSW) indexes, which a build
+makes only when asked (`memora build --fts`, `memora index BANK --fts --hnsw`).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ RECIPES: dict[str, SearchConfig] = {
     "inprocess": SearchConfig(keyword="bm25"),  # the default: no Kùzu round trip to rank
     "fts": SearchConfig(keyword="fts"),  # keywords through Kùzu's full-text index
     "kuzu": SearchConfig(vector="kuzu", keyword="fts"),  # both signals computed inside Kùzu
-    "hnsw": SearchConfig(vector="hnsw", keyword="fts"),  # needs `ensure_indexes(optional=True)` on the database
+    "hnsw": SearchConfig(vector="hnsw", keyword="fts"),  # needs `memora index BANK --fts --hnsw`
     "vector": SearchConfig(keyword="none"),
 }
 DEFAULT_RECIPE = "inprocess"

@@ -21,11 +21,10 @@ from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
 from memora_graph.retrieve.search import DEFAULT_RECIPE, RECIPES, Bm25, SearchConfig, VectorTable
-from memora_graph.store import Store
+from memora_graph.store import Store, index_names
 
 TABLES = ("segment", "entity", "place", "routine", "preference")
-_FTS = {t: f"{t}_fts" for t in TABLES}
-_HNSW = {"segment": "segment_hnsw", "entity": "entity_hnsw"}
+_HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 
 
 class ToolError(MemoraError):
@@ -61,19 +60,33 @@ class MemoryView:
         self.config = RECIPES[config] if isinstance(config, str) else config
         self._embedder = embedder
         self._owns = owns_store
-        self.notes: list[str] = []  # degradations a caller should know about (e.g. no FTS index)
+        self.notes: list[str] = []  # degradations a caller should know about (none at present)
         migrations = set(store.migrations())
         if "002_inferred.cypher" not in migrations:
             raise BankError(f"{store.path}: built before inferred knowledge existed (schema 002 missing); "
                             "rebuild it with `memora build`")
-        if self.config.keyword == "fts":
-            have = set(store.indexes())
-            missing = sorted(set(_FTS.values()) - have)
-            if missing:
-                self.notes.append(f"no keyword index ({', '.join(missing)}); keyword signal computed in process")
-                self.config = self.config.model_copy(update={"keyword": "bm25"})
-        if self.config.vector == "hnsw" and not set(_HNSW.values()) <= set(store.indexes()):
-            raise ToolError(f"{store.path}: has no HNSW index; the 'hnsw' recipe needs Store.ensure_indexes(optional=True)")
+        self._check_indexes(config)
+
+    def _check_indexes(self, config: SearchConfig | str) -> None:
+        """A recipe that reads Kùzu's optional indexes fails here, saying how to build them,
+        rather than on its first call. Builds make none by default ('inprocess' needs none)."""
+        kinds = [k for k, on in (("fts", self.config.keyword == "fts"), ("hnsw", self.config.vector == "hnsw")) if on]
+        if not kinds:
+            return
+        have = set(self.store.indexes())
+        missing = {k: sorted(set(index_names(k)) - have) for k in kinds}
+        missing = {k: v for k, v in missing.items() if v}
+        if not missing:
+            return
+        what = {"fts": "full-text (FTS)", "hnsw": "HNSW vector"}
+        recipe = f"the '{config}' recipe" if isinstance(config, str) else "this retrieval config"
+        bank = self.store.path.parent
+        at_build = " (or pass --fts to `memora build`)" if list(missing) == ["fts"] else ""
+        raise ToolError(
+            f"{self.store.path}: {recipe} needs the {' and '.join(what[k] for k in missing)} indexes, which this "
+            f"database does not have (missing: {', '.join(n for v in missing.values() for n in v)}). Build them with "
+            f"`memora index {bank} {' '.join('--' + k for k in missing)}`{at_build}, or use the default recipe "
+            f"'{DEFAULT_RECIPE}', which needs none.")
 
     @classmethod
     def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
@@ -153,7 +166,7 @@ class MemoryView:
     def knn(self, table: str, q: np.ndarray, k: int) -> list[tuple[str, float]]:
         if self.config.vector == "numpy":
             return self.vectors(table).topk(q, k)
-        if self.config.vector == "hnsw" and table in _HNSW:
+        if self.config.vector == "hnsw" and table in _HNSW_TABLES:
             rows = self.fetch(f"_tool_hnsw_{table}", vector=q.tolist())
         else:
             rows = self.fetch(f"_tool_knn_{table}", vector=q.tolist())
