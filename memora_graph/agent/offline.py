@@ -2,10 +2,14 @@
 a model, so every condition runs on a CPU with no model. It is NOT a language model; numbers it
 produces measure the memories through a fixed, simple reader, not an LLM's reasoning.
 
-EAM-QA: it searches the question stem, then each content option (3 calls per iteration, so two
-tool rounds), then scores each option against the retrieved evidence:
+EAM-QA: it searches the question stem, adds the typed lookups the question calls for where the
+condition advertises them (get_preferences for a preference or habit question, get_routine_skill
+for a routine question, search_activities for a question about one video: `typed_calls`), then
+checks each content option in the question's situation: the query for option X is the hypothesis
+"<stem>: X" (`hypothesis`). At most 3 calls per response, so three tool rounds. It then scores
+each option against the retrieved evidence:
 
-    support(option) = max cosine(option, evidence text)            (MiniLM, query vs passage)
+    support(option) = max cosine(hypothesis(option), evidence text)   (MiniLM, query vs passage)
                     + LEXICAL_WEIGHT * share of the option's content words found in the evidence
 
 and answers the best option, or E when the best support is below E_THRESHOLD (weak evidence) or
@@ -18,7 +22,13 @@ never E.
 Planning: it retrieves a routine first (get_routine_skill, else search_activities, else search),
 grounds up to two objects through the entity tools (search_objects, else get_object_history,
 else search), and writes numbered steps "Verb the object at the place" from the routine's steps
-or, without a routine, from the best-matching remembered activity sequence.
+or, without a routine, from the best-matching remembered activity sequence. Where the condition
+has preferences (MEMORA's get_preferences), the plan honours the ones about its objects: it puts
+an object back where the person keeps it, adds a habitual next action, follows a workflow
+(`apply_preferences`).
+
+Every tool result is read round-robin across its record kinds (`read_evidence`), so a unified
+`search` contributes objects, activities, places and patterns alike.
 
 The policy reads only the task view and its own tool results; never gold answers or references.
 """
@@ -41,6 +51,8 @@ E_MARGIN = 0.01
 LEXICAL_WEIGHT = 0.3
 ROUTINE_ADOPT = 0.5
 MAX_STEPS = 12
+MAX_PREFERENCES = 4  # retrieved preferences considered for one plan
+MAX_PREFERENCE_STEPS = 3  # steps a plan may gain from them
 EVIDENCE_PER_CALL = 6  # the best results of each call are read
 EVIDENCE_CHARS = 240
 _VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
@@ -104,9 +116,53 @@ def evidence_items(result: Any, kind: str = "") -> list[dict[str, Any]]:
                 video = next((str(result[k]) for k in _VIDEO_KEYS if result.get(k)), "")
                 out.append({"text": text, "video": video, "kind": kind, "raw": result})
         for k, v in result.items():
-            if isinstance(v, (list, dict)) and k not in _NOT_EVIDENCE:
+            # "places" is a record's bookkeeping field, but at the top of a result it is a store's list
+            if isinstance(v, (list, dict)) and (k not in _NOT_EVIDENCE or (not kind and k == "places")):
                 out.extend(evidence_items(v, k))
     return out
+
+
+def read_evidence(result: Any, n: int = EVIDENCE_PER_CALL) -> list[dict[str, Any]]:
+    """The first `n` evidence items a reader takes from one tool result, round-robin across the
+    result's record kinds (objects, activities, places, patterns, ...), each kind in its own
+    rank order. A multi-store `search` result is thereby read across every store it returns,
+    not only its first one or two lists."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for it in evidence_items(result):
+        groups.setdefault(it["kind"], []).append(it)
+    out: list[dict[str, Any]] = []
+    depth = 0
+    while len(out) < n and any(depth < len(g) for g in groups.values()):
+        for g in groups.values():
+            if depth < len(g) and len(out) < n:
+                out.append(g[depth])
+        depth += 1
+    return out
+
+
+def hypothesis(stem: str, option: str) -> str:
+    """The statement a reader checks for one option: the question's content words with the option
+    (\"When P01 picks up a spoon ... next? lathers it with soap\"), so evidence is sought for the
+    option in the question's situation, not for the option anywhere in memory."""
+    return f"{stem.rstrip('?').strip()}: {option}"
+
+
+_PREFERENCE_CUES = re.compile(r"\b(prefer\w*|typical\w*|usually|often|tend\w*|habit\w*|style|next|after)\b", re.I)
+_ROUTINE_CUES = re.compile(r"\b(routine\w*|approach|pattern|steps?|order|procedure|sequence|how does|workflow)\b", re.I)
+
+
+def typed_calls(stem: str, names: list[str]) -> list[dict[str, Any]]:
+    """The typed lookups a careful reader adds to a question, by what it asks, when the condition
+    advertises them: a preference or habit question asks get_preferences, a routine question
+    get_routine_skill, a question about one video search_activities."""
+    calls = []
+    if "get_preferences" in names and _PREFERENCE_CUES.search(stem):
+        calls.append(_call("get_preferences", query=stem))
+    if "get_routine_skill" in names and _ROUTINE_CUES.search(stem):
+        calls.append(_call("get_routine_skill", goal_query=stem))
+    if "search_activities" in names and (_VIDEO.search(stem) or not calls):
+        calls.append(_call("search_activities", query=stem))
+    return calls[:2]
 
 
 class OfflinePolicy:
@@ -130,10 +186,11 @@ class OfflinePolicy:
         if not forced and names:
             tool = "search" if "search" in names else names[0]
             arg = "query" if tool != "get_object_history" else "object_query"
-            queries = [stem] + [c for c in view["choices"][:4]]
-            todo = queries[len(state.calls):len(state.calls) + 3]
+            plan = [_call(tool, **{arg: stem})] + typed_calls(stem, names) + \
+                [_call(tool, **{arg: hypothesis(stem, c)}) for c in view["choices"][:4]]
+            todo = plan[len(state.calls):len(state.calls) + 3]
             if todo:
-                return PolicyReply(content="", tool_calls=[_call(tool, **{arg: q}) for q in todo])
+                return PolicyReply(content="", tool_calls=todo)
         letter, detail = self.choose(view, state.calls)
         return PolicyReply(content=f"{detail}\nAnswer: {letter}")
 
@@ -145,7 +202,7 @@ class OfflinePolicy:
             c = self.embedder.encode(choices, kind="query")
             best = int(np.argmax(c @ q))
             return "ABCD"[best], "Closed-book prior: no memory available."
-        items = [it for call in calls for it in evidence_items(call["result"])[:EVIDENCE_PER_CALL]]
+        items = [it for call in calls for it in read_evidence(call["result"], EVIDENCE_PER_CALL)]
         videos = set(_VIDEO.findall(stem))
         if videos and any(it["video"] in videos for it in items):
             items = [it for it in items if it["video"] in videos]
@@ -153,7 +210,7 @@ class OfflinePolicy:
         if not texts:
             return "E", "No evidence retrieved."
         ev = self.embedder.encode(texts, kind="passage")
-        cv = self.embedder.encode(choices, kind="query")
+        cv = self.embedder.encode([hypothesis(stem, c) for c in choices], kind="query")
         sims = cv @ ev.T
         ev_tokens = set().union(*(tokenize(t) for t in texts))
         scores = []
@@ -266,11 +323,26 @@ class OfflinePolicy:
             g = next((v for k, v in grounding.items() if obj and (k in obj or obj in k)), None)
             entity = g["label"] if g else obj or "item"
             location = (g["location"] if g and g["location"] else place) or "counter"
-            step = {"action": verb, "entity": entity, "location": location, "grounded": g is not None,
-                    "text": f"{verb.capitalize()} the {entity} at the {location}"}
+            step = _step(verb, entity, location, grounded=g is not None)
             if not out or out[-1]["text"].lower() != step["text"].lower():
                 out.append(step)
-        return out[:MAX_STEPS] or generic_plan(task_query)
+        out = out[:MAX_STEPS]
+        if out:
+            out = apply_preferences(out, self._preferences(query, calls, out))
+        return out or generic_plan(task_query)
+
+    def _preferences(self, query: str, calls, steps: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """The retrieved preferences that concern this plan: one of their objects is an object of
+        the plan or of the request; best retrieval similarity first."""
+        prefs = [it["raw"] for c in calls if c["name"] in ("get_preferences", "search_patterns", "search")
+                 for it in evidence_items(c["result"]) if it["raw"].get("subtype")]
+        nouns = {w for s in steps for w in str(s["entity"]).split()} | set(re.findall(r"[a-z]+", query.lower()))
+        relevant = {}
+        for p in sorted(prefs, key=lambda p: -float(p.get("similarity") or 0)):
+            objects = [str(o).lower() for o in p.get("objects") or []]
+            if any(w in nouns for o in objects for w in o.split()):
+                relevant.setdefault(p.get("preference_id") or p.get("pattern_id") or p.get("preference"), p)
+        return list(relevant.values())[:MAX_PREFERENCES]
 
     def _activity_steps(self, query: str, calls) -> list[tuple[str, str]]:
         items = [it for c in calls if c["name"] in ("search", "search_activities") for it in evidence_items(c["result"])]
@@ -291,6 +363,81 @@ class OfflinePolicy:
                 if part.strip():
                     steps.append((part.strip(), place))
         return steps
+
+
+def _step(action: str, entity: str, location: str, *, grounded: bool, preference: str | None = None) -> dict[str, Any]:
+    step = {"action": action, "entity": entity, "location": location, "grounded": grounded,
+            "text": f"{action.capitalize()} the {entity} {_prep(location)} the {location}"}
+    if preference:
+        step["preference"] = preference
+    return step
+
+
+def _prep(location: str) -> str:
+    return "in" if location.split()[-1:] and location.split()[-1] in ("sink", "drawer", "cupboard", "fridge", "bin",
+                                                                     "box", "bag", "basket") else "at"
+
+
+_STORAGE = re.compile(r"\b(?:puts it|puts the .+?|stores the .+?)\s+(?:in|on|at|into)\s+the\s+(?P<place>.+)$", re.I)
+_WORKFLOW = re.compile(r"usually (?P<use>\w+) at the (?P<at>.+?), then (?P<then>\w+) (?:in|on|at|into) the (?P<place>.+)$",
+                       re.I)
+
+
+def _matches(step: dict[str, Any], obj: str, verb: str | None = None) -> bool:
+    entity = str(step["entity"]).lower()
+    if not obj or not any(w in entity.split() for w in obj.lower().split()):
+        return False
+    return verb is None or tokenize(verb) <= tokenize(step["action"]) or tokenize(step["action"]) <= tokenize(verb)
+
+
+def apply_preferences(steps: list[dict[str, Any]], prefs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Honour retrieved preferences in a plan, the way a person's helper would:
+
+    - storage ("After using the pan, usually puts it on the hob"): after the last step with the
+      object, put it back where the person keeps it (unless the plan already does);
+    - habit ("After emptying the pan, usually washes the pan"): after a step that does the
+      trigger, add the habitual next action (unless it already follows);
+    - workflow ("Cookware (pot, pan) are usually washed at the sink, then put on the drying rack"):
+      after the plan uses one of those objects that way, add the follow-up.
+
+    Each added step names the preference it honours; at most MAX_PREFERENCE_STEPS are added."""
+    out = list(steps)
+    added = 0
+    for p in prefs:
+        if added >= MAX_PREFERENCE_STEPS:
+            break
+        pid = str(p.get("preference_id") or p.get("pattern_id") or "")
+        statement = str(p.get("preference") or p.get("statement") or "")
+        subtype = p.get("subtype")
+        objects = [str(o).lower().replace("_", " ") for o in p.get("objects") or []]
+        new: tuple[int, dict[str, Any]] | None = None
+        if subtype == "storage" and objects and (m := _STORAGE.search(statement)):
+            place = m["place"].strip(" .").lower()
+            idx = [i for i, s in enumerate(out) if _matches(s, objects[0])]
+            if idx and not any(_matches(s, objects[0]) and s["location"] == place for s in out):
+                new = (idx[-1] + 1, _step("put", out[idx[-1]]["entity"], place, grounded=True, preference=pid))
+        elif subtype == "habit":
+            trigger = str(p.get("context") or "").split()
+            keywords = [str(k).lower() for k in p.get("keywords") or []]
+            nxt = keywords[len(trigger):]
+            if len(trigger) >= 2 and len(nxt) >= 2:
+                idx = [i for i, s in enumerate(out) if _matches(s, " ".join(trigger[1:]), trigger[0])]
+                if idx:
+                    i = idx[0]
+                    verb, obj = nxt[0], " ".join(nxt[1:])
+                    follow = out[i + 1] if i + 1 < len(out) else None
+                    if follow is None or not _matches(follow, obj, verb):
+                        new = (i + 1, _step(verb, obj, out[i]["location"], grounded=True, preference=pid))
+        elif subtype == "workflow" and objects and (m := _WORKFLOW.search(statement)):
+            idx = [i for i, s in enumerate(out) if any(_matches(s, o, m["use"]) for o in objects)]
+            place = m["place"].strip(" .").lower()
+            if idx and not any(s["location"] == place for s in out[idx[-1] + 1:]):
+                i = idx[-1]
+                new = (i + 1, _step("put", out[i]["entity"], place, grounded=True, preference=pid))
+        if new is not None:
+            out.insert(*new)
+            added += 1
+    return out[:MAX_STEPS + MAX_PREFERENCE_STEPS]
 
 
 _HELP = re.compile(r"^\s*help\s+(?:p\d+|the participant|the person)\s+(?:to\s+)?", re.I)
@@ -323,5 +470,4 @@ def generic_plan(task_query: str) -> list[dict[str, Any]]:
     for v in verbs:
         steps.append((v, noun, "sink" if v in ("wash", "rinse", "dry", "fill") else "counter"))
     steps.append(("place", noun, "counter"))
-    return [{"action": a, "entity": e, "location": loc, "grounded": False,
-             "text": f"{a.capitalize()} the {e} at the {loc}"} for a, e, loc in steps]
+    return [_step(a, e, loc, grounded=False) for a, e, loc in steps]

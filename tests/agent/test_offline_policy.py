@@ -1,0 +1,112 @@
+"""The offline reader: evidence read round-robin across a result's record kinds, preferences honoured
+in plans, and a response's several queries embedded in one batch before its calls run."""
+
+from __future__ import annotations
+
+from support.scripted_server import ScriptedServer, Turn, tool_call
+
+from memora_graph.agent.loop import ModelPolicy, run_agent
+from memora_graph.agent.offline import OfflinePolicy, _step, apply_preferences, read_evidence
+from memora_graph.bench.memora_tools import MemoraToolSet
+from memora_graph.llm import get_backend
+from memora_graph.retrieve import MemoryView
+
+
+def _search_result(per_kind: int = 3) -> dict:
+    rec = lambda kind, i: {"summary": f"{kind} record {i}", "video": "P01_01"}  # noqa: E731
+    return {"tool": "search", "participant": "P01", "arguments": {"query": "x"},
+            **{kind: [rec(kind, i) for i in range(per_kind)] for kind in ("objects", "activities", "places", "patterns")}}
+
+
+def test_evidence_is_read_round_robin_across_record_kinds():
+    items = read_evidence(_search_result(), 6)
+    assert [it["kind"] for it in items] == ["objects", "activities", "places", "patterns", "objects", "activities"]
+    assert [it["text"] for it in items[:2]] == ["objects record 0", "activities record 0"]
+    # a one-kind result is read in its own rank order
+    assert [it["text"] for it in read_evidence({"results": [{"text": f"r{i}"} for i in range(9)]}, 4)] == \
+        ["r0", "r1", "r2", "r3"]
+    # fewer records than asked: all of them, nothing invented
+    assert len(read_evidence(_search_result(per_kind=1), 6)) == 4
+
+
+PREFS = [
+    {"preference_id": "h", "subtype": "habit", "context": "empty pan", "keywords": ["empty", "pan", "wash", "pan"],
+     "objects": ["pan"], "preference": "After emptying the pan, usually washes the pan"},
+    {"preference_id": "s", "subtype": "storage", "objects": ["pan"],
+     "preference": "After using the pan, usually puts it on the hob"},
+    {"preference_id": "w", "subtype": "workflow", "objects": ["pot", "pan"],
+     "preference": "Cookware (pot, pan) are usually washed at the sink area, then put on the drying rack"},
+]
+
+
+def test_plans_honour_habit_storage_and_workflow_preferences():
+    plan = [_step("empty", "pan", "sink", grounded=True), _step("dry", "pan", "counter", grounded=True)]
+    out = apply_preferences(plan, PREFS)
+    assert [s["text"] for s in out] == [
+        "Empty the pan in the sink",
+        "Wash the pan in the sink",          # habit: after emptying the pan, wash it
+        "Put the pan at the drying rack",    # workflow: washed cookware goes to the drying rack
+        "Dry the pan at the counter",
+        "Put the pan at the hob",            # storage: after use, where the person keeps it
+    ]
+    assert [s.get("preference") for s in out] == [None, "h", "w", None, "s"]
+
+
+def test_preferences_already_followed_or_about_other_objects_add_nothing():
+    plan = [_step("empty", "pan", "sink", grounded=True), _step("wash", "pan", "sink", grounded=True),
+            _step("put", "pan", "drying rack", grounded=True), _step("put", "pan", "hob", grounded=True)]
+    assert apply_preferences(plan, PREFS) == plan
+    other = [_step("cut", "onion", "counter", grounded=True)]
+    assert apply_preferences(other, PREFS) == other
+
+
+def test_offline_planner_uses_retrieved_preferences(embedder):
+    policy = OfflinePolicy()
+    calls = [{"name": "get_routine_skill", "arguments": {"goal_query": "clean the pan"},
+              "result": {"routines": [{"goal": "clean the pan", "similarity": 0.9,
+                                       "canonical_steps": ["empty pan", "dry pan"], "key_objects": ["pan"]}]}},
+             {"name": "get_preferences", "arguments": {"query": "clean the pan"},
+              "result": {"preferences": [{**p, "similarity": 0.5} for p in PREFS]}}]
+    steps = policy.structured_plan("Help P01 clean the pan.", calls)
+    assert any(s.get("preference") == "s" and s["location"] == "hob" for s in steps)
+    without = policy.structured_plan("Help P01 clean the pan.", calls[:1])
+    assert not any(s.get("preference") for s in without) and len(without) < len(steps)
+
+
+def test_a_responses_queries_are_embedded_in_one_batch_before_its_calls(small_bank):
+    bank, _ = small_bank
+    view = MemoryView.open(bank, "P37")
+    toolset = MemoraToolSet(view, ("search_objects", "search_activities"))
+    queries = ["a green chopping board nobody asked about", "rinsing a mug twice", "the kettle near the window"]
+    script = [Turn(tool_calls=[tool_call("search_objects", {"query": queries[0]}),
+                               tool_call("search_activities", {"query": queries[1]}),
+                               tool_call("search_objects", {"query": queries[2]})]), "Answer: E"]
+    question = {"question_id": "q", "participant_id": "P37", "qa_type": "SPref", "question": "Which?",
+                "choices": ["a", "b", "c", "d", "The information is not available based on the given context"]}
+    try:
+        with ScriptedServer(script) as server:
+            policy = ModelPolicy(get_backend("openai", base_url=server.base_url, model="m", backoff_s=0))
+            res = run_agent(policy, toolset, "eam_qa", question, "memora")
+        encoder = view.encoder
+        assert len(res.tool_calls) == 3 and all(c["error"] is None for c in res.tool_calls)
+        assert encoder.misses == 0 and encoder.hits == 3  # every call found its query already encoded
+    finally:
+        toolset.close()
+
+
+def test_the_reader_asks_typed_tools_by_what_the_question_asks_and_checks_each_option_in_context(embedder):
+    from memora_graph.agent.loop import AgentState
+    from memora_graph.retrieve import tool_schemas
+
+    names = ["search", "search_objects", "search_activities", "get_routine_skill", "get_preferences"]
+    tools = tool_schemas(names)
+    view = {"question_id": "q", "participant_id": "P01", "qa_type": "SHabit",
+            "question": "After P01 empties the wok, what do they typically do next?",
+            "choices": ["Wipes it", "Rinses it in the sink", "Sets it down", "Stores it", "not available"]}
+    policy, state = OfflinePolicy(), AgentState("eam_qa", view)
+    first = policy.respond([], tools, forced=False, state=state).tool_calls
+    assert [c["function"]["name"] for c in first] == ["search", "get_preferences", "search"]
+    assert '"After P01 empties the wok, what do they typically do next: Wipes it"' in first[2]["function"]["arguments"]
+    # a condition without the typed tools asks the same things through its one search
+    flat = policy.respond([], tool_schemas(["search"]), forced=False, state=AgentState("eam_qa", view)).tool_calls
+    assert [c["function"]["name"] for c in flat] == ["search"] * 3
