@@ -61,6 +61,10 @@ class ToolSet(Protocol):
 
     def call(self, name: str, arguments: dict[str, Any]) -> Any: ...
 
+    # optional: `prefetch(calls)` with calls = [(name, arguments)] warms whatever the calls of one
+    # response share (query embeddings) before they run one by one; counted as tool time
+
+
 
 @dataclass
 class AgentResult:
@@ -141,6 +145,14 @@ def run_agent(policy: Policy, toolset: ToolSet | None, task_kind: str, view: dic
                 assistant["tool_calls"] = [c.to_openai() for c in calls]
             messages.append(assistant)
             text_results = []
+            prefetch = getattr(toolset, "prefetch", None)
+            if prefetch is not None and len(calls) > 1:  # one batched embedding for the response's queries
+                t1 = time.perf_counter()
+                try:
+                    prefetch([(c.name, dict(c.arguments)) for c in calls if c.key not in cache])
+                except Exception:  # a warm-up only; each call still embeds what it needs
+                    pass
+                tools_s += time.perf_counter() - t1
             for call in calls:
                 key = call.key
                 duplicate = key in cache

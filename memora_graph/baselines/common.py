@@ -97,7 +97,7 @@ class EmbeddingStore:
             return
         keys = np.array(list(self._vectors))
         mat = np.stack(list(self._vectors.values())).astype(np.float32)
-        tmp = self.path.with_name(self.path.stem + ".tmp.npz")
+        tmp = self.path.with_name(f"{self.path.stem}.{os.getpid()}.tmp.npz")  # parallel bench workers share the bank
         np.savez(tmp, keys=keys, vectors=mat)
         os.replace(tmp, self.path)
         self._dirty = False

@@ -148,9 +148,12 @@ def _backend_options(base_url, model, api_key, temperature, timeout_s, options) 
 @click.option("-o", "--option", "options", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="Any other backend option (JSON if it parses). Repeatable.")
 @click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
+@click.option("--workers", type=int, default=None,
+              help="Processes to run conditions in (default: 2 under offline on a 2+ core machine, 1 for model "
+                   "backends). Results do not depend on it.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
-            temperature, timeout_s, options, limit, quiet):
+            temperature, timeout_s, options, limit, workers, quiet):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
 
     \b
@@ -183,7 +186,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
             summary = run_bench(bank, out, conditions=conditions, participants=_participants(participants),
                                 tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
-                                on_item=on_item, on_plan=on_plan)
+                                on_item=on_item, on_plan=on_plan, workers=workers)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{summary.done} items run ({summary.failed} failed), {summary.skipped} already done; "

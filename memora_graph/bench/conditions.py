@@ -110,6 +110,18 @@ class MethodToolSet:
     def schemas(self) -> list[dict[str, Any]]:
         return list(self._schemas.values())
 
+    def prefetch(self, calls: list[tuple[str, dict[str, Any]]]) -> None:
+        """Embed the query texts of one response's calls in one batch (the baselines embed
+        queries through the process-wide cache, so their calls then find them there)."""
+        from memora_graph.bench.memora_tools import query_texts
+        from memora_graph.embed import get_embedder
+        from memora_graph.retrieve.embedding import torch_threads
+
+        texts = list(dict.fromkeys(query_texts(calls)))
+        if texts:
+            with torch_threads(1):
+                get_embedder().encode(texts, kind="query")
+
     def call(self, name: str, arguments: dict[str, Any]) -> Any:
         if name not in self._schemas:
             return {"error": f"unknown tool {name!r}; available: {', '.join(self._schemas)}"}

@@ -13,6 +13,13 @@ from typing import Any
 
 from memora_graph.retrieve import MemoryView, ToolError, call_tool, tool_schemas
 
+QUERY_ARGUMENTS = ("query", "goal_query", "object_query", "goal", "object", "name")
+
+
+def query_texts(calls: list[tuple[str, dict[str, Any]]]) -> list[str]:
+    """The free-text arguments of a batch of tool calls, the ones a tool embeds."""
+    return [v for _, args in calls for k, v in args.items() if k in QUERY_ARGUMENTS and isinstance(v, str)]
+
 
 class MemoraToolSet:
     def __init__(self, view: MemoryView, names: tuple[str, ...]):
@@ -23,6 +30,10 @@ class MemoraToolSet:
 
     def schemas(self) -> list[dict[str, Any]]:
         return self._schemas
+
+    def prefetch(self, calls: list[tuple[str, dict[str, Any]]]) -> None:
+        """Embed the query texts of one response's calls in one batch before they run."""
+        self.view.encoder.prefetch(query_texts(calls))
 
     def call(self, name: str, arguments: dict[str, Any]) -> Any:
         if name not in self.names:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import subprocess
 import time
 from dataclasses import dataclass, field
@@ -231,9 +232,11 @@ def run_bench(
     limit: int | None = None,
     on_item: Callable[[dict[str, Any]], None] | None = None,
     on_plan: Callable[[int], None] | None = None,
+    workers: int | None = None,
 ) -> RunSummary:
     """Run every (condition, item) not yet recorded in `out`. `limit` caps items per participant
-    and task kind (for smoke runs)."""
+    and task kind (for smoke runs). `workers` > 1 runs the conditions in that many processes
+    (default: 2 under `offline` on a machine with 2+ cores, else 1); results do not depend on it."""
     t_start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -253,8 +256,11 @@ def run_bench(
                           "or leave it out with --conditions")
     banks = BankSet(edited=bank, raw=Path(raw_bank) if raw_bank else None,
                     episodic=Path(episodic_bank) if episodic_bank else None)
-    policy = make_policy(backend, backend_options or {}, out)
-    _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit)
+    workers = resolve_workers(workers, backend, len(conds))
+    # under parallel offline workers each process loads its own reader; the parent needs none
+    policy = None if workers > 1 and backend == "offline" else make_policy(backend, backend_options or {}, out)
+    _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit,
+                    workers)
     plan: list[tuple[str, str, Any]] = []
     for pid, entry in suite.participants.items():
         items = {"eam_qa": entry.eam_qa.questions if entry.eam_qa else [], "replay": entry.replay or [],
@@ -265,8 +271,16 @@ def run_bench(
     summary = RunSummary(out)
     if on_plan:
         on_plan(len(plan) * len(conds))
-    with _one_torch_thread():
-        _run_plan(out, bank, banks, conds, kinds, plan, suite, policy, summary, on_item)
+    memories = {}
+    for pid in suite.participants:  # what the metrics read, saved with the run (the report reads only the run)
+        memories[pid] = scoring_memory(bank, pid)
+        _write_json(out / "scoring_memory" / f"{pid}.json", memories[pid], indent=1)
+        _write_json(out / "memory_formation" / f"{pid}.json", memory_formation(bank, pid))
+    if workers > 1:
+        _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary, on_item)
+    else:
+        with _one_torch_thread():
+            _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item)
     write_results_table(out)
     summary.seconds = time.perf_counter() - t_start
     manifest = json.loads((out / "manifest.json").read_text())
@@ -291,13 +305,93 @@ def _one_torch_thread():
     return torch_threads(1)
 
 
-def _run_plan(out, bank, banks, conds, kinds, plan, suite, policy, summary, on_item) -> None:
-    for pid in suite.participants:
-        memory = scoring_memory(bank, pid)
-        (out / "scoring_memory").mkdir(exist_ok=True)
-        (out / "scoring_memory" / f"{pid}.json").write_text(json.dumps(memory, indent=1))
-        (out / "memory_formation").mkdir(exist_ok=True)
-        (out / "memory_formation" / f"{pid}.json").write_text(json.dumps(memory_formation(bank, pid)))
+def _write_json(path: Path, data: Any, indent: int | None = None) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=indent))
+    os.replace(tmp, path)
+
+
+# relative cost of one item per condition under `offline` (Parametric reads no memory)
+_COST = {"no_memory": 0.15}
+
+
+def resolve_workers(workers: int | None, backend: str, n_conditions: int) -> int:
+    """Worker processes for a run: given, or by default one per core up to 2 under `offline` (the
+    reader is CPU-bound) and 1 for model backends (the server sets the pace)."""
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1) if backend == "offline" else 1
+    if workers < 1:
+        raise MemoraError(f"--workers must be at least 1, got {workers}")
+    return max(1, min(workers, n_conditions))
+
+
+def split_conditions(conds: list[Condition], workers: int) -> list[list[Condition]]:
+    """Conditions dealt to workers, heaviest first to the least-loaded worker; each condition runs
+    whole in one worker, so each records file has one writer."""
+    groups: list[list[Condition]] = [[] for _ in range(workers)]
+    load = [0.0] * workers
+    for c in sorted(conds, key=lambda c: -_COST.get(c.name, 1.0)):
+        i = min(range(workers), key=lambda j: (load[j], j))
+        groups[i].append(c)
+        load[i] += _COST.get(c.name, 1.0)
+    return [g for g in groups if g]
+
+
+def _worker(args: dict[str, Any]) -> dict[str, Any]:
+    """One worker process: its conditions over the whole plan; progress goes back on a queue."""
+    from memora_graph.bench.conditions import get_condition
+
+    queue = args.pop("queue")
+    policy = make_policy(args["backend"], args["backend_options"], args["out"])
+    summary = RunSummary(args["out"])
+    conds = [get_condition(n) for n in args["conditions"]]
+    with _one_torch_thread():
+        _run_plan(args["out"], args["banks"], conds, args["kinds"], args["plan"], args["memories"], policy, summary,
+                  lambda rec: queue.put({k: rec.get(k) for k in ("condition", "item_id", "status")}))
+    return {"done": summary.done, "skipped": summary.skipped, "failed": summary.failed,
+            "per_condition_seconds": summary.per_condition_seconds}
+
+
+def _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, options, summary, on_item) -> None:
+    import multiprocessing as mp
+    import queue as queue_mod
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    ctx = mp.get_context("spawn")  # a fresh interpreter: no torch or Kùzu state crosses a fork
+    with ctx.Manager() as manager:
+        q = manager.Queue()
+        banks = BankSet(edited=banks.edited, raw=banks.raw, episodic=banks.episodic)
+        jobs = [{"queue": q, "out": out, "banks": banks, "conditions": [c.name for c in group], "kinds": kinds,
+                 "plan": plan, "memories": memories, "backend": backend, "backend_options": options}
+                for group in split_conditions(conds, workers)]
+        with ProcessPoolExecutor(max_workers=len(jobs), mp_context=ctx) as pool:
+            pending = {pool.submit(_worker, job) for job in jobs}
+            while pending:
+                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                _drain(q, on_item, queue_mod)
+                for fut in done:
+                    res = fut.result()  # a worker that crashed outright stops the run with its error
+                    summary.done += res["done"]
+                    summary.skipped += res["skipped"]
+                    summary.failed += res["failed"]
+                    summary.per_condition_seconds.update(res["per_condition_seconds"])
+            _drain(q, on_item, queue_mod)
+
+
+def _drain(q, on_item, queue_mod) -> None:
+    while True:
+        try:
+            rec = q.get_nowait()
+        except queue_mod.Empty:
+            return
+        if on_item:
+            on_item(rec)
+
+
+def _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item) -> None:
+    for pid in dict.fromkeys(p for p, _, _ in plan):
+        memory = memories[pid]
         for cond in conds:
             t_cond = time.perf_counter()
             for kind in kinds:
@@ -329,7 +423,8 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, options, policy, kinds, limit) -> None:
+def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, options, policy, kinds, limit,
+                    workers=1) -> None:
     path = out / "manifest.json"
     old = json.loads(path.read_text()) if path.exists() else {}
     safe_options = {k: ("***" if "key" in k.lower() else v) for k, v in options.items()}
@@ -340,7 +435,8 @@ def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, bac
     manifest = {
         **old,
         "format": RUN_FORMAT, "code_version": _code_version(), "prompt_version": PROMPT_VERSION,
-        "backend": backend, "model": getattr(getattr(policy, "backend", None), "model", None) or policy.name,
+        "backend": backend, "model": (getattr(getattr(policy, "backend", None), "model", None) or policy.name) if policy else backend,
+        "workers": workers,
         "options": safe_options, "seeds": {"offline_policy": "deterministic (no sampling)"},
         "temperature": None if backend == "offline" else options.get("temperature", DEFAULT_TEMPERATURE),
         "bank": str(bank), "raw_bank": str(raw_bank) if raw_bank else None,

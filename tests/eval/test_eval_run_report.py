@@ -18,8 +18,8 @@ from memora_graph.stats import bank_stats
 CONDS = "no_memory,flat_1d_raw,flat_1d_edited,graph_2d_raw,graph_2d_edited"
 
 
-def _run(bank, raw, tasks, out, conds=CONDS):
-    return run_bench(bank, out, conditions=conds, participants=["P37"], tasks=tasks, raw_bank=raw)
+def _run(bank, raw, tasks, out, conds=CONDS, workers=1):
+    return run_bench(bank, out, conditions=conds, participants=["P37"], tasks=tasks, raw_bank=raw, workers=workers)
 
 
 def test_run_records_resume_and_determinism(small_bank, small_raw_bank, tiny_tasks, tmp_path):
@@ -46,8 +46,9 @@ def test_run_records_resume_and_determinism(small_bank, small_raw_bank, tiny_tas
     path.write_text(path.read_text().splitlines()[0] + "\n")
     assert _run(bank, small_raw_bank, tiny_tasks, tmp_path / "a").done == 1
 
-    other = _run(bank, small_raw_bank, tiny_tasks, tmp_path / "b")
-    assert other.done == 20
+    # two worker processes give exactly the records of one process
+    other = _run(bank, small_raw_bank, tiny_tasks, tmp_path / "b", workers=2)
+    assert other.done == 20 and json.loads((tmp_path / "b" / "manifest.json").read_text())["workers"] == 2
     strip = lambda recs: [(r["item_id"], r.get("predicted"), r.get("plan_text"), r.get("final_text"),  # noqa: E731
                            [(c["name"], c["arguments"]) for c in r["tool_calls"]]) for r in recs]
     for kind in ("eam_qa", "planning"):
