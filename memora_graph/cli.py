@@ -294,7 +294,7 @@ def run(bank, name, params, fmt):
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--participant", help="One participant (default: all).")
 @click.option("--calls", type=click.Choice(["role", "segment", "failed"]), is_flag=False, flag_value="role",
-              default=None, help="Model calls of video builds instead: cost and latency per role (the default), "
+              default=None, help="Model calls (video builds, memora consolidate) instead: cost and latency per role (the default), "
                                  "per segment, or the failed calls.")
 @output_options
 def stats(bank, participant, calls, fmt):

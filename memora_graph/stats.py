@@ -56,7 +56,7 @@ CALL_VIEWS = {"role": "model_calls_by_role", "segment": "model_calls_by_segment"
 
 
 def call_stats(bank_path: str | Path, participants: list[str] | None = None, by: str = "role") -> pl.DataFrame:
-    """Model-call cost and latency of video builds, per role (and model), per segment, or the
+    """Model-call cost and latency (video builds, LLM consolidation), per role (and model), per segment, or the
     failed calls. Banks built without models (or before model calls were logged) give no rows."""
     if by not in CALL_VIEWS:
         raise ValueError(f"by must be one of {', '.join(CALL_VIEWS)}")
