@@ -71,9 +71,13 @@ class Bank:
 
     def record_participant(self, participant: str, videos: list[str], counts: dict) -> None:
         data = self.manifest()
-        entry = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": counts}
-        if "indexes" in data["participants"].get(participant, {}):  # the database keeps its indexes
-            entry["indexes"] = data["participants"][participant]["indexes"]
+        entry = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": dict(counts)}
+        old = data["participants"].get(participant, {})
+        # the database keeps its indexes and its inferred knowledge (until consolidation runs again)
+        entry.update({k: old[k] for k in ("indexes", "consolidated", "inferred") if k in old})
+        for k in ("routines", "preferences"):
+            if k in old.get("counts", {}) and k not in counts:
+                entry["counts"][k] = old["counts"][k]
         data["participants"][participant] = entry
         self.write_manifest(data)
 

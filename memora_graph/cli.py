@@ -70,6 +70,10 @@ def main():
 @click.option("--perception-model", help="The vision-language model (default: the first the server lists).")
 @click.option("--editor-model", help="The entity-editor model (default: the perception model).")
 @click.option("--editor-base-url", help="A separate server for the editor model (default: --base-url).")
+@click.option("--consolidation", type=click.Choice(["deterministic", "llm"]), default=None,
+              help="With --video: the offline consolidation + enrichment processors (default: 'llm', by the "
+                   "--consolidation-model on the same server, with a model backend; see `memora consolidate`).")
+@click.option("--consolidation-model", help="With --video: the consolidation / enrichment model (default: the editor model).")
 @click.option("--audio/--no-audio", default=None,
               help="Send each clip's audio to the perception model (default: only for audio-capable models, e.g. *Omni*).")
 @click.option("--embed-model", default=None, help="sentence-transformers model name or path (default: bundled all-MiniLM-L6-v2).")
@@ -80,7 +84,7 @@ def main():
                    "(the default recipe needs none; `memora index` adds them later).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
-          editor_model, editor_base_url, audio, embed_model, episodic, fts, quiet):
+          editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, quiet):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -94,12 +98,14 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/episodic --episodic          # MEMORA-Episodic: no routines / preferences
       memora build banks/epic --fts                   # also the full-text indexes (recipes fts, kuzu)
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
-          --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct
+          --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
+          --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     video_opts = dict(participant=participant, video_id=video_id, base_url=base_url, perception_model=perception_model,
-                      editor_model=editor_model, editor_base_url=editor_base_url, audio=audio)
+                      editor_model=editor_model, editor_base_url=editor_base_url, audio=audio,
+                      consolidation=consolidation, consolidation_model=consolidation_model)
     if video:
         if annotations or mode != "edited" or participants != "all":
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode and --participants")

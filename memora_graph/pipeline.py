@@ -185,12 +185,15 @@ def build_from_video(
     on_segment: Callable[[str, int, str | None], None] | None = None,
     episodic: bool = False,
     fts: bool = False,
+    consolidation: str | None = None,
+    consolidation_model: str | None = None,
 ) -> VideoBuild:
     """Build (or resume) one participant's memory from a video file or a directory of videos:
     10 s clips -> VLM perception -> LLM entity editor -> the participant's graph.
 
     Nothing is written before every file has been probed and the backend is known to do
-    perception. `audio=None` sends audio to audio-capable models only (by model name).
+    perception. Consolidation and enrichment then run by model too (`consolidation="llm"`, the
+    default here; the consolidation model defaults to the editor's) or by the deterministic rules. `audio=None` sends audio to audio-capable models only (by model name).
     `on_video(video_id, n_clips)` and `on_segment(video_id, turn, error_or_None)` report progress.
     """
     import dataclasses
@@ -216,6 +219,13 @@ def build_from_video(
         editor_backend = _model_backend(backend, editor_base_url or base_url, editor_model or perception_model, log,
                                         backend_options)
     policy = LLMEditorPolicy(editor_backend)
+    processors = "deterministic"
+    if (consolidation or "llm") == "llm" and not episodic:  # the paper's consolidation / enrichment models
+        from memora_graph.consolidate.llm import make_llm_processors
+
+        processors = make_llm_processors(_model_backend(
+            backend, editor_base_url or base_url, consolidation_model or editor_model or perception_model, CallLog(),
+            backend_options))
     opts = decode or DecodeOptions()
     opts = dataclasses.replace(opts, audio=opts.audio and perceiver.audio)
     infos = [probe_video(f, video_id) for f in files]
@@ -266,7 +276,9 @@ def build_from_video(
     finally:
         builder.close()
     t0 = time.perf_counter()
-    finish_participant(bank, participant, embedder, episodic=episodic, fts=fts)
+    entry = bank.manifest().get("participants", {}).get(participant, {})
+    if any(not v.get("skipped") for v in out.videos) or "inferred" not in entry:  # a resume with nothing new: done
+        finish_participant(bank, participant, embedder, episodic=episodic, fts=fts, processors=processors)
     out.inferred_seconds = time.perf_counter() - t0
     out.calls = list(log.records)
     out.model_seconds = sum(r.latency_s for r in log.records)

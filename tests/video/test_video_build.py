@@ -87,6 +87,7 @@ EDIT2 = ops(
 
 def _build(bank, video, script, participant="P01", **kw):
     with ScriptedServer(script) as server:
+        kw.setdefault("consolidation", "deterministic")  # the LLM consolidation has its own test below
         result = build_from_video(bank, video, participant, backend="openai", base_url=server.base_url,
                                   perception_model="scripted-omni", backend_options={"backoff_s": 0, "timeout_s": 10},
                                   **kw)
@@ -221,9 +222,22 @@ def test_offline_backend_says_plainly_what_video_needs(tmp_path, short_video):
     assert not (tmp_path / "bank").exists()
 
 
+# LLM consolidation of the one video (segment handles S1..S3 are its three turns), across videos
+# (finding F1), then enrichment: routine skills and generated preferences (none cited here)
+CONSOLIDATE_VIDEO = json.dumps({"storage_preferences": [
+    {"object": "plate", "preferred_location": "sink_area", "context": "after_use", "confidence": 0.7,
+     "supporting_episodes": ["S1", "S2"]}], "organizational_habits": [], "workflow_patterns": [], "action_sequences": []})
+CONSOLIDATE_ACROSS = json.dumps({"storage_preferences": [
+    {"object": "plate", "preferred_location": "sink_area", "context": "after_use", "confidence": 0.8,
+     "supporting_episodes": ["F1"]}], "organizational_habits": [], "workflow_patterns": [], "action_sequences": []})
+ENRICH = (json.dumps({"routine_skills": []}), json.dumps({"generated_preferences": []}))
+
+
 def test_cli_build_resume_and_stats(tmp_path, short_video):
+    """The default video build consolidates by model too (the paper's consolidation / enrichment)."""
     bank = str(tmp_path / "bank")
     script = [Turn(content=c, usage=USAGE) for c in (CLIP0, CLIP1, CLIP2)] + [Turn(content=c) for c in (EDIT0, EDIT1, EDIT2)]
+    script += [Turn(content=c) for c in (CONSOLIDATE_VIDEO, CONSOLIDATE_ACROSS, *ENRICH)]
     runner = CliRunner()
     with ScriptedServer(script) as server:
         args = ["build", bank, "--video", str(short_video), "--participant", "P02", "--video-id", "P02_kitchen",
@@ -231,13 +245,21 @@ def test_cli_build_resume_and_stats(tmp_path, short_video):
         first = runner.invoke(main, args)
         assert first.exit_code == 0, first.output
         again = runner.invoke(main, args)  # resumes: nothing to do, no model call
-        assert again.exit_code == 0 and "already built" in again.output
-    assert len(server.requests) == 6
+        assert again.exit_code == 0 and "already built" in again.output, again.output
+    assert len(server.requests) == 10  # the resume made no call, not even consolidation
     assert all(p["type"] != "input_audio" for p in server.requests[0]["messages"][1]["content"])  # VL: no audio
     assert "6 entities" in first.output and "6 model calls (0 failed" in first.output
     roles = runner.invoke(main, ["stats", bank, "--calls", "--json"])
-    assert {r["role"]: r["calls"] for r in json.loads(roles.output)} == {"editor": 3, "perception": 3}
+    assert {r["role"]: r["calls"] for r in json.loads(roles.output)} == {
+        "editor": 3, "perception": 3, "consolidation": 2, "enrichment": 2}
+    with Bank(bank).open("P02") as s:
+        prefs = s.query("MATCH (p:Preference)-[:SUPPORTED_BY]->(g:Segment) WHERE p.participant = 'P02' "
+                        "RETURN p.statement AS statement, p.processor AS processor, g.id AS segment ORDER BY segment")
+    assert set(prefs["processor"]) == {"llm"} and all("plate" in t for t in prefs["statement"])
+    assert prefs["segment"].to_list() == ["P02_kitchen#t0000", "P02_kitchen#t0001"]
     segments = json.loads(runner.invoke(main, ["stats", bank, "--calls", "segment", "--json"]).output)
-    assert [r["segment"] for r in segments] == ["P02_kitchen#t0000", "P02_kitchen#t0001", "P02_kitchen#t0002"]
+    # perception and editor calls per segment; consolidation calls belong to no segment
+    assert [r["segment"] for r in segments if r["segment"]] == ["P02_kitchen#t0000", "P02_kitchen#t0001",
+                                                                "P02_kitchen#t0002"]
     usage = runner.invoke(main, ["build", bank, "--participant", "P02"])
     assert usage.exit_code == 2 and "only apply with --video" in usage.output
