@@ -354,8 +354,10 @@ def perf_build(bank_dir, participants, episodic, fts):
 
     pids = None if participants == "all" else participants.split(",")
     load_before = os.getloadavg()
+    others = _OtherCPU()
     with tempfile.TemporaryDirectory() as tmp:
         res = build_bank(bank_dir or f"{tmp}/bank", pids, episodic=episodic, fts=fts)
+    others_s = others.seconds()
     total = res.wall_seconds
     phases = res.phases()
     rows = [{"phase": k, "seconds": round(v, 2), "share%": round(100 * v / total, 1) if total else 0.0}
@@ -364,11 +366,46 @@ def perf_build(bank_dir, participants, episodic, fts):
                  "share%": round(100 * sum(phases.values()) / total, 1) if total else 0.0})
     click.echo(render(pl.DataFrame(rows)))
     click.echo(f"participants {len(res.participants)}  segments {res.segments}  wall {total:.1f} s  "
-               f"segments/s {res.segments / total:.0f}  (load average before {load_before[0]:.2f}, "
-               f"after {os.getloadavg()[0]:.2f})")
+               f"segments/s {res.segments / total:.0f}  texts encoded {res.texts_encoded}  encode calls by torch "
+               f"threads {dict(sorted(res.embed_threads.items()))}")
+    click.echo(f"machine: load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}"
+               + (f"; during the build other processes used {others_s[0]:.1f} CPU-seconds and the hypervisor took "
+                  f"{others_s[1]:.1f} (steal)" if others_s is not None else ""))
     share = 100 * res.graph_seconds / total if total else 0.0
     click.echo(f"graph work (all but embedding {res.embedding_seconds:.1f} s and model load {res.model_seconds:.1f} s): "
                f"{res.graph_seconds:.1f} s = {share:.0f}% of wall (target <= 25%; wall target <= 120 s)")
+
+
+class _OtherCPU:
+    """CPU seconds other processes used while this one ran (Linux /proc/stat busy time minus our
+    own) and the hypervisor took from this virtual machine (steal), to tell a clean timing from
+    one taken on a shared machine."""
+
+    def __init__(self):
+        self._start = self._sample()
+
+    @staticmethod
+    def _sample() -> tuple[float, float, float] | None:
+        import os
+        import resource
+
+        try:
+            with open("/proc/stat") as fh:
+                f = [int(x) for x in fh.readline().split()[1:9]] + [0]
+        except (OSError, ValueError):
+            return None
+        me = resource.getrusage(resource.RUSAGE_SELF)
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+        own = me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+        tick = os.sysconf("SC_CLK_TCK")
+        return (f[0] + f[1] + f[2] + f[5] + f[6]) / tick, own, f[7] / tick
+
+    def seconds(self) -> tuple[float, float] | None:
+        """(other processes' CPU-seconds, steal seconds) since construction."""
+        end = self._sample()
+        if self._start is None or end is None:
+            return None
+        return max((end[0] - self._start[0]) - (end[1] - self._start[1]), 0.0), end[2] - self._start[2]
 
 
 def _register_perf_video() -> None:

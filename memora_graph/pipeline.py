@@ -9,7 +9,7 @@ from pathlib import Path
 
 from memora_graph.bank import Bank
 from memora_graph.consolidate import finish_participant
-from memora_graph.embed import get_embedder
+from memora_graph.embed import ThreadGovernor, adaptive_threads, get_embedder
 from memora_graph.errors import DataError
 from memora_graph.form.build import ParticipantBuild, Timings, build_participant
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info
@@ -25,6 +25,8 @@ class BankBuild:
     inferred: dict[str, dict] = field(default_factory=dict)  # participant -> routine / preference counts
     inferred_seconds: float = 0.0  # everything after each participant's bulk load (see `finish`)
     embedding_seconds: float = 0.0  # every text encoded: segments, identities, places, inferred knowledge
+    texts_encoded: int = 0
+    embed_threads: dict[int, int] = field(default_factory=dict)  # torch threads -> encode calls (ThreadGovernor)
     setup_seconds: float = 0.0  # per participant: opening its database, reloading its registry, checkpoint on close
     finish: dict[str, float] = field(default_factory=dict)  # the step after each bulk load, summed (finish_participant)
 
@@ -96,15 +98,17 @@ def build_bank(
     t0 = time.perf_counter()
     embedder = get_embedder(embed_model)
     out.model_seconds = time.perf_counter() - t0
-    emb0 = getattr(embedder, "seconds", 0.0)
+    emb0, enc0 = getattr(embedder, "seconds", 0.0), getattr(embedder, "encoded", 0)
     bank = Bank(bank_path)
     bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
+    governor = ThreadGovernor()  # torch threads per batch: all cores unless other processes are busy
     for p in found:
         t0 = time.perf_counter()
-        res = build_participant(
-            bank, p, df, durations, classes, embedder, mode=mode,
-            on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, stop_after=stop_after,
-        )
+        with adaptive_threads(embedder, governor):
+            res = build_participant(
+                bank, p, df, durations, classes, embedder, mode=mode,
+                on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, stop_after=stop_after,
+            )
         out.setup_seconds += max(time.perf_counter() - t0 - res.timings.total, 0.0)
         out.participants.append(res)
         out.timings.add(res.timings)
@@ -117,6 +121,8 @@ def build_bank(
         res.counts.update({k: out.inferred[p][k] for k in ("routines", "preferences")})
         out.inferred_seconds += time.perf_counter() - t0
     out.embedding_seconds = getattr(embedder, "seconds", 0.0) - emb0
+    out.texts_encoded = getattr(embedder, "encoded", 0) - enc0
+    out.embed_threads = dict(governor.calls)
     out.wall_seconds = time.perf_counter() - t_start
     return out
 

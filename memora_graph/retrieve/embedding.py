@@ -32,8 +32,8 @@ def torch_threads(n: int = 1):
 
 
 def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndarray:
-    """Batch passage encoding on one torch thread, in batches of 32 (on these CPUs a batch of 128
-    short texts is ~1.6x slower per text than 16-32)."""
+    """Batch passage encoding on one torch thread, in batches of at most 32 (on these CPUs a batch
+    of 128 short texts is ~1.2x slower per text than 32; see memora_graph/embed.py)."""
     inner = getattr(embedder, "inner", embedder)
     before = getattr(inner, "batch_size", None)
     if before is not None:
