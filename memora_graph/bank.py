@@ -12,7 +12,8 @@ import json
 import os
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import polars as pl
@@ -64,22 +65,40 @@ class Bank:
         self.write_manifest(data)
         return data
 
+    @contextmanager
+    def manifest_lock(self) -> Iterator[None]:
+        """Exclusive access to the manifest for a read-modify-write, across processes: the
+        participants of a bank are built side by side by worker processes (`memora build --jobs`)."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: builds there run one participant at a time
+            yield
+            return
+        with open(self.path / ".manifest.lock", "a") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+
     def write_manifest(self, data: dict) -> None:
         tmp = self.manifest_path.with_suffix(".json.tmp")
         tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
         os.replace(tmp, self.manifest_path)  # atomic: never a half-written manifest
 
     def record_participant(self, participant: str, videos: list[str], counts: dict) -> None:
-        data = self.manifest()
-        entry = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": dict(counts)}
-        old = data["participants"].get(participant, {})
-        # the database keeps its indexes and its inferred knowledge (until consolidation runs again)
-        entry.update({k: old[k] for k in ("indexes", "consolidated", "inferred") if k in old})
-        for k in ("routines", "preferences"):
-            if k in old.get("counts", {}) and k not in counts:
-                entry["counts"][k] = old["counts"][k]
-        data["participants"][participant] = entry
-        self.write_manifest(data)
+        with self.manifest_lock():
+            data = self.manifest()
+            entry = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": dict(counts)}
+            old = data["participants"].get(participant, {})
+            # the database keeps its indexes and its inferred knowledge (until consolidation runs again)
+            entry.update({k: old[k] for k in ("indexes", "consolidated", "inferred") if k in old})
+            for k in ("routines", "preferences"):
+                if k in old.get("counts", {}) and k not in counts:
+                    entry["counts"][k] = old["counts"][k]
+            data["participants"][participant] = entry
+            self.write_manifest(data)
 
     # -- optional indexes ----------------------------------------------------------------
     @staticmethod
@@ -117,9 +136,10 @@ class Bank:
                 have = sorted(store.indexes())
             finally:
                 store.close()
-            data = self.manifest()
-            self.set_indexes(data, p, have)
-            self.write_manifest(data)
+            with self.manifest_lock():
+                data = self.manifest()
+                self.set_indexes(data, p, have)
+                self.write_manifest(data)
             out[p] = {"created": created, "indexes": have, "seconds": time.perf_counter() - t0}
             if on_participant:
                 on_participant(p, out[p])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,13 +21,14 @@ class BankBuild:
     participants: list[ParticipantBuild] = field(default_factory=list)
     timings: Timings = field(default_factory=Timings)  # the builder's own split, per video
     load_seconds: float = 0.0  # reading the annotations
-    model_seconds: float = 0.0  # loading the embedding model
+    model_seconds: float = 0.0  # loading the embedding model (in each worker process, summed)
     wall_seconds: float = 0.0
+    jobs: int = 1  # participants built side by side, one worker process each
     inferred: dict[str, dict] = field(default_factory=dict)  # participant -> routine / preference counts
     inferred_seconds: float = 0.0  # everything after each participant's bulk load (see `finish`)
     embedding_seconds: float = 0.0  # every text encoded: segments, identities, places, inferred knowledge
     texts_encoded: int = 0
-    embed_threads: dict[int, int] = field(default_factory=dict)  # torch threads -> encode calls (ThreadGovernor)
+    embed_threads: dict[int, int] = field(default_factory=dict)  # torch threads -> encode calls
     setup_seconds: float = 0.0  # per participant: opening its database, reloading its registry, checkpoint on close
     finish: dict[str, float] = field(default_factory=dict)  # the step after each bulk load, summed (finish_participant)
 
@@ -34,9 +36,25 @@ class BankBuild:
     def segments(self) -> int:
         return sum(p.segments for p in self.participants)
 
+    def add(self, r: _Built) -> None:
+        self.participants.append(r.build)
+        self.timings.add(r.build.timings)
+        self.setup_seconds += r.setup_seconds
+        for k, v in r.finish.items():
+            self.finish[k] = self.finish.get(k, 0.0) + v
+        self.inferred[r.build.participant] = r.inferred
+        self.inferred_seconds += r.inferred_seconds
+        self.embedding_seconds += r.embedding_seconds
+        self.texts_encoded += r.texts_encoded
+        self.model_seconds += r.model_seconds
+        for k, v in r.threads.items():
+            self.embed_threads[k] = self.embed_threads.get(k, 0) + v
+
     def phases(self) -> dict[str, float]:
-        """Where the wall time went, every phase once; they sum to `wall_seconds` ('other' is
-        what no phase timed: bank manifest set-up, progress callbacks)."""
+        """Where the time went, every phase once. They sum to `jobs * wall_seconds`: with one job
+        to the wall time ('other' is what no phase timed: bank set-up, progress callbacks); with
+        worker processes to their seconds, 'workers idle' being start-up and the end of the
+        build, when fewer participants than workers are left."""
         t, f = self.timings, self.finish
         # the builder counts the place texts it encodes during its bulk load as graph time
         load_encoding = max(self.embedding_seconds - t.embedding - f.get("embedding", 0.0), 0.0)
@@ -52,13 +70,62 @@ class BankBuild:
             "indexes (--fts)": f.get("indexes", 0.0),
             "manifest": f.get("manifest", 0.0),
         }
-        out["other"] = max(self.wall_seconds - sum(out.values()), 0.0)
+        rest = max(self.jobs * self.wall_seconds - sum(out.values()), 0.0)
+        out["other" if self.jobs == 1 else "workers idle"] = rest
         return out
+
+    @property
+    def busy_seconds(self) -> float:
+        """The wall time with one job; the worker processes' working seconds with several."""
+        return self.wall_seconds if self.jobs == 1 else sum(self.phases().values()) - self.phases()["workers idle"]
 
     @property
     def graph_seconds(self) -> float:
         """Graph work: everything except embedding and loading the embedding model."""
-        return max(self.wall_seconds - self.embedding_seconds - self.model_seconds, 0.0)
+        return max(self.busy_seconds - self.embedding_seconds - self.model_seconds, 0.0)
+
+    @property
+    def graph_share(self) -> float:
+        return self.graph_seconds / self.busy_seconds if self.busy_seconds else 0.0
+
+
+@dataclass
+class _Built:
+    """One participant's build and finish, as a worker process returns it."""
+
+    build: ParticipantBuild
+    setup_seconds: float
+    finish: dict[str, float]
+    inferred: dict
+    inferred_seconds: float
+    embedding_seconds: float
+    texts_encoded: int
+    threads: dict[int, int] = field(default_factory=dict)  # torch threads -> encode calls
+    model_seconds: float = 0.0
+
+
+def _build_one(bank: Bank, p: str, actions, durations: dict, classes, embedder, governor: ThreadGovernor, *, mode: str,
+               stop_after: int | None, episodic: bool, fts: bool, on_video) -> _Built:
+    emb0, enc0, calls0 = getattr(embedder, "seconds", 0.0), getattr(embedder, "encoded", 0), dict(governor.calls)
+    t0 = time.perf_counter()
+    with adaptive_threads(embedder, governor):
+        res = build_participant(bank, p, actions, durations, classes, embedder, mode=mode, on_video=on_video,
+                                stop_after=stop_after)
+    setup = max(time.perf_counter() - t0 - res.timings.total, 0.0)
+    t0 = time.perf_counter()
+    spent: dict[str, float] = {}
+    knowledge = finish_participant(bank, p, embedder, episodic=episodic or mode == "raw", fts=fts, timings=spent)
+    inferred = knowledge.counts() if knowledge else {"routines": 0, "preferences": 0}
+    res.counts.update({k: inferred[k] for k in ("routines", "preferences")})
+    return _Built(res, setup, spent, inferred, time.perf_counter() - t0, getattr(embedder, "seconds", 0.0) - emb0,
+                  getattr(embedder, "encoded", 0) - enc0,
+                  {k: n - calls0.get(k, 0) for k, n in governor.calls.items() if n > calls0.get(k, 0)})
+
+
+def auto_jobs(n_participants: int) -> int:
+    """Worker processes for a build: one per core (at most 4), and at least two participants per
+    worker, since each worker loads its own embedding model (~8 s here)."""
+    return max(1, min(os.cpu_count() or 1, 4, n_participants // 2))
 
 
 def build_bank(
@@ -72,11 +139,17 @@ def build_bank(
     stop_after: int | None = None,
     episodic: bool = False,
     fts: bool = False,
+    jobs: int | None = None,
 ) -> BankBuild:
     """Build (or resume) a bank. `participants=None` means every participant in the annotations.
     After each participant, offline consolidation and enrichment write its inferred knowledge,
     unless `episodic` (the MEMORA-Episodic condition) or a raw bank. `fts` also builds the
-    full-text indexes (only the 'fts' / 'kuzu' / 'hnsw' retrieval recipes read them)."""
+    full-text indexes (only the 'fts' / 'kuzu' / 'hnsw' retrieval recipes read them).
+
+    `jobs` participants are built side by side in worker processes (each participant is its
+    own database; default `auto_jobs`). One job builds in this process, its torch threads chosen
+    per batch (ThreadGovernor); workers embed on one thread each, which on 2 cores beats two
+    threads spinning against each other."""
     t_start = time.perf_counter()
     out = BankBuild()
     t0 = time.perf_counter()
@@ -95,36 +168,122 @@ def build_bank(
     out.load_seconds = time.perf_counter() - t0
     if on_plan:
         on_plan({p: sorted(df.filter(df["participant_id"] == p)["video_id"].unique().to_list()) for p in found})
-    t0 = time.perf_counter()
-    embedder = get_embedder(embed_model)
-    out.model_seconds = time.perf_counter() - t0
-    emb0, enc0 = getattr(embedder, "seconds", 0.0), getattr(embedder, "encoded", 0)
-    bank = Bank(bank_path)
-    bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
-    governor = ThreadGovernor()  # torch threads per batch: all cores unless other processes are busy
-    for p in found:
+    out.jobs = max(1, min(jobs or auto_jobs(len(found)), len(found)))
+    opts = dict(mode=mode, stop_after=stop_after, episodic=episodic, fts=fts)
+    if out.jobs > 1:
+        results = _build_parallel(Bank(bank_path), found, df, durations, classes, embed_model, out.jobs, on_video, opts)
+    else:
         t0 = time.perf_counter()
-        with adaptive_threads(embedder, governor):
-            res = build_participant(
-                bank, p, df, durations, classes, embedder, mode=mode,
-                on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, stop_after=stop_after,
-            )
-        out.setup_seconds += max(time.perf_counter() - t0 - res.timings.total, 0.0)
-        out.participants.append(res)
-        out.timings.add(res.timings)
-        t0 = time.perf_counter()
-        spent: dict[str, float] = {}
-        knowledge = finish_participant(bank, p, embedder, episodic=episodic or mode == "raw", fts=fts, timings=spent)
-        for k, v in spent.items():
-            out.finish[k] = out.finish.get(k, 0.0) + v
-        out.inferred[p] = knowledge.counts() if knowledge else {"routines": 0, "preferences": 0}
-        res.counts.update({k: out.inferred[p][k] for k in ("routines", "preferences")})
-        out.inferred_seconds += time.perf_counter() - t0
-    out.embedding_seconds = getattr(embedder, "seconds", 0.0) - emb0
-    out.texts_encoded = getattr(embedder, "encoded", 0) - enc0
-    out.embed_threads = dict(governor.calls)
+        embedder = get_embedder(embed_model)
+        model_seconds = time.perf_counter() - t0
+        bank = Bank(bank_path)
+        bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
+        governor = ThreadGovernor()  # torch threads per batch: all cores unless other processes are busy
+        results = [_build_one(bank, p, df, durations, classes, embedder, governor,
+                              on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, **opts)
+                   for p in found]
+        out.model_seconds = model_seconds
+    for r in results:
+        out.add(r)
     out.wall_seconds = time.perf_counter() - t_start
     return out
+
+
+# -- worker processes --------------------------------------------------------------------------------
+
+_WORKER: dict = {}
+
+
+def _worker_init(embed_model: str | None, events) -> None:
+    """Runs once in each worker process: die with the parent (a killed build must not leave
+    workers writing), one thread for torch and BLAS, then load the embedding model."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG (Linux)
+    except (OSError, AttributeError):
+        pass
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+    except ImportError:
+        pass
+    _WORKER["events"] = events
+    t0 = time.perf_counter()
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+        _WORKER["embedder"] = get_embedder(embed_model)
+    except Exception as exc:  # noqa: BLE001 - raised again, as itself, by the first task
+        _WORKER["error"] = exc
+    _WORKER["model_seconds"] = time.perf_counter() - t0
+
+
+def _worker_model() -> str:
+    if "error" in _WORKER:
+        raise _WORKER["error"]
+    return _WORKER["embedder"].name
+
+
+def _worker_build(bank_path: str, p: str, actions, durations: dict, classes, opts: dict) -> _Built:
+    _worker_model()
+    events = _WORKER["events"]
+    r = _build_one(Bank(bank_path), p, actions, durations, classes, _WORKER["embedder"], ThreadGovernor(max_threads=1),
+                   on_video=lambda v, n: events.put((p, v, n)), **opts)
+    r.model_seconds = _WORKER.pop("model_seconds", 0.0)  # reported by a worker's first participant
+    return r
+
+
+def _build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, embed_model: str | None, jobs: int,
+                    on_video, opts: dict) -> list[_Built]:
+    import multiprocessing
+    import queue
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch / Kùzu threads
+    events = ctx.Queue()
+
+    def drain() -> None:
+        while True:
+            try:
+                p, v, n = events.get_nowait()
+            except queue.Empty:
+                return
+            if on_video:
+                on_video(p, v, n)
+
+    sizes = df.group_by("participant_id").len().iter_rows()
+    order = [p for p, _ in sorted(sizes, key=lambda r: (-r[1], r[0]))]  # largest first: the last to finish is small
+    results: dict[str, _Built] = {}
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init,
+                             initargs=(embed_model, events)) as pool:
+        # every worker starts and loads its model at once; the model loads (or says why it
+        # cannot) before the bank is touched
+        probes = [pool.submit(_worker_model) for _ in range(jobs)]
+        name = probes[0].result()
+        bank.init(mode=opts["mode"], embed_model=name, consolidated=False)
+        futures = {}
+        for p in order:
+            actions = df.filter(df["participant_id"] == p)
+            videos = set(actions["video_id"].unique().to_list())
+            futures[pool.submit(_worker_build, str(bank.path), p, actions,
+                                {v: d for v, d in durations.items() if v in videos}, classes, opts)] = p
+        pending = set(futures)
+        try:
+            while pending:
+                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+                drain()
+                for f in done:
+                    results[futures[f]] = f.result()
+        except BaseException:
+            for f in pending:
+                f.cancel()
+            raise
+        drain()
+    return [results[p] for p in found]
 
 
 # -- video ----------------------------------------------------------------------------------------

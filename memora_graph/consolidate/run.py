@@ -359,18 +359,20 @@ def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = 
         t3 = time.perf_counter()
         store.close()
     t4 = time.perf_counter()
-    data = bank.manifest()
-    entry = data["participants"].get(participant)
-    if entry is not None:
-        entry.setdefault("counts", {}).update({"routines": int(counts["routines"]), "preferences": int(counts["preferences"])})
-        entry["consolidated"] = not episodic
-        entry["inferred"] = None if episodic else {"processor": name, **knowledge.counts()}
-    bank.set_indexes(data, participant, indexes)
-    flags = [e.get("consolidated", False) for e in data["participants"].values()]
-    data["consolidated"] = bool(flags) and all(flags)
-    data["condition"] = "memora_full" if data["consolidated"] else (
-        "memora_episodic" if not any(flags) else "mixed")
-    bank.write_manifest(data)
+    with bank.manifest_lock():  # other participants may be finishing in parallel processes
+        data = bank.manifest()
+        entry = data["participants"].get(participant)
+        if entry is not None:
+            entry.setdefault("counts", {}).update({"routines": int(counts["routines"]),
+                                                   "preferences": int(counts["preferences"])})
+            entry["consolidated"] = not episodic
+            entry["inferred"] = None if episodic else {"processor": name, **knowledge.counts()}
+        bank.set_indexes(data, participant, indexes)
+        flags = [e.get("consolidated", False) for e in data["participants"].values()]
+        data["consolidated"] = bool(flags) and all(flags)
+        data["condition"] = "memora_full" if data["consolidated"] else (
+            "memora_episodic" if not any(flags) else "mixed")
+        bank.write_manifest(data)
     if timings is not None:
         timings.update(spent, checkpoint=t4 - t3, manifest=time.perf_counter() - t4)
     return knowledge
