@@ -43,7 +43,7 @@ from memora_graph.consolidate.records import (
     ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, OrganizationalHabit, RoutineSkill,
     StoragePreference, VideoConsolidation, WorkflowPattern,
 )
-from memora_graph.consolidate.rules import RuleEnricher
+from memora_graph.consolidate.rules import RuleEnricher, _uniq
 from memora_graph.errors import MemoraError
 from memora_graph.llm.backends import (
     ROLES, Backend, CallLog, ModelReplyError, ModelUnavailableError, OpenAIBackend, get_backend,
@@ -274,8 +274,19 @@ def _sample(items: Sequence, cap: int) -> list:
     return [items[round(i * (n - 1) / (cap - 1))] for i in range(cap)]
 
 
-def _uniq(items: Iterable) -> list:
-    return list(dict.fromkeys(items))
+def _resolve(refs: list[str], handles: Handles, kind: type) -> tuple[list, list[str]]:
+    """Split cited references into the prompt items of `kind` they name (each once, in citation
+    order) and the rest, which are passed on as they are: the collector drops an id that is not
+    in the bank."""
+    found: dict[int, Any] = {}
+    raw = []
+    for ref in refs:
+        item = handles.get(ref)
+        if isinstance(item, kind):
+            found.setdefault(id(item), item)
+        else:
+            raw.append(ref)
+    return list(found.values()), raw
 
 
 def _action(s: Step) -> str:
@@ -619,15 +630,7 @@ class LLMConsolidator(_ModelStep):
         def support(refs: list[str]) -> _Support:
             """Finding handles -> what the findings rest on; a reference that is no finding of this
             prompt is passed on for the collector to drop."""
-            found: dict[int, _Finding] = {}
-            raw = []
-            for ref in refs:
-                f = handles.get(ref)
-                if isinstance(f, _Finding):
-                    found.setdefault(id(f), f)
-                else:
-                    raw.append(ref)
-            fs = list(found.values())
+            fs, raw = _resolve(refs, handles, _Finding)
             return _Support(episodes=_uniq([x for f in fs for x in f.record.supporting_episodes] + raw),
                             segments=_uniq([x for f in fs for x in f.segments] + raw),
                             entities=_uniq(e for f in fs for e in f.record.entities),
@@ -730,15 +733,8 @@ class LLMEnricher(_ModelStep):
 
     @staticmethod
     def _cited(refs: list[str], handles: Handles) -> tuple[list[_Evidence], list[str]]:
-        found: dict[int, _Evidence] = {}
-        raw = []
-        for ref in refs:
-            item = handles.get(ref)
-            if isinstance(item, _Evidence):
-                found.setdefault(id(item), item)
-            else:
-                raw.append(ref)  # not an evidence id of this prompt: the collector drops it
-        return list(found.values()), _uniq(raw)
+        items, raw = _resolve(refs, handles, _Evidence)
+        return items, _uniq(raw)
 
     def _skill(self, it: SkillItem, handles: Handles, names: _Names) -> RoutineSkill:
         items, raw = self._cited(it.supporting_evidence_ids, handles)
