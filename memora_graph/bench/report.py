@@ -18,7 +18,7 @@ import re
 import json
 from collections import Counter, defaultdict
 from pathlib import Path
-from statistics import mean
+from statistics import mean, median
 from typing import Any
 
 from memora_graph.bench.conditions import get_condition, list_conditions
@@ -159,13 +159,12 @@ def _formation(run: Path) -> dict[str, Any] | None:
     for v in per.values():
         decisions.update(v["decisions"])
     total = sum(decisions.values())
-    ratios = sorted(v["compression"] for v in per.values() if v["compression"])
+    ratios = [v["compression"] for v in per.values() if v["compression"]]
     return {
         "participants": per, "decisions": dict(decisions),
         "decision_share": {k: round(n / total, 4) for k, n in decisions.items()} if total else {},
         "compression": {p: v["compression"] for p, v in per.items()},
-        "median_compression": ratios[len(ratios) // 2] if len(ratios) % 2 else
-        (round((ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2]) / 2, 2) if ratios else None),
+        "median_compression": round(median(ratios), 2) if ratios else None,
     }
 
 
