@@ -62,6 +62,12 @@ class Step:
             self._text = words
         return self._text
 
+    def action(self):
+        """The step as classes (verb class key, object kind, where it went or happened)."""
+        from memora_graph.consolidate.records import StepAction
+
+        return StepAction(verb=self.verb, noun=self.main.kind, place=self.where()[0])
+
     def where(self) -> tuple[str, str]:
         """(preferred-location words, place id) for where the main object ended up."""
         if self.destination and self.destination != self.main.kind:

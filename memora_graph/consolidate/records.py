@@ -20,6 +20,14 @@ class _Record(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+class StepAction(_Record):
+    """One step as classes: the EPIC verb class key, the object kind, and where it went or happened."""
+
+    verb: str
+    noun: str = ""
+    place: str = ""
+
+
 class StoragePreference(_Record):
     object: str  # object kind ("spatula")
     object_name: str = ""  # the name a person would use ("wooden spatula")
@@ -39,6 +47,8 @@ class StoragePreference(_Record):
 class OrganizationalHabit(_Record):
     trigger: str  # "wash bowl"
     next_action: str  # "put bowl on drying rack"
+    trigger_step: StepAction | None = None  # the same two as classes
+    next_step: StepAction | None = None
     habit: str = ""  # the statement
     count: int = Field(ge=1)  # times next_action followed trigger
     trigger_count: int = Field(ge=1)
@@ -65,6 +75,7 @@ class WorkflowPattern(_Record):
 class ActionSequence(_Record):
     title: str
     steps: list[str]  # "take sponge", "wash bowl", ...
+    actions: list[StepAction] = Field(default_factory=list)  # the same steps as classes (rule processor)
     activity_type: str
     key_objects: list[str] = Field(default_factory=list)
     count: int = Field(ge=1)  # occurrences
@@ -107,6 +118,7 @@ class RoutineSkill(_Record):
     goal: str
     activity_type: str
     canonical_steps: list[str]
+    actions: list[StepAction] = Field(default_factory=list)  # the canonical steps as classes (rule processor)
     key_objects: list[str] = Field(default_factory=list)
     supporting_episodes: list[str] = Field(default_factory=list)  # first segment of each episode
     segments: list[str] = Field(default_factory=list)  # every segment the episodes span

@@ -22,7 +22,6 @@ from memora_graph.consolidate.records import (
     ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, OrganizationalHabit, RoutineSkill,
     StoragePreference, VideoConsolidation, WorkflowPattern,
 )
-from memora_graph.perceive.vocab import VERB_STATE
 from memora_graph.sequences import lcs_length
 
 
@@ -40,13 +39,6 @@ _ON = frozenset({"rack", "top", "counter", "board", "hob", "tray", "table", "pla
 
 def _prep(location_words: str) -> str:
     return "on" if _ON & set(location_words.split()) else "in"
-
-
-def _past(verb: str) -> str:
-    state = VERB_STATE.get(verb, "")
-    if state and state.endswith("ed") or state in ("cut", "broken", "torn", "shaken"):
-        return state
-    return vocab.phrase(verb) + ("d" if verb.endswith("e") else "ed")
 
 
 def _merge_videos(parts: list[dict[str, int]]) -> dict[str, int]:
@@ -160,7 +152,8 @@ class RuleConsolidator:
             statement = (f"After {vocab.gerund(a.verb)} the {display(a.main.kind)}, usually "
                          f"{vocab.third_person(vocab.phrase(b.verb))} the {b.text()[len(vocab.phrase(b.verb)) + 1:]}")
             out.append(OrganizationalHabit.model_construct(
-                trigger=trigger, next_action=nxt, habit=statement.replace("  ", " "), count=rec["n"],
+                trigger=trigger, next_action=nxt, trigger_step=a.action(), next_step=b.action(),
+                habit=statement.replace("  ", " "), count=rec["n"],
                 trigger_count=triggers[trigger], objects_involved=_uniq([display(a.main.kind), display(b.main.kind)]),
                 confidence=_conf(rec["n"] / triggers[trigger]), supporting_episodes=_uniq(rec["segments"]),
                 entities=_uniq(rec["entities"]), videos={video: rec["n"]},
@@ -194,7 +187,7 @@ class RuleConsolidator:
             u = rec["u"]
             objects = _uniq(rec["objects"])
             out.append(WorkflowPattern.model_construct(
-                pattern=f"{cat.capitalize()} ({', '.join(objects[:4])}) are usually {_past(u.verb)} at the "
+                pattern=f"{cat.capitalize()} ({', '.join(objects[:4])}) are usually {vocab.past_tense(u.verb)} at the "
                         f"{display(u.location)}, then put {_prep(rec['where'])} the {rec['where']}",
                 category=cat, use=use, then=then, objects=objects, count=rec["n"], confidence=0.0,
                 supporting_episodes=_uniq(rec["segments"]), entities=_uniq(rec["entities"]), videos={video: rec["n"]},
@@ -243,7 +236,7 @@ class RuleConsolidator:
             texts = [s.text() for s in window]
             cats = Counter(vocab.category(s.verb) for s in window if not s.is_filler)
             out.append(ActionSequence.model_construct(
-                title=" -> ".join(texts), steps=texts,
+                title=" -> ".join(texts), steps=texts, actions=[s.action() for s in window],
                 activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0] if cats else None],
                 key_objects=_uniq(display(s.main.kind) for s in window), count=rec["n"], confidence=0.0,
                 supporting_episodes=_uniq(rec["first"]), segments=_uniq(rec["segments"]),
@@ -314,7 +307,8 @@ class RuleConsolidator:
             if len(videos) < self.min_videos or count < self.habit_min_count or share < self.habit_min_share:
                 continue
             out.append(OrganizationalHabit(
-                trigger=trigger, next_action=nxt, habit=hs[0].habit, count=count, trigger_count=trigger_total[trigger],
+                trigger=trigger, next_action=nxt, trigger_step=hs[0].trigger_step, next_step=hs[0].next_step,
+                habit=hs[0].habit, count=count, trigger_count=trigger_total[trigger],
                 objects_involved=hs[0].objects_involved, confidence=_conf(share * _support(len(videos))),
                 supporting_episodes=_uniq(s for h in hs for s in h.supporting_episodes),
                 entities=_uniq(e for h in hs for e in h.entities), videos=videos,
@@ -363,7 +357,8 @@ class RuleConsolidator:
                 continue  # a longer sequence covers every video this one is seen in
             a0 = group[0]
             kept.append(ActionSequence(
-                title=a0.title, steps=list(steps), activity_type=a0.activity_type, key_objects=a0.key_objects,
+                title=a0.title, steps=list(steps), actions=a0.actions, activity_type=a0.activity_type,
+                key_objects=a0.key_objects,
                 count=sum(a.count for a in group), confidence=_conf(_support(len(videos)) * min(1.0, 0.6 + 0.1 * n)),
                 supporting_episodes=_uniq(s for a in group for s in a.supporting_episodes),
                 segments=_uniq(s for a in group for s in a.segments),
@@ -459,10 +454,11 @@ class RuleEnricher:
             sims = {i: [(2 * _lcs(seqs[i], seqs[j]) / (len(seqs[i]) + len(seqs[j]))) for j in sample if j != i] for i in sample}
             medoid = max(sample, key=lambda i: (sum(sims[i]) / max(len(sims[i]), 1), -i))
             cohesion = sum(sims[medoid]) / max(len(sims[medoid]), 1)
-            steps, last = [], None
+            steps, actions, last = [], [], None
             for s in eps[medoid][0]:
                 if s.token != last:
                     steps.append(s.text())
+                    actions.append(s.action())
                     last = s.token
             head = eps[0][1]
             kinds: Counter[str] = Counter()
@@ -481,7 +477,8 @@ class RuleEnricher:
                                 segments=_uniq(s.segment for s in ep)) for ep, _, _ in eps]
             out.append(RoutineSkill(
                 goal=goal, activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0]],
-                canonical_steps=steps[: self.max_canonical_steps], key_objects=[display(k) for k in key_objects],
+                canonical_steps=steps[: self.max_canonical_steps], actions=actions[: self.max_canonical_steps],
+                key_objects=[display(k) for k in key_objects],
                 supporting_episodes=[e.segments[0] for e in episodes], segments=_uniq(s for e in episodes for s in e.segments),
                 episodes=episodes, count=len(eps), confidence=_conf(_support(len(videos)) * (0.5 + 0.5 * cohesion)),
                 entities=[entity_of[k].most_common(1)[0][0] for k in key_objects], videos=dict(sorted(videos.items())),

@@ -29,7 +29,7 @@ from memora_graph.consolidate.records import Consolidation, Enrichment
 from memora_graph.consolidate.rules import stable_id
 from memora_graph.errors import ConsolidationError
 from memora_graph.llm.backends import CallRecord
-from memora_graph.retrieve.embedding import encode_passages
+from memora_graph.embed import encode_passages
 from memora_graph.store import Store
 
 ROUTINE_COLUMNS = ("id", "participant", "goal", "activity_type", "canonical_steps", "key_objects", "supporting_episodes",
@@ -178,7 +178,9 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
                      context=h.trigger, episodes=h.supporting_episodes, entities=h.entities, videos=h.videos,
                      count=h.count, confidence=h.confidence, source="consolidation",
                      evidence_summary=f"{h.count} of {h.trigger_count} times in {len(h.videos)} videos",
-                     detail={"trigger": h.trigger, "next_action": h.next_action, "trigger_count": h.trigger_count})
+                     detail={"trigger": h.trigger, "next_action": h.next_action, "trigger_count": h.trigger_count,
+                             **({"trigger_step": h.trigger_step.model_dump()} if h.trigger_step else {}),
+                             **({"next_step": h.next_step.model_dump()} if h.next_step else {})})
     for w in consolidation.workflow_patterns:
         c.preference("pref", ("workflow", w.category, w.use, w.then), subtype="workflow", statement=w.pattern,
                      keywords=[w.category, *w.objects[:6], *w.use.replace("@", "").split(), *w.then.split()],
@@ -189,12 +191,14 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
     for a in consolidation.action_sequences:
         c.routine("seq", tuple(a.steps), goal=a.title, activity_type=a.activity_type, steps=a.steps,
                   key_objects=a.key_objects, episodes=a.supporting_episodes, segments=a.segments, entities=a.entities,
-                  videos=a.videos, count=a.count, confidence=a.confidence, source="action_sequence", detail={})
+                  videos=a.videos, count=a.count, confidence=a.confidence, source="action_sequence",
+                  detail={"steps": [x.model_dump() for x in a.actions]} if a.actions else {})
     for r in enrichment.routine_skills:
         c.routine("routine", (r.goal,), goal=r.goal, activity_type=r.activity_type, steps=r.canonical_steps,
                   key_objects=r.key_objects, episodes=r.supporting_episodes, segments=r.segments, entities=r.entities,
                   videos=r.videos, count=r.count, confidence=r.confidence, source="routine_skill",
-                  detail={"episodes": [e.model_dump() for e in r.episodes]})
+                  detail={"episodes": [e.model_dump() for e in r.episodes],
+                          **({"steps": [x.model_dump() for x in r.actions]} if r.actions else {})})
     for g in enrichment.generated_preferences:
         c.preference("pref", ("generated", g.subtype, g.preference), subtype=g.subtype, statement=g.preference,
                      keywords=g.keywords, objects=g.objects, context=g.context, episodes=g.supporting_evidence_ids,

@@ -7,6 +7,8 @@ rather than the work itself.
 
 from __future__ import annotations
 
+from memora_graph.perceive.vocab import VERB_STATE
+
 CLEANUP = frozenset({"wash", "rinse", "clean", "wipe", "dry", "sponge", "scrub", "rub", "soak", "brush", "spray"})
 COOKING = frozenset({
     "fry", "boil", "cook", "bake", "roast", "simmer", "heat", "stir", "mix", "flip", "pour", "season",
@@ -59,6 +61,14 @@ STORAGE_PLACES = frozenset({"cabinet_area", "fridge_area"})
 
 def phrase(verb: str) -> str:
     return PHRASE.get(verb, verb.replace("-", " "))
+
+
+def past_tense(verb: str) -> str:
+    """The participle a statement uses ("washed", "cut"): the verb's resulting state when it is one."""
+    state = VERB_STATE.get(verb, "")
+    if state and state.endswith("ed") or state in ("cut", "broken", "torn", "shaken"):
+        return state
+    return phrase(verb) + ("d" if verb.endswith("e") else "ed")
 
 
 def gerund(verb: str) -> str:
