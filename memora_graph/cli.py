@@ -123,7 +123,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     if backend != "offline":
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
-    from memora_graph.form.build import decision_shares
+    from memora_graph.stats import decision_shares
     from memora_graph.pipeline import build_bank
 
     pids = None if participants.strip().lower() == "all" else [p.strip() for p in participants.split(",") if p.strip()]
@@ -165,7 +165,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
 def _build_video(bank, video, backend, embed_model, quiet, opts):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from memora_graph.form.build import decision_shares
+    from memora_graph.stats import decision_shares
     from memora_graph.pipeline import build_from_video
 
     progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),

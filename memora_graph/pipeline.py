@@ -368,7 +368,7 @@ def build_from_video(
     from memora_graph.llm import CallLog
     from memora_graph.perceive.video import DecodeOptions, list_videos, probe_video, segment_video
     from memora_graph.perceive.vlm import VLMPerception
-    from memora_graph.retrieve.embedding import torch_threads
+    from memora_graph.embed import torch_threads
 
     t_start = time.perf_counter()
     bank = Bank(bank_path)

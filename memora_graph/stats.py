@@ -7,7 +7,12 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.bank import Bank
-from memora_graph.form.build import decision_shares
+
+
+def decision_shares(decisions: dict) -> dict[str, float]:
+    """Each editor decision's share of all decisions, in percent (one decimal)."""
+    total = sum(decisions.values()) or 1
+    return {op: round(100.0 * decisions.get(op, 0) / total, 1) for op in ("NOOP", "UPDATE", "ADD", "DELETE")}
 
 
 def bank_stats(bank_path: str | Path, participants: list[str] | None = None) -> pl.DataFrame:

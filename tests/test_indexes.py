@@ -43,7 +43,7 @@ def test_default_build_has_no_index_and_fts_recipes_say_how_to_build_them(small_
     r = CliRunner().invoke(main, ["tool", str(path), "search", "knife", "--participant", "P37", "--recipe", "fts"])
     assert r.exit_code == 1 and "memora index" in r.output and "--fts" in r.output
     with MemoryView.open(path, "P37", embedder) as view:  # the default recipe needs none
-        assert call_tool(view, "search_objects", {"query": "knife"})["results"]
+        assert call_tool(view, "search_objects", {"query": "knife"}).results
     assert result.phases()["indexes (--fts)"] < 0.01
 
 
@@ -58,8 +58,8 @@ def test_index_command_builds_fts_indexes_and_the_fts_recipe_works(bank_copy, em
     for recipe in ("fts", "kuzu"):
         with MemoryView.open(bank_copy, "P37", embedder, config=recipe) as view:
             out = call_tool(view, "search_objects", {"query": "knife"})
-            assert out["results"][0]["name"] == "knife"
-            assert out["results"][0]["score"]["keyword"] is not None  # scored by Kùzu's FTS index
+            assert out.results[0].name == "knife"
+            assert out.results[0].score.keyword is not None  # scored by Kùzu's FTS index
     with pytest.raises(ToolError, match="HNSW"):
         MemoryView.open(bank_copy, "P37", embedder, config="hnsw")
     r = runner.invoke(main, ["index", str(bank_copy), "--fts"])  # again: kept, and P09 gets them
@@ -78,7 +78,7 @@ def test_build_with_fts_builds_them(bank_copy, embedder):
     assert _indexes(bank_copy, "P09") == FTS
     assert json.loads((bank_copy / "manifest.json").read_text())["participants"]["P09"]["indexes"] == sorted(FTS)
     with MemoryView.open(bank_copy, "P09", embedder, config="fts") as view:
-        assert call_tool(view, "search_activities", {"query": "wash"})["results"]
+        assert call_tool(view, "search_activities", {"query": "wash"}).results
 
 
 def test_build_phases_add_up_to_the_wall_time(small_bank):

@@ -1,7 +1,6 @@
 """The ReAct agent over the memory tools: tool-call parsing (this package's `toolcalls`)."""
 
 from memora_graph.agent.toolcalls import (
-    FIRST_PARAMETER,
     MAX_CALLS_PER_RESPONSE,
     ToolCall,
     canonical_arguments,
@@ -10,6 +9,6 @@ from memora_graph.agent.toolcalls import (
 )
 
 __all__ = [
-    "FIRST_PARAMETER", "MAX_CALLS_PER_RESPONSE", "ToolCall", "canonical_arguments", "parse_tool_calls",
+    "MAX_CALLS_PER_RESPONSE", "ToolCall", "canonical_arguments", "parse_tool_calls",
     "strip_tool_markup",
 ]

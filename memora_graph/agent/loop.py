@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 from memora_graph.agent import prompts
 from memora_graph.agent.toolcalls import ToolCall, canonical_arguments, parse_tool_calls, strip_tool_markup
+from memora_graph.retrieve.results import ToolErrorResult, ToolResult
 
 MAX_ITERATIONS = {"eam_qa": 5, "planning": 8}
 MAX_CALLS_PER_RESPONSE = 3
@@ -44,7 +45,7 @@ class AgentState:
     task_kind: str
     view: dict[str, Any]
     iteration: int = 0
-    calls: list[dict[str, Any]] = field(default_factory=list)  # {name, arguments, result}
+    calls: list[dict[str, Any]] = field(default_factory=list)  # {name, arguments, result: a ToolResult}
 
 
 class Policy(Protocol):
@@ -59,7 +60,7 @@ class ToolSet(Protocol):
 
     def schemas(self) -> list[dict[str, Any]]: ...
 
-    def call(self, name: str, arguments: dict[str, Any]) -> Any: ...
+    def call(self, name: str, arguments: dict[str, Any]) -> ToolResult: ...
 
     # optional: `prefetch(calls)` with calls = [(name, arguments)] warms whatever the calls of one
     # response share (query embeddings) before they run one by one; counted as tool time
@@ -81,6 +82,11 @@ class AgentResult:
     @property
     def other_s(self) -> float:
         return max(0.0, self.total_s - self.model_s - self.tools_s)
+
+
+def as_json(result: Any) -> Any:
+    """A tool result as the JSON value an agent sees (typed results through their models)."""
+    return result.as_json() if isinstance(result, ToolResult) else result
 
 
 def _clip_conversation(messages: list[dict[str, Any]]) -> None:
@@ -164,14 +170,15 @@ def run_agent(policy: Policy, toolset: ToolSet | None, task_kind: str, view: dic
                     try:
                         result = toolset.call(call.name, dict(call.arguments))
                     except Exception as exc:  # a tool failure is an observation, not a crash
-                        result = {"error": f"{type(exc).__name__}: {exc}"}
-                        error = result["error"]
+                        result = ToolErrorResult(error=f"{type(exc).__name__}: {exc}")
+                        error = result.error
                     cache[key] = result
                 seconds = time.perf_counter() - t1
                 tools_s += seconds
-                body = json.dumps(result, ensure_ascii=False, default=str)
+                data = as_json(result)
+                body = json.dumps(data, ensure_ascii=False, default=str)
                 shown = body if not duplicate else json.dumps(
-                    {"_duplicate": True, "note": "identical to an earlier call; its result again", "result": result},
+                    {"_duplicate": True, "note": "identical to an earlier call; its result again", "result": data},
                     ensure_ascii=False, default=str)
                 shown = shown[:TOOL_RESULT_MAX]
                 trace.append({"iteration": iteration, "name": call.name, "arguments": call.arguments,

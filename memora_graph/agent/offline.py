@@ -43,8 +43,15 @@ from typing import Any
 import numpy as np
 
 from memora_graph.agent.loop import AgentState, PolicyReply
-from memora_graph.bench.metrics import KITCHEN_NOUNS, tokenize
+from memora_graph.baselines.flat1d import FlatHit
+from memora_graph.baselines.graph2d import GraphNode
+from memora_graph.consolidate.vocab import past_tense
 from memora_graph.embed import get_embedder
+from memora_graph.retrieve.results import (
+    ActivityRecord, ObjectRecord, OtherMatch, PlaceRecord, PreferenceRecord, Record, RoutineRecord, RoutinesResult,
+    ToolResult, VisibleObject,
+)
+from memora_graph.text import KITCHEN_NOUNS, tokenize
 
 E_THRESHOLD = 0.62
 E_MARGIN = 0.01
@@ -56,7 +63,6 @@ MAX_PREFERENCE_STEPS = 3  # steps a plan may gain from them
 EVIDENCE_PER_CALL = 6  # the best results of each call are read
 EVIDENCE_CHARS = 240
 _VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
-_VIDEO_KEYS = ("video", "video_id", "source_video")
 _KITCHEN = frozenset(KITCHEN_NOUNS)
 
 
@@ -75,50 +81,21 @@ def _stem(question: str) -> str:
     return question.split("\n\nIMPORTANT:")[0].strip()
 
 
-_PRIMARY = ("summary", "text", "description", "statement", "preference", "goal")
-_NOT_EVIDENCE = frozenset({"used_with", "places", "score", "time_seen_seconds", "arguments", "routing", "evidence",
-                           "action_breakdown", "supporting_episodes", "_context", "canonical_steps", "steps",
-                           "key_objects", "time", "visual_properties", "spatial_info", "state"})
-
-
-def _field(value: Any, *keys: str) -> str:
-    if isinstance(value, dict):
-        return next((str(value[k]) for k in keys if value.get(k)), "")
-    return str(value or "")
-
-
-def _item_text(d: dict[str, Any]) -> str:
-    """The one text a reader takes from a record: its summary / text / description / statement /
-    goal, or for an object record "name: state at place"; routine steps are appended."""
-    text = next((d[k] for k in _PRIMARY if isinstance(d.get(k), str) and d[k]), "")
-    if not text and (d.get("name") or d.get("label")):
-        state = _field(d.get("state"), "current_state") or str(d.get("current_state") or "")
-        place = (_field(d.get("spatial_info"), "place", "location") or str(d.get("location") or "")
-                 or str(d.get("current_location") or ""))
-        text = str(d.get("label") or d.get("name")) + (f": {state}" if state else "") + (f" at {place}" if place else "")
-    steps = d.get("canonical_steps") or d.get("steps")
-    if text and isinstance(steps, list):
-        text += ": " + "; ".join(_field(x, "action") if isinstance(x, dict) else str(x) for x in steps)
+def _clean(text: str) -> str:
+    """A record's line as the reader scores it: no leading time stamp, words not ids, bounded."""
     return re.sub(r"^\[[^\]]*\]\s*", "", text).replace("_", " ")[:EVIDENCE_CHARS]
 
 
-def evidence_items(result: Any, kind: str = "") -> list[dict[str, Any]]:
-    """Flatten any tool result into evidence items {text, video, kind, raw}: every record (a dict
-    with a text-like field or an object name) becomes one item; bookkeeping fields are skipped."""
-    out: list[dict[str, Any]] = []
-    if isinstance(result, list):
-        for x in result:
-            out.extend(evidence_items(x, kind))
-    elif isinstance(result, dict):
-        if kind:  # the top level of a tool result is an envelope, not a record
-            text = _item_text(result)
-            if text:
-                video = next((str(result[k]) for k in _VIDEO_KEYS if result.get(k)), "")
-                out.append({"text": text, "video": video, "kind": kind, "raw": result})
-        for k, v in result.items():
-            # "places" is a record's bookkeeping field, but at the top of a result it is a store's list
-            if isinstance(v, (list, dict)) and (k not in _NOT_EVIDENCE or (not kind and k == "places")):
-                out.extend(evidence_items(v, k))
+def evidence_items(result: Any) -> list[dict[str, Any]]:
+    """The evidence of one typed tool result: {text, video, kind (the result's list), record} per
+    record that has words, in the result's order."""
+    if not isinstance(result, ToolResult):
+        return []
+    out = []
+    for kind, rec in result.records():
+        text = _clean(rec.text())
+        if text:
+            out.append({"text": text, "video": rec.from_video(), "kind": kind, "record": rec})
     return out
 
 
@@ -260,21 +237,18 @@ class OfflinePolicy:
         steps = self.compose_plan(state.view["task_query"], state.calls)
         return PolicyReply(content="Plan:\n" + "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1)))
 
-    def _routine(self, calls) -> tuple[dict | None, float]:
+    def _routine(self, calls) -> tuple[RoutineRecord | None, float]:
         for c in calls:
-            if c["name"] == "get_routine_skill" and isinstance(c["result"], dict):
-                routines = c["result"].get("routines") or []
-                if routines:
-                    r = routines[0]
-                    return r, float(r.get("similarity") or 0)
+            if c["name"] == "get_routine_skill" and isinstance(c["result"], RoutinesResult) and c["result"].routines:
+                r = c["result"].routines[0]
+                return r, float(r.similarity or 0)
         return None, 0.0
 
     def _nouns_to_ground(self, query: str, calls) -> list[str]:
         routine, sim = self._routine(calls)
         nouns: list[str] = []
         if routine is not None and sim >= ROUTINE_ADOPT:
-            nouns = [str(o.get("object", o) if isinstance(o, dict) else o).replace("_", " ")
-                     for o in routine.get("key_objects") or []]
+            nouns = [o.object.replace("_", " ") for o in routine.key_objects]
         nouns += [w for w in re.findall(r"[a-z]+", query.lower()) if w in _KITCHEN]
         return list(dict.fromkeys(n for n in nouns if n))[:2]
 
@@ -286,17 +260,14 @@ class OfflinePolicy:
                 continue
             noun = str(next(iter(c["arguments"].values()), "")).lower()
             for it in evidence_items(c["result"]):
-                raw = it["raw"]
-                name = str(raw.get("name") or "").lower()
+                found = _object_fields(it["record"])
+                if found is None:
+                    continue
+                name, loc, color, material = found
+                name = name.lower()
                 if not name or (noun and noun not in name and name not in noun):
                     continue
-                loc = raw.get("location") or raw.get("current_location") or ""
-                spatial = raw.get("spatial_info")
-                if not loc and isinstance(spatial, dict):
-                    loc = spatial.get("location") or ""
-                vis = raw.get("visual_properties") if isinstance(raw.get("visual_properties"), dict) else {}
-                label = " ".join(x for x in (vis.get("color") or raw.get("color") or "",
-                                             vis.get("material") or raw.get("material") or "", name) if x)
+                label = " ".join(x for x in (color, material, name) if x)
                 out.setdefault(name, {"label": label.strip(), "location": str(loc).replace("_", " ")})
         return out
 
@@ -308,8 +279,7 @@ class OfflinePolicy:
         routine, sim = self._routine(calls)
         raw_steps: list[tuple[str, str]] = []  # (narration, place)
         if routine is not None and sim >= ROUTINE_ADOPT:
-            for s in routine.get("canonical_steps") or []:
-                raw_steps.append((str(s.get("action", s) if isinstance(s, dict) else s), ""))
+            raw_steps = [(s.action, "") for s in routine.canonical_steps]
         if not raw_steps:
             raw_steps = self._activity_steps(query, calls)
         if not raw_steps:
@@ -331,34 +301,30 @@ class OfflinePolicy:
             out = apply_preferences(out, self._preferences(query, calls, out))
         return out or generic_plan(task_query)
 
-    def _preferences(self, query: str, calls, steps: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    def _preferences(self, query: str, calls, steps: list[dict[str, Any]]) -> list[PreferenceRecord]:
         """The retrieved preferences that concern this plan: one of their objects is an object of
         the plan or of the request; best retrieval similarity first."""
-        prefs = [it["raw"] for c in calls if c["name"] in ("get_preferences", "search_patterns", "search")
-                 for it in evidence_items(c["result"]) if it["raw"].get("subtype")]
+        prefs = [it["record"] for c in calls if c["name"] in ("get_preferences", "search_patterns", "search")
+                 for it in evidence_items(c["result"]) if isinstance(it["record"], PreferenceRecord)]
         nouns = {w for s in steps for w in str(s["entity"]).split()} | set(re.findall(r"[a-z]+", query.lower()))
-        relevant = {}
-        for p in sorted(prefs, key=lambda p: -float(p.get("similarity") or 0)):
-            objects = [str(o).lower() for o in p.get("objects") or []]
-            if any(w in nouns for o in objects for w in o.split()):
-                relevant.setdefault(p.get("preference_id") or p.get("pattern_id") or p.get("preference"), p)
+        relevant: dict[str, PreferenceRecord] = {}
+        for p in sorted(prefs, key=lambda p: -float(p.similarity or 0)):
+            if any(w in nouns for o in p.objects for w in o.lower().split()):
+                relevant.setdefault(p.preference_id, p)
         return list(relevant.values())[:MAX_PREFERENCES]
 
     def _activity_steps(self, query: str, calls) -> list[tuple[str, str]]:
-        items = [it for c in calls if c["name"] in ("search", "search_activities") for it in evidence_items(c["result"])]
-        acts = [it for it in items if it["kind"] in ("activities", "results", "") and it["raw"].get("kind", "activity") == "activity"]
+        acts = [(it, fields) for c in calls if c["name"] in ("search", "search_activities")
+                for it in evidence_items(c["result"]) if (fields := _activity_fields(it["kind"], it["record"]))]
         if not acts:
             return []
-        texts = [it["text"] for it in acts]
+        texts = [it["text"] for it, _ in acts]
         sims = self.embedder.encode(texts, kind="passage") @ self.embedder.encode([query], kind="query")[0]
-        ranked = [acts[i] for i in np.argsort(-sims, kind="stable")[:2]]
+        ranked = [acts[i][1] for i in np.argsort(-sims, kind="stable")[:2]]
         steps: list[tuple[str, str]] = []
-        for it in ranked:
-            raw = it["raw"]
-            text = str(raw.get("summary") or raw.get("text") or "")
+        for text, place in ranked:
             text = re.sub(r"^\[[^\]]*\]\s*", "", text)
-            place = str(raw.get("place") or raw.get("location") or raw.get("environment") or "").replace("_", " ")
-            place = re.sub(r"\s*\(.*$", "", place)
+            place = re.sub(r"\s*\(.*$", "", place.replace("_", " "))
             for part in re.split(r"[;.]\s*", text):
                 if part.strip():
                     steps.append((part.strip(), place))
@@ -378,9 +344,29 @@ def _prep(location: str) -> str:
                                                                      "box", "bag", "basket") else "at"
 
 
-_STORAGE = re.compile(r"\b(?:puts it|puts the .+?|stores the .+?)\s+(?:in|on|at|into)\s+the\s+(?P<place>.+)$", re.I)
-_WORKFLOW = re.compile(r"usually (?P<use>\w+) at the (?P<at>.+?), then (?P<then>\w+) (?:in|on|at|into) the (?P<place>.+)$",
-                       re.I)
+def _object_fields(rec: Record) -> tuple[str, str, str, str] | None:
+    """(name, location, colour, material) of a record that names an object, else None."""
+    if isinstance(rec, ObjectRecord):
+        vis = rec.visual_properties
+        return rec.name, rec.spatial_info.location, vis.get("color", ""), vis.get("material", "")
+    if isinstance(rec, VisibleObject):
+        return rec.name, rec.location, "", ""
+    if isinstance(rec, (PlaceRecord, OtherMatch)):
+        return rec.name, "", "", ""
+    if isinstance(rec, GraphNode) and rec.name:
+        return rec.name, rec.location or "", "", ""
+    return None
+
+
+def _activity_fields(kind: str, rec: Record) -> tuple[str, str] | None:
+    """(what was done, where) of an activity record of any memory, else None."""
+    if isinstance(rec, ActivityRecord):
+        return rec.summary, rec.environment
+    if isinstance(rec, FlatHit) and rec.kind == "activity":
+        return rec.text(), ""
+    if isinstance(rec, GraphNode) and kind == "activities":
+        return rec.text(), rec.place or ""
+    return None
 
 
 def _matches(step: dict[str, Any], obj: str, verb: str | None = None) -> bool:
@@ -390,15 +376,22 @@ def _matches(step: dict[str, Any], obj: str, verb: str | None = None) -> bool:
     return verb is None or tokenize(verb) <= tokenize(step["action"]) or tokenize(step["action"]) <= tokenize(verb)
 
 
-def apply_preferences(steps: list[dict[str, Any]], prefs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Honour retrieved preferences in a plan, the way a person's helper would:
+def _after_words(text: str | None) -> str:
+    """"put on drying rack" -> "drying rack": the place a workflow's follow-up puts things."""
+    words = (text or "").split(" ", 2)
+    return words[2] if len(words) == 3 and words[0] == "put" and words[1] in ("in", "on", "at", "into") else ""
 
-    - storage ("After using the pan, usually puts it on the hob"): after the last step with the
-      object, put it back where the person keeps it (unless the plan already does);
-    - habit ("After emptying the pan, usually washes the pan"): after a step that does the
-      trigger, add the habitual next action (unless it already follows);
-    - workflow ("Cookware (pot, pan) are usually washed at the sink, then put on the drying rack"):
-      after the plan uses one of those objects that way, add the follow-up.
+
+def apply_preferences(steps: list[dict[str, Any]], prefs: list[PreferenceRecord]) -> list[dict[str, Any]]:
+    """Honour retrieved preferences in a plan, the way a person's helper would, reading each
+    preference's structured fields:
+
+    - storage (object, preferred location; context storage, after use or default): after the last
+      step with the object, put it back where the person keeps it (unless the plan already does);
+    - habit (trigger, next action: "empty pan" -> "wash pan"): after a step that does the trigger,
+      add the habitual next action (unless it already follows);
+    - workflow (objects, use "wash @ sink", then "put on drying rack"): after the plan uses one of
+      those objects that way, add the follow-up.
 
     Each added step names the preference it honours; at most MAX_PREFERENCE_STEPS are added."""
     out = list(steps)
@@ -406,20 +399,16 @@ def apply_preferences(steps: list[dict[str, Any]], prefs: list[dict[str, Any]]) 
     for p in prefs:
         if added >= MAX_PREFERENCE_STEPS:
             break
-        pid = str(p.get("preference_id") or p.get("pattern_id") or "")
-        statement = str(p.get("preference") or p.get("statement") or "")
-        subtype = p.get("subtype")
-        objects = [str(o).lower().replace("_", " ") for o in p.get("objects") or []]
+        objects = [o.lower().replace("_", " ") for o in p.objects]
         new: tuple[int, dict[str, Any]] | None = None
-        if subtype == "storage" and objects and (m := _STORAGE.search(statement)):
-            place = m["place"].strip(" .").lower()
+        if p.subtype == "storage" and objects and p.preferred_location and p.context != "during_use":
+            place = p.preferred_location.strip(" .").lower()
             idx = [i for i, s in enumerate(out) if _matches(s, objects[0])]
             if idx and not any(_matches(s, objects[0]) and s["location"] == place for s in out):
-                new = (idx[-1] + 1, _step("put", out[idx[-1]]["entity"], place, grounded=True, preference=pid))
-        elif subtype == "habit":
-            trigger = str(p.get("context") or "").split()
-            keywords = [str(k).lower() for k in p.get("keywords") or []]
-            nxt = keywords[len(trigger):]
+                new = (idx[-1] + 1, _step("put", out[idx[-1]]["entity"], place, grounded=True,
+                                          preference=p.preference_id))
+        elif p.subtype == "habit":
+            trigger, nxt = (p.trigger or "").split(), (p.next_action or "").split()
             if len(trigger) >= 2 and len(nxt) >= 2:
                 idx = [i for i, s in enumerate(out) if _matches(s, " ".join(trigger[1:]), trigger[0])]
                 if idx:
@@ -427,13 +416,15 @@ def apply_preferences(steps: list[dict[str, Any]], prefs: list[dict[str, Any]]) 
                     verb, obj = nxt[0], " ".join(nxt[1:])
                     follow = out[i + 1] if i + 1 < len(out) else None
                     if follow is None or not _matches(follow, obj, verb):
-                        new = (i + 1, _step(verb, obj, out[i]["location"], grounded=True, preference=pid))
-        elif subtype == "workflow" and objects and (m := _WORKFLOW.search(statement)):
-            idx = [i for i, s in enumerate(out) if any(_matches(s, o, m["use"]) for o in objects)]
-            place = m["place"].strip(" .").lower()
+                        new = (i + 1, _step(verb, obj, out[i]["location"], grounded=True, preference=p.preference_id))
+        elif p.subtype == "workflow" and objects and p.use and (place := _after_words(p.then)):
+            # the use is matched on its participle ("washed"), the word the statement uses
+            used = past_tense(p.use.split(" @ ")[0])
+            idx = [i for i, s in enumerate(out) if re.fullmatch(r"\w+", used) and any(_matches(s, o, used) for o in objects)]
+            place = place.strip(" .").lower()
             if idx and not any(s["location"] == place for s in out[idx[-1] + 1:]):
                 i = idx[-1]
-                new = (i + 1, _step("put", out[i]["entity"], place, grounded=True, preference=pid))
+                new = (i + 1, _step("put", out[i]["entity"], place, grounded=True, preference=p.preference_id))
         if new is not None:
             out.insert(*new)
             added += 1

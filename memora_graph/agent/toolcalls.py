@@ -25,21 +25,9 @@ from typing import Any, Iterable
 
 from pydantic import BaseModel, ConfigDict
 
+from memora_graph.retrieve.registry import first_arguments
+
 MAX_CALLS_PER_RESPONSE = 3
-
-# The argument a positional plain-text call fills, per MEMORA tool (METHOD_NOTES 3.3).
-FIRST_PARAMETER: dict[str, str] = {
-    "search": "query",
-    "search_objects": "query",
-    "search_activities": "query",
-    "search_environment": "query",
-    "search_patterns": "query",
-    "get_object_history": "object_query",
-    "get_state_at_time": "time_seconds",
-    "get_routine_skill": "goal_query",
-    "get_preferences": "query",
-}
-
 
 class ToolCall(BaseModel):
     """One tool call in the shape the agent executes: name, decoded arguments, call id."""
@@ -131,14 +119,15 @@ def strip_tool_markup(text: str | None) -> str:
 class _Tools:
     def __init__(self, available: Iterable[str | dict[str, Any]] | None):
         self.open = available is None
-        self.first: dict[str, str] = dict(FIRST_PARAMETER) if available is None else {}
+        known = first_arguments()  # every registered tool's positional argument (its ToolSpec)
+        self.first: dict[str, str] = dict(known) if available is None else {}
         self.names: dict[str, str] = {}  # lowercase -> offered name
         for item in available or []:
             name, first = _tool_name_and_first_parameter(item)
             self.names[name.lower()] = name
-            self.first[name] = first or FIRST_PARAMETER.get(name, "query")
+            self.first[name] = first or known.get(name, "query")
         if self.open:
-            self.names.update({n.lower(): n for n in FIRST_PARAMETER})
+            self.names.update({n.lower(): n for n in known})
 
     def canonical(self, name: str) -> str:
         return self.names.get(name.lower(), name)

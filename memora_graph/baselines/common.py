@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from memora_graph.bank import Bank
-from memora_graph.embed import get_embedder
+from memora_graph.embed import get_embedder, torch_threads
 
 CACHE_DIR = ".cache"
 DEDUP_COSINE = 0.95
@@ -105,6 +105,15 @@ class EmbeddingStore:
 
 def embed_query(text: str, model: str | None = None) -> np.ndarray:
     return get_embedder(model).encode([text], kind="query")[0]
+
+
+def prefetch_queries(texts: list[str]) -> None:
+    """Embed the queries of one agent response in one batch (the tools then find them in the
+    process-wide embedding cache)."""
+    texts = list(dict.fromkeys(texts))
+    if texts:
+        with torch_threads(1):
+            get_embedder().encode(texts, kind="query")
 
 
 def top_k(matrix: np.ndarray, query: np.ndarray, k: int, mask: np.ndarray | None = None,

@@ -17,12 +17,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pydantic import Field
 
 from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
     EmbeddingStore, cache_dir, clamp_top_k, embed_query, load_records, object_label, participant_key, place_name,
+    prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
+from memora_graph.retrieve.args import QueryText, ToolArgs
+from memora_graph.retrieve.registry import Family, register_family, tool
+from memora_graph.retrieve.results import Record, ToolResult
 
 VERSION = "flat1d-1"
 
@@ -35,9 +40,39 @@ class FlatRecord:
     text: str  # what the agent reads (with its time stamp)
     embed_text: str  # what is embedded (shared with Graph-2D where the content is the same)
 
-    def as_result(self, similarity: float) -> dict:
-        return {"kind": self.kind, "video": self.video, "time": round(self.time, 2), "text": self.text,
-                "similarity": similarity}
+    def as_result(self, similarity: float) -> FlatHit:
+        return FlatHit(kind=self.kind, video=self.video, time=round(self.time, 2), text=self.text, similarity=similarity)
+
+
+class FlatHit(Record):
+    """One time-stamped text record of the Flat-1D memory."""
+
+    kind: str  # activity | state | environment
+    video: str
+    time: float
+    text_: str = Field(alias="text")
+    similarity: float
+
+    model_config = {"extra": "forbid", "populate_by_name": True, "serialize_by_alias": True}
+
+    def text(self) -> str:
+        return self.text_
+
+    def from_video(self) -> str:
+        return self.video
+
+
+class FlatSearchResult(ToolResult):
+    _optional = frozenset({"error"})
+    _lists = ("results",)
+    query: str
+    results: list[FlatHit]
+    error: str | None = None
+
+
+class FlatSearchArgs(ToolArgs):
+    query: QueryText = Field(description="What to look for, in words.")
+    top_k: int = Field(10, description="How many records to return (at most 30).")
 
 
 def _stamp(video: str, start: float, end: float | None = None) -> str:
@@ -108,13 +143,15 @@ class Flat1DMemory:
         np.save(base.with_suffix(".npy"), vectors)
         return cls(participant, mode, recs, vectors)
 
-    def search(self, query: str, top_k: int = 10) -> dict:
+    def search(self, query: str, top_k: int = 10) -> FlatSearchResult:
         """The top-k records by cosine to the query (near-duplicates collapsed)."""
         query = str(query or "").strip()
         if not query:
-            return {"query": query, "results": [], "error": "empty query"}
+            return FlatSearchResult(query=query, results=[], error="empty query")
         hits = top_k_rows(self.vectors, embed_query(query), clamp_top_k(top_k))
-        return {"query": query, "results": [self.records[i].as_result(s) for i, s in hits]}
+        return FlatSearchResult(query=query, results=[self.records[i].as_result(s) for i, s in hits])
+
+    prefetch = staticmethod(prefetch_queries)
 
     def stats(self) -> dict:
         kinds: dict[str, int] = defaultdict(int)
@@ -122,3 +159,11 @@ class Flat1DMemory:
             kinds[r.kind] += 1
         return {"records": len(self.records), **dict(kinds)}
 
+
+register_family(Family("flat1d", "Flat-1D chronological text records", Flat1DMemory.load))
+
+
+@tool("search", family="flat1d", args=FlatSearchArgs, result=FlatSearchResult, store="Flat-1D records",
+      description="Search the person's chronological text memory; returns the most similar time-stamped records.")
+def flat_search(memory: Flat1DMemory, query: str, top_k: int = 10) -> FlatSearchResult:
+    return memory.search(query, top_k)

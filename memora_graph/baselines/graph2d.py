@@ -13,21 +13,26 @@ results per category, activities with their neighbouring turns as `_context`),
 
 from __future__ import annotations
 
-import pickle
+import json
+import os
 from collections import defaultdict
 from itertools import combinations
 from pathlib import Path
 
 import networkx as nx
 import numpy as np
+from pydantic import Field
 
 from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
-    EmbeddingStore, cache_dir, embed_query, load_records, object_label, participant_key, place_name,
+    EmbeddingStore, cache_dir, embed_query, load_records, object_label, participant_key, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
+from memora_graph.retrieve.args import QueryText, ToolArgs
+from memora_graph.retrieve.registry import Family, register_family, tool
+from memora_graph.retrieve.results import Model, Record, ToolErrorResult, ToolResult
 
-VERSION = "graph2d-1"
+VERSION = "graph2d-2"  # 2: the graph is cached as node-link JSON (data, never code), not a pickle
 SEEDS = 12
 PER_CATEGORY = 3
 OBJECT_FALLBACK_COSINE = 0.3
@@ -87,6 +92,86 @@ def build_graph(records: dict[str, list[dict]], mode: str) -> nx.Graph:
     return g
 
 
+class NodeContext(Model):
+    previous: str
+    next: str
+
+
+class GraphNode(Record):
+    """A node of the entity-relation graph as the tools show it (activity, object, place, pattern)."""
+
+    _optional = frozenset({"video", "turn", "time", "place", "context", "name", "state", "location", "similarity",
+                           "visible_objects"})
+    model_config = {"extra": "forbid", "populate_by_name": True, "serialize_by_alias": True}
+    id: str
+    text_: str = Field(alias="text")
+    name: str | None = None
+    state: str | None = None
+    location: str | None = None
+    video: str | None = None
+    turn: int | None = None
+    time: float | None = None
+    place: str | None = None
+    context: NodeContext | None = Field(None, alias="_context")
+    similarity: float | None = None
+    visible_objects: list[str] | None = None  # get_state_at_time: the objects used in that turn
+
+    def text(self) -> str:
+        return self.text_
+
+    def from_video(self) -> str:
+        return self.video or ""
+
+
+class GraphSearchResult(ToolResult):
+    _optional = frozenset({"activities", "objects", "environment", "patterns", "error"})
+    _lists = ("activities", "objects", "environment", "patterns")
+    query: str
+    activities: list[GraphNode] | None = None
+    objects: list[GraphNode] | None = None
+    environment: list[GraphNode] | None = None
+    patterns: list[GraphNode] | None = None
+    error: str | None = None
+
+
+class GraphHistoryResult(ToolResult):
+    _optional = frozenset({"error", "match_type", "n_records", "name", "current_state", "current_location",
+                           "all_locations_observed", "objects", "history", "n_history"})
+    _lists = ("objects", "history")
+    object_query: str
+    error: str | None = None
+    match_type: str | None = None
+    n_records: int | None = None
+    name: str | None = None
+    current_state: str | None = None
+    current_location: str | None = None
+    all_locations_observed: list[str] | None = None
+    objects: list[GraphNode] | None = None
+    history: list[GraphNode] | None = None
+    n_history: int | None = None
+
+
+class GraphStateResult(ToolResult):
+    _lists = ("moments",)
+    time_seconds: float
+    video_id: str
+    moments: list[GraphNode]
+
+
+class GraphSearchArgs(ToolArgs):
+    query: QueryText = Field(description="What to look for, in words.")
+    top_k_per_category: int = Field(PER_CATEGORY, description="Records per category (at most 3).")
+
+
+class GraphHistoryArgs(ToolArgs):
+    object_query: QueryText = Field(description="The object, in words.")
+
+
+class GraphStateArgs(ToolArgs):
+    time_seconds: float = Field(description="Seconds into a video.")
+    video_id: str | None = Field(None, description="The video id (default: every video at that time).")
+
+
 class Graph2DMemory:
     tool_names = ("search", "get_object_history", "get_state_at_time")
 
@@ -105,23 +190,29 @@ class Graph2DMemory:
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)
         base = cache_dir(bank) / f"graph2d-{participant}-{key}"
-        pkl, npy = base.with_suffix(".pkl"), base.with_suffix(".npy")
-        if pkl.exists() and npy.exists():
-            with pkl.open("rb") as fh:
-                graph, nodes = pickle.load(fh)
-            return cls(participant, mode, graph, nodes, np.load(npy))
+        path, npy = base.with_suffix(".json"), base.with_suffix(".npy")
+        if path.exists() and npy.exists():
+            try:
+                data = json.loads(path.read_text())
+                graph = nx.node_link_graph(data["graph"], edges="edges")
+                return cls(participant, mode, graph, data["nodes"], np.load(npy, allow_pickle=False))
+            except (OSError, ValueError, KeyError, TypeError, nx.NetworkXError):
+                pass  # a damaged cache is rebuilt from the bank, never trusted
         graph = build_graph(load_records(bank, participant), mode)
         nodes = sorted(graph.nodes)
         store = store or EmbeddingStore(bank)
         vectors = store.encode([graph.nodes[n]["text"] for n in nodes])
         store.save()
-        with pkl.open("wb") as fh:
-            pickle.dump((graph, nodes), fh)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes}))
         np.save(npy, vectors)
+        os.replace(tmp, path)  # written last: a cache is complete when its JSON exists
         return cls(participant, mode, graph, nodes, vectors)
 
+    prefetch = staticmethod(prefetch_queries)
+
     # -- rendering -------------------------------------------------------------------------
-    def _view(self, node: str, similarity: float | None = None, context: bool = False) -> dict:
+    def _view(self, node: str, similarity: float | None = None, context: bool = False) -> GraphNode:
         d = self.graph.nodes[node]
         out: dict = {"id": node, "text": d["text"]}
         if d["kind"] == "activity":
@@ -138,13 +229,13 @@ class Graph2DMemory:
                        time=d["time"])
         if similarity is not None:
             out["similarity"] = similarity
-        return out
+        return GraphNode(**out)
 
     # -- tools -----------------------------------------------------------------------------
-    def search(self, query: str, top_k_per_category: int = PER_CATEGORY) -> dict:
+    def search(self, query: str, top_k_per_category: int = PER_CATEGORY) -> GraphSearchResult:
         query = str(query or "").strip()
         if not query:
-            return {"query": query, "error": "empty query"}
+            return GraphSearchResult(query=query, error="empty query")
         try:
             k = max(1, min(PER_CATEGORY, int(top_k_per_category)))
         except (TypeError, ValueError):
@@ -158,12 +249,12 @@ class Graph2DMemory:
                 if self.graph.edges[s, m]["rel"] != "CO_OCCURS":
                     candidates.add(m)
         ranked = sorted(candidates, key=lambda n: (-float(scores[self.index[n]]), n))
-        out: dict = {"query": query, **{c: [] for c in CATEGORIES.values()}}
+        out: dict = {c: [] for c in CATEGORIES.values()}
         for n in ranked:
             bucket = out[CATEGORIES[self.graph.nodes[n]["kind"]]]
             if len(bucket) < k:
                 bucket.append(self._view(n, round(float(scores[self.index[n]]), 4), context=True))
-        return out
+        return GraphSearchResult(query=query, **out)
 
     def _match_objects(self, object_query: str) -> tuple[list[str], str]:
         q = object_query.lower().strip().replace("_", " ")
@@ -177,33 +268,33 @@ class Graph2DMemory:
         hits = top_k_rows(self.vectors, embed_query(object_query), 3, mask=self.kinds == "object")
         return [self.nodes[i] for i, s in hits if s >= OBJECT_FALLBACK_COSINE], "embedding"
 
-    def get_object_history(self, object_query: str) -> dict:
+    def get_object_history(self, object_query: str) -> GraphHistoryResult:
         object_query = str(object_query or "").strip()
         if not object_query:
-            return {"object_query": object_query, "error": "empty object_query"}
+            return GraphHistoryResult(object_query=object_query, error="empty object_query")
         matched, how = self._match_objects(object_query)
         if not matched:
-            return {"object_query": object_query, "match_type": "none", "objects": [], "history": []}
+            return GraphHistoryResult(object_query=object_query, match_type="none", objects=[], history=[])
         seen: dict[str, dict] = {}
         for n in matched:
             for m in self.graph.neighbors(n):
                 if self.graph.edges[n, m]["rel"] == "USED_IN":
                     seen.setdefault(m, self._view(m))
-        history = sorted(seen.values(), key=lambda v: (v["video"], v["time"]))
-        objects = sorted((self._view(n) for n in matched), key=lambda v: (v["video"], v["time"]))
+        history = sorted(seen.values(), key=lambda v: (v.video, v.time))
+        objects = sorted((self._view(n) for n in matched), key=lambda v: (v.video, v.time))
         latest = objects[-1]
-        return {
-            "object_query": object_query, "match_type": how, "n_records": len(matched),
-            "name": latest["name"], "current_state": latest["state"], "current_location": latest["location"],
-            "all_locations_observed": sorted({o["location"] for o in objects if o["location"]}),
-            "objects": objects[:10], "history": history[:15], "n_history": len(history),
-        }
+        return GraphHistoryResult(
+            object_query=object_query, match_type=how, n_records=len(matched),
+            name=latest.name, current_state=latest.state, current_location=latest.location,
+            all_locations_observed=sorted({o.location for o in objects if o.location}),
+            objects=objects[:10], history=history[:15], n_history=len(history),
+        )
 
-    def get_state_at_time(self, time_seconds: float, video_id: str | None = None) -> dict:
+    def get_state_at_time(self, time_seconds: float, video_id: str | None = None) -> GraphStateResult | ToolErrorResult:
         try:
             t = float(time_seconds)
         except (TypeError, ValueError):
-            return {"error": f"time_seconds must be a number, got {time_seconds!r}"}
+            return ToolErrorResult(error=f"time_seconds must be a number, got {time_seconds!r}")
         acts = [n for n in self.nodes if self.graph.nodes[n]["kind"] == "activity"
                 and self.graph.nodes[n]["t_start"] <= t < self.graph.nodes[n]["t_end"]
                 and (not video_id or self.graph.nodes[n]["video"] == video_id)]
@@ -211,11 +302,11 @@ class Graph2DMemory:
         out = []
         for a in acts:
             view = self._view(a)
-            view["visible_objects"] = sorted(
+            view.visible_objects = sorted(
                 {self.graph.nodes[m]["label"] + f" ({self.graph.nodes[m]['state']})"
                  for m in self.graph.neighbors(a) if self.graph.edges[a, m]["rel"] == "USED_IN"})[:12]
             out.append(view)
-        return {"time_seconds": t, "video_id": video_id or "", "moments": out}
+        return GraphStateResult(time_seconds=t, video_id=video_id or "", moments=out)
 
     def stats(self) -> dict:
         kinds: dict[str, int] = defaultdict(int)
@@ -225,3 +316,25 @@ class Graph2DMemory:
         for _, _, d in self.graph.edges(data=True):
             rels[d["rel"]] += 1
         return {"nodes": self.graph.number_of_nodes(), "edges": self.graph.number_of_edges(), **kinds, **rels}
+
+
+register_family(Family("graph2d", "Graph-2D entity-relation graph", Graph2DMemory.load))
+
+
+@tool("search", family="graph2d", args=GraphSearchArgs, result=GraphSearchResult, store="Graph-2D graph",
+      description="Search the entity-relation graph: embedding seeds plus their one-hop neighbours; at most 3 "
+                  "activities, objects, places and patterns.")
+def graph_search(memory: Graph2DMemory, query: str, top_k_per_category: int = PER_CATEGORY) -> GraphSearchResult:
+    return memory.search(query, top_k_per_category)
+
+
+@tool("get_object_history", family="graph2d", args=GraphHistoryArgs, result=GraphHistoryResult,
+      store="Graph-2D graph", description="An object's records and the activities it was used in, in time order.")
+def graph_object_history(memory: Graph2DMemory, object_query: str) -> GraphHistoryResult:
+    return memory.get_object_history(object_query)
+
+
+@tool("get_state_at_time", family="graph2d", args=GraphStateArgs, result=GraphStateResult, store="Graph-2D graph",
+      description="What was happening at a time (seconds into a video), with the objects seen then.")
+def graph_state_at_time(memory: Graph2DMemory, time_seconds: float, video_id: str | None = None) -> GraphStateResult:
+    return memory.get_state_at_time(time_seconds, video_id)

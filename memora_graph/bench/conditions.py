@@ -13,8 +13,10 @@ records), its read tools, and its prompt family:
 
 Names follow the reference implementation's result files; `label` is the paper's name. The
 registry raises on a duplicate name or alias and lists the known names on an unknown lookup.
-Tools are opened per (condition, participant): a tool set is bound to one participant's memory
-and drops any argument its schema does not declare, so no call can reach another participant.
+A condition's tools are the retrieval registry's specs of its tool family (`memory`: memora,
+flat1d or graph2d); they are opened per (condition, participant): a tool set is bound to one
+participant's memory and drops any argument its schema does not declare, so no call can reach
+another participant.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from memora_graph.errors import MemoraError
+from memora_graph.retrieve.registry import ToolSet, get_family, tool_set
 
 
 class ConditionError(MemoraError):
@@ -37,9 +40,18 @@ class Condition:
     family: str  # prompt family (memora_graph.agent.prompts.FAMILIES)
     bank: str  # which bank the representation is built from: none | raw | edited | episodic
     tools: tuple[str, ...]
-    open_tools: Callable[[BankSet, str], Any] | None  # (banks, participant) -> ToolSet; None for Parametric
+    memory: str | None  # the tool family (memory representation) the tools read; None for Parametric
     aliases: tuple[str, ...] = ()
     description: str = ""
+
+    def open_tools(self, banks: BankSet, participant: str) -> ToolSet | None:
+        """This condition's tools bound to one participant's memory (None: no memory, no tools)."""
+        if self.memory is None:
+            return None
+        family = get_family(self.memory)
+        path = banks.path(self.bank)
+        memory = banks.memory(f"{self.memory}:{self.bank}", participant, lambda: family.open(path, participant))
+        return tool_set(self.memory, self.tools, participant, memory)
 
 
 @dataclass
@@ -77,97 +89,10 @@ class BankSet:
         return self._memories[k]
 
 
-# -- tool sets ------------------------------------------------------------------------------------
-
-
-def _fn(name: str, description: str, properties: dict[str, Any], required: list[str]) -> dict[str, Any]:
-    return {"type": "function", "function": {"name": name, "description": description, "parameters": {
-        "type": "object", "properties": properties, "required": required}}}
-
-
-BASELINE_SCHEMAS = {
-    "flat_search": _fn("search", "Search the person's chronological text memory; returns the most similar "
-                       "time-stamped records.", {"query": {"type": "string"}, "top_k": {"type": "integer"}}, ["query"]),
-    "graph_search": _fn("search", "Search the entity-relation graph: embedding seeds plus their one-hop "
-                        "neighbours; at most 3 activities, objects, places and patterns.",
-                        {"query": {"type": "string"}, "top_k_per_category": {"type": "integer"}}, ["query"]),
-    "get_object_history": _fn("get_object_history", "An object's records and the activities it was used in, in "
-                              "time order.", {"object_query": {"type": "string"}}, ["object_query"]),
-    "get_state_at_time": _fn("get_state_at_time", "What was happening at a time (seconds into a video), with the "
-                             "objects seen then.", {"time_seconds": {"type": "number"}, "video_id": {"type": "string"}},
-                             ["time_seconds"]),
-}
-
-
-class MethodToolSet:
-    """Tools as bound methods of one participant's memory object, with their OpenAI schemas."""
-
-    def __init__(self, participant: str, memory: Any, schemas: dict[str, dict[str, Any]]):
-        self.participant = participant
-        self.memory = memory
-        self._schemas = schemas
-
-    def schemas(self) -> list[dict[str, Any]]:
-        return list(self._schemas.values())
-
-    def prefetch(self, calls: list[tuple[str, dict[str, Any]]]) -> None:
-        """Embed the query texts of one response's calls in one batch (the baselines embed
-        queries through the process-wide cache, so their calls then find them there)."""
-        from memora_graph.bench.memora_tools import query_texts
-        from memora_graph.embed import get_embedder
-        from memora_graph.retrieve.embedding import torch_threads
-
-        texts = list(dict.fromkeys(query_texts(calls)))
-        if texts:
-            with torch_threads(1):
-                get_embedder().encode(texts, kind="query")
-
-    def call(self, name: str, arguments: dict[str, Any]) -> Any:
-        if name not in self._schemas:
-            return {"error": f"unknown tool {name!r}; available: {', '.join(self._schemas)}"}
-        allowed = self._schemas[name]["function"]["parameters"]["properties"]
-        args = {k: v for k, v in arguments.items() if k in allowed}
-        missing = [k for k in self._schemas[name]["function"]["parameters"]["required"] if k not in args]
-        if missing:
-            return {"error": f"{name}: missing argument(s) {', '.join(missing)}"}
-        return getattr(self.memory, name)(**args)
-
-
-def _open_flat(kind: str):
-    def opener(banks: BankSet, participant: str) -> MethodToolSet:
-        from memora_graph.baselines.flat1d import Flat1DMemory
-
-        path = banks.path(kind)
-        memory = banks.memory(f"flat1d:{kind}", participant, lambda: Flat1DMemory.load(path, participant))
-        return MethodToolSet(participant, memory, {"search": BASELINE_SCHEMAS["flat_search"]})
-    return opener
-
-
-def _open_graph(kind: str):
-    def opener(banks: BankSet, participant: str) -> MethodToolSet:
-        from memora_graph.baselines.graph2d import Graph2DMemory
-
-        path = banks.path(kind)
-        memory = banks.memory(f"graph2d:{kind}", participant, lambda: Graph2DMemory.load(path, participant))
-        return MethodToolSet(participant, memory, {
-            "search": BASELINE_SCHEMAS["graph_search"],
-            "get_object_history": BASELINE_SCHEMAS["get_object_history"],
-            "get_state_at_time": BASELINE_SCHEMAS["get_state_at_time"],
-        })
-    return opener
-
-
 MEMORA_EPISODIC_TOOLS = ("search", "search_objects", "get_object_history", "get_state_at_time", "search_activities",
                          "search_patterns")
 MEMORA_FULL_TOOLS = MEMORA_EPISODIC_TOOLS + ("get_routine_skill", "get_preferences")
-
-
-def _open_memora(tools: tuple[str, ...], episodic: bool):
-    def opener(banks: BankSet, participant: str):
-        from memora_graph.bench.memora_tools import open_memora_tools
-
-        return open_memora_tools(banks, participant, tools, episodic=episodic)
-    return opener
+GRAPH_TOOLS = ("search", "get_object_history", "get_state_at_time")
 
 
 # -- the registry ---------------------------------------------------------------------------------
@@ -223,20 +148,16 @@ def resolve_conditions(spec: str | list[str] | None) -> list[Condition]:
 
 register(Condition("no_memory", "Parametric", "parametric", "none", (), None, aliases=("parametric",),
                    description="No memory: the answer backbone alone."))
-register(Condition("flat_1d_raw", "Flat-1D (raw)", "flat1d", "raw", ("search",), _open_flat("raw"),
+register(Condition("flat_1d_raw", "Flat-1D (raw)", "flat1d", "raw", ("search",), "flat1d",
                    description="Chronological text records from the unedited perception stream."))
-register(Condition("flat_1d_edited", "Flat-1D (processed)", "flat1d", "edited", ("search",), _open_flat("edited"),
+register(Condition("flat_1d_edited", "Flat-1D (processed)", "flat1d", "edited", ("search",), "flat1d",
                    aliases=("flat_1d_processed",), description="The same records after online editing."))
-register(Condition("graph_2d_raw", "Graph-2D (raw)", "graph2d", "raw",
-                   ("search", "get_object_history", "get_state_at_time"), _open_graph("raw"),
+register(Condition("graph_2d_raw", "Graph-2D (raw)", "graph2d", "raw", GRAPH_TOOLS, "graph2d",
                    description="Entity-relation graph of the unedited stream."))
-register(Condition("graph_2d_edited", "Graph-2D (processed)", "graph2d", "edited",
-                   ("search", "get_object_history", "get_state_at_time"), _open_graph("edited"),
+register(Condition("graph_2d_edited", "Graph-2D (processed)", "graph2d", "edited", GRAPH_TOOLS, "graph2d",
                    aliases=("graph_2d_processed",), description="The graph rebuilt after online editing."))
-register(Condition("memora_episodic", "MEMORA-Episodic", "memora_episodic", "episodic", MEMORA_EPISODIC_TOOLS,
-                   _open_memora(MEMORA_EPISODIC_TOOLS, episodic=True),
+register(Condition("memora_episodic", "MEMORA-Episodic", "memora_episodic", "episodic", MEMORA_EPISODIC_TOOLS, "memora",
                    description="Typed environment, entity and activity stores; no consolidation."))
-register(Condition("memora_full", "MEMORA", "memora", "edited", MEMORA_FULL_TOOLS,
-                   _open_memora(MEMORA_FULL_TOOLS, episodic=False), aliases=("memora",),
+register(Condition("memora_full", "MEMORA", "memora", "edited", MEMORA_FULL_TOOLS, "memora", aliases=("memora",),
                    description="All four typed stores: episodic plus routines and preferences."))
 freeze()

@@ -22,10 +22,11 @@ from statistics import mean, median
 from typing import Any
 
 from memora_graph.bench.conditions import get_condition, list_conditions
-from memora_graph.bench.metrics import eam_scores, eam_views, planning_panel
+from memora_graph.bench.aggregate import eam_scores, eam_views, planning_panel
 from memora_graph.bench.run import load_run, write_results_table
 from memora_graph.bench.tasks import QA_TYPES
 from memora_graph.errors import MemoraError
+from memora_graph.retrieve.registry import store_of
 
 MEMORA, EPISODIC, PARAMETRIC = "memora_full", "memora_episodic", "no_memory"
 BASELINES = ("flat_1d_raw", "flat_1d_edited", "graph_2d_raw", "graph_2d_edited")
@@ -112,26 +113,17 @@ def build_report(run: str | Path) -> dict[str, Any]:
     return out
 
 
-# the typed store each tool reads (the paper's per-store tool-use figure); a baseline's `search`
-# reads its one representation, MEMORA's `search` fans out over every store
-TOOL_STORES = {
-    "search_objects": "Entity", "get_object_history": "Entity", "get_state_at_time": "Activity",
-    "search_activities": "Activity", "search_environment": "Environment", "get_routine_skill": "Inferred",
-    "get_preferences": "Inferred", "search_patterns": "Inferred",
-}
+# the store each tool reads (the paper's per-store tool-use figure) comes from its ToolSpec: a
+# baseline's tools read its one representation, MEMORA's `search` fans out over every store
 STORES = ("Entity", "Activity", "Environment", "Inferred", "unified search", "Flat-1D records", "Graph-2D graph")
 
 
 def _store_of(condition: str, tool: str) -> str:
-    if tool in TOOL_STORES:
-        return TOOL_STORES[tool]
-    if tool == "search":
-        if condition.startswith("flat_1d"):
-            return "Flat-1D records"
-        if condition.startswith("graph_2d"):
-            return "Graph-2D graph"
-        return "unified search"
-    return tool
+    try:
+        family = get_condition(condition).memory
+    except MemoraError:
+        family = None
+    return store_of(tool, family) if family else tool
 
 
 def _per_store(tool_calls: dict[str, dict[str, int]]) -> dict[str, dict[str, Any]]:
@@ -299,7 +291,8 @@ def render_markdown(rep: dict[str, Any]) -> str:
                             [[_label(c), *[v.get(n, 0) for n in names], v.get("_duplicate", 0)]
                              for c, v in rep["tool_calls"].items()]))
     if rep.get("tool_calls_per_store"):
-        stores = [st for st in STORES if any(st in v["calls"] for v in rep["tool_calls_per_store"].values())]
+        seen = {st for v in rep["tool_calls_per_store"].values() for st in v["calls"]}
+        stores = [st for st in STORES if st in seen] + sorted(seen - set(STORES))  # a newly registered store too
         parts += ["", "## Tool calls per store (calls, share of the condition's calls)", ""]
         parts.append(_table(["Condition", "calls", *stores], [
             [_label(c), v["total"], *[f"{v['calls'].get(st, 0)} ({_pct(v['share'].get(st, 0.0))}%)" for st in stores]]

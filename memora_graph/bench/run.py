@@ -36,7 +36,8 @@ from memora_graph.agent.loop import ModelPolicy, run_agent
 from memora_graph.agent.prompts import PROMPT_VERSION
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
-from memora_graph.bench.metrics import extract_plan, parse_answer_letter, score_plan
+from memora_graph.bench.answers import extract_plan, parse_answer_letter
+from memora_graph.bench.metrics import score_plan
 from memora_graph.bench.tasks import BenchSuite, load_suite
 from memora_graph.errors import MemoraError
 from memora_graph.stats import memory_formation
@@ -138,7 +139,7 @@ def scoring_memory(bank: Path, participant: str) -> dict[str, Any]:
 def structure_steps(steps: list[str], memory: dict[str, Any] | None) -> list[dict[str, Any]]:
     """(action, entity, location) per plan step; entity and location are drawn from the
     participant's memory (object names, places) when the condition has memory."""
-    from memora_graph.bench.metrics import LOCATION_NOUNS, extract_action_verb
+    from memora_graph.bench.vocabulary import LOCATION_NOUNS, extract_action_verb
 
     names = sorted(memory["object_names"], key=len, reverse=True) if memory else []
     places = sorted(memory["places"], key=len, reverse=True) if memory else []
@@ -171,7 +172,7 @@ def _run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any
         base.update(item_id=item.task_id, task_id=item.task_id, split=kind, task_type=item.task_type,
                     task_query=item.task_query)
     try:
-        toolset = condition.open_tools(banks, participant) if condition.open_tools else None
+        toolset = condition.open_tools(banks, participant)
         res = run_agent(policy, toolset, "eam_qa" if kind == "eam_qa" else "planning", view, condition.family)
         base.update(final_text=res.final_text, iterations=res.iterations, forced=res.forced, retried=res.retried,
                     tool_calls=res.tool_calls, n_tool_calls=len(res.tool_calls),
@@ -297,7 +298,7 @@ def _one_torch_thread():
     """Short MiniLM encodes are several times faster on one torch thread on small CPUs (they do
     not fight Kùzu and each other); scoped to the run."""
     try:
-        from memora_graph.retrieve.embedding import torch_threads
+        from memora_graph.embed import torch_threads
     except ImportError:
         from contextlib import nullcontext
 

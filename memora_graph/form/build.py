@@ -396,10 +396,3 @@ def build_participant(bank: Bank, participant: str, actions: pl.DataFrame, durat
     finally:
         builder.close()
     return out
-
-
-def decision_shares(decisions: dict) -> dict[str, float]:
-    total = sum(decisions.values()) or 1
-    return {op: round(100.0 * decisions.get(op, 0) / total, 1) for op in ("NOOP", "UPDATE", "ADD", "DELETE")}
-
-

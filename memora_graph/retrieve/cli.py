@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import typing
 
 import click
 import polars as pl
@@ -11,20 +10,6 @@ import polars as pl
 from memora_graph.output import output_options, render
 
 # Where each tool's records are in its result, for --table / --csv / --nl.
-_RECORDS = ("results", "routines", "preferences", "visible_objects", "state_history")
-
-
-def _arg_value(spec, name: str, raw: str):
-    field = spec.args.model_fields.get(name)
-    if field is None:  # let validation name the unknown argument
-        return raw
-    types = typing.get_args(field.annotation) or (field.annotation,)
-    if str in types:
-        return raw
-    try:
-        return json.loads(raw)
-    except json.JSONDecodeError:
-        return raw
 
 
 def _flat(value):
@@ -66,19 +51,26 @@ def _compact(row: dict) -> dict:
     return out
 
 
-def records_frame(result: dict, compact: bool = False) -> pl.DataFrame:
-    """The records of a tool result as a flat frame (nested fields as JSON text); `compact`
-    keeps the fields a table can show and splits the score breakdown into columns."""
-    if result.get("tool") == "search":
-        rows = [{"store": c, **r} for c in ("objects", "activities", "places", "patterns") for r in result.get(c, [])]
-        if compact:  # one shape for every store: which record, what it says, why it was returned
-            rows = [{"store": r["store"],
-                     "id": r.get("entity_id") or r.get("segment_id") or r.get("place_id") or r.get("pattern_id"),
-                     "text": _short(r.get("description") or r.get("summary") or r.get("name"), 70),
-                     "similarity": r.get("similarity"), "score": r.get("score", {})} for r in rows]
+_ID_FIELDS = ("entity_id", "segment_id", "place_id", "pattern_id", "routine_id", "preference_id", "event_id", "id")
+
+
+def records_frame(result, compact: bool = False) -> pl.DataFrame:
+    """The records of a typed tool result as a flat frame (nested fields as JSON text). A result
+    with several lists (a unified `search`) gets one shape for every store: which record, what it
+    says, why it was returned. `compact` keeps the fields a table can show and splits the score
+    breakdown into columns. A result without record lists is one row of its fields."""
+    records = list(result.records())
+    kinds = list(dict.fromkeys(k for k, _ in records))
+    if len(kinds) > 1:
+        rows = [{"store": k, **r.model_dump(mode="json")} for k, r in records]
+        if compact:
+            rows = [{"store": r["store"], "id": next((r[f] for f in _ID_FIELDS if r.get(f)), None),
+                     "text": _short(rec.text(), 70), "similarity": r.get("similarity"), "score": r.get("score") or {}}
+                    for r, (_, rec) in zip(rows, records)]
+    elif records:
+        rows = [r.model_dump(mode="json") for _, r in records]
     else:
-        key = next((k for k in _RECORDS if k in result), None)
-        rows = result.get(key, []) if key else [{k: v for k, v in result.items() if k not in ("arguments",)}]
+        rows = [{k: v for k, v in result.as_json().items() if k not in ("arguments",)}]
     if not rows:
         return pl.DataFrame()
     if compact:
@@ -87,33 +79,52 @@ def records_frame(result: dict, compact: bool = False) -> pl.DataFrame:
     return pl.DataFrame([{c: _flat(r.get(c)) for c in cols} for r in rows], infer_schema_length=None)
 
 
-@click.command("tools")
-@output_options
-def tools_cmd(fmt):
-    """List the retrieval tools with their arguments.
+def _families() -> list[str]:
+    from memora_graph.retrieve import families
 
-    --json prints the OpenAI function schemas an agent advertises (every tool).
+    return families()
+
+
+@click.command("tools")
+@click.option("--memory", "family", default=None, metavar="FAMILY",
+              help="Only the tools of one memory representation: memora (default for --json), flat1d, graph2d.")
+@output_options
+def tools_cmd(family, fmt):
+    """List the retrieval tools with their arguments, the store each reads, and the memory
+    representation (family) they belong to: MEMORA's typed stores, or a baseline's.
+
+    --json prints the OpenAI function schemas an agent advertises (every tool of the family).
 
     \b
     Examples:
       memora tools
+      memora tools --memory flat1d
       memora tools --json
     """
-    from memora_graph.retrieve import get_tool, tool_names, tool_schemas
+    from memora_graph.retrieve import specs, tool_names, tool_schemas
 
+    if family is not None and family not in _families():
+        raise click.BadParameter(f"no memory family {family!r}; families: {', '.join(_families())}",
+                                 param_hint="'--memory'")
     if fmt == "json":
-        click.echo(json.dumps(tool_schemas(tool_names()), indent=2))
+        family = family or "memora"
+        click.echo(json.dumps(tool_schemas(tool_names(family), family), indent=2))
         return
     rows = []
-    for name in tool_names():
-        spec = get_tool(name)
+    for spec in specs(family):
         args = []
         for arg, f in spec.args.model_fields.items():
             t = getattr(f.annotation, "__name__", str(f.annotation).replace("typing.", ""))
             args.append(f"{arg}: {t}" + ("" if f.is_required() else f" = {f.default!r}"))
-        rows.append({"tool": name, "arguments": ", ".join(args), "advertised": spec.advertised,
-                     "description": spec.description})
+        rows.append({"memory": spec.family, "tool": spec.name, "arguments": ", ".join(args), "store": spec.store,
+                     "advertised": spec.advertised, "description": spec.description})
     click.echo(render(pl.DataFrame(rows), fmt))
+
+
+def _recipes() -> list[str]:
+    from memora_graph.retrieve.search import RECIPES
+
+    return list(RECIPES)
 
 
 @click.command("tool")
@@ -123,15 +134,17 @@ def tools_cmd(fmt):
 @click.option("--participant", required=True, help="Whose memory to search (P01); tools never see another's.")
 @click.option("--arg", "args", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="A tool argument (see `memora tools`). Repeatable.")
-@click.option("--recipe", type=click.Choice(["inprocess", "fts", "kuzu", "vector"]), default="inprocess", show_default=True,
-              help="Retrieval variant (see memora_graph/retrieve/search.py).")
+@click.option("--recipe", type=click.Choice(_recipes()), default="inprocess", show_default=True,
+              help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py).")
+@click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
+              help="Which memory the tool reads: memora, or a baseline's representation (flat1d, graph2d).")
 @output_options
-def tool_cmd(bank, name, text, participant, args, recipe, fmt):
+def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
     """Call one retrieval tool on one participant's memory.
 
-    TEXT, if given, fills the tool's first argument (query, object_query, goal_query,
-    time_seconds). --json prints the whole result (records, evidence ids, score breakdown);
-    --table / --csv / --nl print its records.
+    TEXT, if given, fills the tool's positional argument (query, object_query, goal_query,
+    time_seconds: `memora tools` lists them). --json prints the whole result (records, evidence
+    ids, score breakdown); --table / --csv / --nl print its records.
 
     \b
     Examples:
@@ -140,24 +153,33 @@ def tool_cmd(bank, name, text, participant, args, recipe, fmt):
       memora tool banks/epic get_preferences "spatula or fork for eggs" --participant P04
       memora tool banks/epic get_object_history plate --participant P01
       memora tool banks/epic get_state_at_time 120 --participant P01 --arg video P01_102
+      memora tool banks/epic search "wash the plate" --participant P01 --memory flat1d
     """
-    from memora_graph.retrieve import MemoryView, call_tool, get_tool
+    from memora_graph.retrieve import MemoryView, call_tool, get_family, get_tool
+    from memora_graph.retrieve.registry import parse_arguments
 
-    spec = get_tool(name)
-    arguments = {k: _arg_value(spec, k, v) for k, v in args}
+    if family not in _families():
+        raise click.BadParameter(f"no memory family {family!r}; families: {', '.join(_families())}",
+                                 param_hint="'--memory'")
+    spec = get_tool(name, family)
+    raw = dict(args)
     if text is not None:
-        first = next(iter(spec.args.model_fields))
-        arguments.setdefault(first, _arg_value(spec, first, text))
-    with MemoryView.open(bank, participant, config=recipe) as view:
-        result = call_tool(view, name, arguments)
+        raw.setdefault(spec.first_argument, text)
+    arguments = parse_arguments(spec, raw)
+    if family == "memora":
+        with MemoryView.open(bank, participant, config=recipe) as view:
+            res = call_tool(view, name, arguments)
+    else:
+        res = call_tool(get_family(family).open(bank, participant), name, arguments, family)
+    result = res.as_json()
     if fmt == "json":
         click.echo(json.dumps(result, indent=2, ensure_ascii=False, default=str))
         return
     if fmt == "table":
-        head = {k: v for k, v in result.items() if k not in _RECORDS and k not in ("objects", "activities", "places",
-                                                                                    "patterns", "evidence")}
+        lists = {k for k, _ in res.records()} | set(res._lists)
+        head = {k: v for k, v in result.items() if k not in lists and k != "evidence"}
         click.echo(json.dumps(head, ensure_ascii=False, default=str)[:2000])
-    click.echo(render(records_frame(result, compact=fmt == "table"), fmt))
+    click.echo(render(records_frame(res, compact=fmt == "table"), fmt))
 
 
 @click.command("tools")

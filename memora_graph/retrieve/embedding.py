@@ -1,4 +1,5 @@
-"""Query embeddings for the tools: one LRU cache per process, encoded on one torch thread.
+"""Query embeddings for the tools: one LRU cache per process, encoded on one torch thread
+(`memora_graph.embed.torch_threads`).
 
 On the 2-core machines this project targets, torch's default of one intra-op thread per core
 makes a MiniLM forward pass ~2x slower (batch) to ~25x slower (one short query) than a single
@@ -9,41 +10,10 @@ scopes the setting to the encode call and restores it after.
 from __future__ import annotations
 
 from collections import OrderedDict
-from contextlib import contextmanager
 
 import numpy as np
 
-
-@contextmanager
-def torch_threads(n: int = 1):
-    try:
-        import torch
-    except ImportError:  # an embedder without torch: nothing to scope
-        yield
-        return
-    before = torch.get_num_threads()
-    if before != n:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        if before != n:
-            torch.set_num_threads(before)
-
-
-def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndarray:
-    """Batch passage encoding on one torch thread, in batches of at most 32 (on these CPUs a batch
-    of 128 short texts is ~1.2x slower per text than 32; see memora_graph/embed.py)."""
-    inner = getattr(embedder, "inner", embedder)
-    before = getattr(inner, "batch_size", None)
-    if before is not None:
-        inner.batch_size = min(before, batch_size)
-    try:
-        with torch_threads(1):
-            return embedder.encode(texts, kind="passage")
-    finally:
-        if before is not None:
-            inner.batch_size = before
+from memora_graph.embed import torch_threads
 
 
 class QueryEncoder:

@@ -104,7 +104,7 @@ def _recall(a: list[str], b: list[str]) -> float:
 def run_perf(bank_path: str | Path, participants: list[str] | None = None, n_queries: int = 10,
              recipes: list[str] | None = None, hnsw: bool = True, echo=print) -> PerfReport:
     from memora_graph.embed import get_embedder
-    from memora_graph.retrieve.embedding import torch_threads
+    from memora_graph.embed import torch_threads
 
     bank = Bank(bank_path)
     pids = participants or bank.participants()

@@ -1,73 +1,66 @@
-"""The tool registry: names, argument models, and the OpenAI function schemas an agent advertises.
+"""The tool registry: one `ToolSpec` per tool, and everything else derived from it.
 
-Arguments are validated by a pydantic model per tool before the tool runs, so a model's
-malformed call fails with a message naming the argument. `search_objects` also accepts `name`
-for `query` (the paper's planning prompt writes `search_objects(name="bowl")`).
+A spec names the tool, its pydantic argument model (validated before the tool runs, so a model's
+malformed call fails with a message naming the argument), the argument a positional value fills,
+the result model, the store it reads and its description. Specs are grouped by the memory
+representation they read (`family`): "memora" (the typed stores of `memora_graph.retrieve.tools`),
+and the baselines' "flat1d" and "graph2d" (`memora_graph.baselines`). From the specs come the
+OpenAI function schemas an agent advertises, the tool-call parser's positional arguments, the
+evaluation's tool sets (`ToolSet`), the report's tool -> store map and the `memora tool(s)`
+commands. Adding a tool is one function plus its `@tool(...)` line:
+
+    @tool("count_uses", args=QueryArgs, result=ObjectsResult, store="Entity", description="...")
+    def count_uses(view, query, top_k=10): ...
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+import importlib
+import typing
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AliasChoices, BaseModel, ValidationError
 
-from memora_graph.retrieve import tools
-from memora_graph.retrieve.search import DEFAULT_TOP_K, MAX_TOP_K
-from memora_graph.retrieve.view import MemoryView, ToolError
+from memora_graph.retrieve.args import Embedded
+from memora_graph.retrieve.results import ToolErrorResult, ToolResult
+from memora_graph.retrieve.view import ToolError
 
-
-class _Args(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-
-class QueryArgs(_Args):
-    query: str = Field(description="What to look for, in words.")
-    top_k: int = Field(DEFAULT_TOP_K, ge=1, le=MAX_TOP_K, description="How many records to return.")
-
-
-class ObjectArgs(_Args):
-    query: str = Field(validation_alias=AliasChoices("query", "name", "object"),
-                       description="The object, in words (name, colour, material, where it is).")
-    top_k: int = Field(DEFAULT_TOP_K, ge=1, le=MAX_TOP_K, description="How many objects to return.")
-
-
-class SearchArgs(_Args):
-    query: str = Field(description="What to look for, in words.")
-    category: str | None = Field(None, description="Only one store: objects, activities, places or patterns.")
-    top_k_per_category: int = Field(3, ge=1, le=MAX_TOP_K, description="How many records per store.")
-
-
-class HistoryArgs(_Args):
-    object_query: str = Field(validation_alias=AliasChoices("object_query", "query", "name", "object"),
-                              description="The object whose history to return (id or name).")
-    max_entries: int = Field(60, ge=1, le=1000, description="Most recent history entries to include.")
-
-
-class StateArgs(_Args):
-    time_seconds: float = Field(ge=0, description="Seconds from the start of the video.")
-    video: str | None = Field(None, description="The video id (e.g. P03_101); optional if the memory has one video.")
-    window: float = Field(60.0, ge=0, description="Seconds after an object's last sighting it still counts as present.")
-
-
-class RoutineArgs(_Args):
-    goal_query: str = Field(validation_alias=AliasChoices("goal_query", "query", "goal"),
-                            description="The goal, e.g. 'wash the bowl'.")
-    top_k: int = Field(3, ge=1, le=MAX_TOP_K, description="How many routines to return.")
-
-
-class PreferenceArgs(_Args):
-    query: str = Field("", description="What the preference is about; empty returns the most confident ones.")
-    top_k: int = Field(5, ge=1, le=MAX_TOP_K, description="How many preferences to return.")
+MEMORA = "memora"
 
 
 @dataclass(frozen=True)
 class ToolSpec:
     name: str
     description: str
-    args: type[_Args]
-    fn: Callable[..., dict]
+    args: type[BaseModel]
+    fn: Callable[..., ToolResult]  # (memory, **arguments) -> result
+    result: type[ToolResult]
+    store: str  # the store it reads: Entity, Activity, Environment, Inferred, unified search, ...
+    family: str = MEMORA
+    first: str | None = None  # the argument a positional value fills (default: the first field)
     advertised: bool = True  # listed in tool_schemas() by default
+
+    @property
+    def first_argument(self) -> str:
+        return self.first or next(iter(self.args.model_fields))
+
+    @property
+    def aliases(self) -> dict[str, str]:
+        """Other accepted argument names -> the argument they fill."""
+        out = {}
+        for name, f in self.args.model_fields.items():
+            if isinstance(f.validation_alias, AliasChoices):
+                out.update({a: name for a in f.validation_alias.choices if isinstance(a, str) and a != name})
+        return out
+
+    @property
+    def embedded_arguments(self) -> frozenset[str]:
+        """Argument names (aliases included) whose value the tool embeds as a query."""
+        names = {n for n, f in self.args.model_fields.items() if any(isinstance(m, Embedded) for m in f.metadata)}
+        return frozenset(names | {a for a, n in self.aliases.items() if n in names})
 
     def schema(self) -> dict:
         params = self.args.model_json_schema()
@@ -77,61 +70,198 @@ class ToolSpec:
             "parameters": {"type": "object", "properties": props, "required": params.get("required", [])},
         }}
 
-
-_TOOLS: dict[str, ToolSpec] = {}
-
-
-def register(spec: ToolSpec) -> None:
-    if spec.name in _TOOLS:
-        raise ToolError(f"tool {spec.name!r} is already registered")
-    _TOOLS[spec.name] = spec
+    def validate(self, arguments: dict | None) -> dict:
+        try:
+            return self.args.model_validate(arguments or {}).model_dump()
+        except ValidationError as exc:
+            problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'arguments'}: {e['msg']}" for e in exc.errors())
+            raise ToolError(f"{self.name}: invalid arguments ({problems})") from exc
 
 
-def get_tool(name: str) -> ToolSpec:
-    if name not in _TOOLS:
-        raise ToolError(f"no tool {name!r}; tools: {', '.join(_TOOLS)}")
-    return _TOOLS[name]
+@dataclass(frozen=True)
+class Family:
+    """A memory representation the tools of one family read, and how to open it for one participant."""
+
+    name: str
+    label: str
+    open: Callable[[Path, str], Any]  # (bank directory, participant) -> memory
 
 
-def tool_names(advertised_only: bool = False) -> list[str]:
-    return [n for n, s in _TOOLS.items() if s.advertised or not advertised_only]
+_TOOLS: dict[tuple[str, str], ToolSpec] = {}
+_FAMILIES: dict[str, Family] = {}
+# the modules that register the project's own tools (imported on first lookup)
+_PROVIDERS = ("memora_graph.retrieve.tools", "memora_graph.baselines.flat1d", "memora_graph.baselines.graph2d")
+_loaded = False
 
 
-def tool_schemas(names: list[str] | None = None) -> list[dict]:
+def _load() -> None:
+    global _loaded
+    if not _loaded:
+        _loaded = True
+        for module in _PROVIDERS:
+            importlib.import_module(module)
+
+
+def register(spec: ToolSpec) -> ToolSpec:
+    key = (spec.family, spec.name)
+    if key in _TOOLS:
+        raise ToolError(f"tool {spec.name!r} is already registered for {spec.family!r}")
+    _TOOLS[key] = spec
+    return spec
+
+
+def unregister(name: str, family: str = MEMORA) -> None:
+    _TOOLS.pop((family, name), None)
+
+
+def tool(name: str, *, args: type[BaseModel], result: type[ToolResult], store: str, description: str,
+         family: str = MEMORA, first: str | None = None, advertised: bool = True):
+    """Register the decorated function as a tool (the decorator returns it unchanged)."""
+    def deco(fn: Callable[..., ToolResult]) -> Callable[..., ToolResult]:
+        register(ToolSpec(name, description, args, fn, result, store, family, first, advertised))
+        return fn
+    return deco
+
+
+def register_family(family: Family) -> Family:
+    if family.name in _FAMILIES:
+        raise ToolError(f"memory family {family.name!r} is already registered")
+    _FAMILIES[family.name] = family
+    return family
+
+
+def get_family(name: str) -> Family:
+    _load()
+    if name not in _FAMILIES:
+        raise ToolError(f"no memory family {name!r}; families: {', '.join(_FAMILIES)}")
+    return _FAMILIES[name]
+
+
+def families() -> list[str]:
+    _load()
+    return list(_FAMILIES)
+
+
+def get_tool(name: str, family: str = MEMORA) -> ToolSpec:
+    _load()
+    spec = _TOOLS.get((family, name))
+    if spec is None:
+        raise ToolError(f"no tool {name!r}; tools: {', '.join(tool_names(family))}")
+    return spec
+
+
+def tool_names(family: str = MEMORA, advertised_only: bool = False) -> list[str]:
+    _load()
+    return [n for (f, n), s in _TOOLS.items() if f == family and (s.advertised or not advertised_only)]
+
+
+def specs(family: str | None = None) -> list[ToolSpec]:
+    _load()
+    return [s for (f, _), s in _TOOLS.items() if family is None or f == family]
+
+
+def tool_schemas(names: list[str] | None = None, family: str = MEMORA) -> list[dict]:
     """OpenAI function schemas (`tools=[...]` of a chat request) for the named tools, or for
-    every advertised tool."""
-    return [get_tool(n).schema() for n in (names if names is not None else tool_names(advertised_only=True))]
+    every advertised tool of the family."""
+    return [get_tool(n, family).schema() for n in (names if names is not None else tool_names(family, True))]
 
 
-def call_tool(view: MemoryView, name: str, arguments: dict | None = None) -> dict:
-    """Validate `arguments` against the tool's schema and run it on the view."""
-    spec = get_tool(name)
-    try:
-        args = spec.args.model_validate(arguments or {})
-    except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'arguments'}: {e['msg']}" for e in exc.errors())
-        raise ToolError(f"{name}: invalid arguments ({problems})") from exc
-    return spec.fn(view, **args.model_dump())
+def first_arguments() -> dict[str, str]:
+    """Tool name -> the argument a positional value fills, over every family (a name several
+    families share fills the same argument)."""
+    out: dict[str, str] = {}
+    for s in specs():
+        out.setdefault(s.name, s.first_argument)
+    return out
 
 
-for _spec in (
-    ToolSpec("search", "Search every memory store at once (objects, activities, places, patterns) and return the top "
-             "few records of each.", SearchArgs, tools.search),
-    ToolSpec("search_objects", "Find objects the person has: identity, colour/material, current state and place, the "
-             "places it was seen at and the objects used with it.", ObjectArgs, tools.search_objects),
-    ToolSpec("get_object_history", "The state history of one object across videos: every state and location, moves, "
-             "first and last seen.", HistoryArgs, tools.get_object_history),
-    ToolSpec("get_state_at_time", "What was where, and in which state, at a time of a video (from the state "
-             "history), with the activity and place at that moment.", StateArgs, tools.get_state_at_time),
-    ToolSpec("search_activities", "Find past episodes (10 s activity records): what was done, step by step, with the "
-             "actions before and after.", QueryArgs, tools.search_activities),
-    ToolSpec("search_patterns", "Find consolidated patterns: storage preferences, habits, workflows, routines and "
-             "recurring action sequences.", QueryArgs, tools.search_patterns),
-    ToolSpec("get_routine_skill", "Routine skills for a goal: canonical steps, key objects and the episodes they "
-             "come from. Call this first when planning.", RoutineArgs, tools.get_routine_skill),
-    ToolSpec("get_preferences", "The person's preferences (where things are kept, habits, tool choices) relevant to a "
-             "query, with their evidence.", PreferenceArgs, tools.get_preferences),
-    ToolSpec("search_environment", "Find places (kitchen areas) with their zones, features and the objects there now.",
-             QueryArgs, tools.search_environment, advertised=False),
-):
-    register(_spec)
+def store_of(tool_name: str, family: str = MEMORA) -> str:
+    """The store a tool reads (the report's per-store tool use); an unknown tool is its own store."""
+    _load()
+    spec = _TOOLS.get((family, tool_name))
+    return spec.store if spec else tool_name
+
+
+def call_tool(memory, name: str, arguments: dict | None = None, family: str = MEMORA) -> ToolResult:
+    """Validate `arguments` against the tool's schema and run it on the memory (for "memora", a
+    `MemoryView`). Raises ToolError for an unknown tool, invalid arguments or a call the tool
+    cannot answer."""
+    spec = get_tool(name, family)
+    return spec.fn(memory, **spec.validate(arguments))
+
+
+def parse_arguments(spec: ToolSpec, raw: dict[str, str]) -> dict[str, Any]:
+    """Command-line strings -> argument values: a field that takes text keeps the text, any other
+    is read as JSON when it parses (numbers, booleans, lists)."""
+    import json
+
+    out: dict[str, Any] = {}
+    for name, value in raw.items():
+        target = spec.aliases.get(name, name)
+        f = spec.args.model_fields.get(target)
+        types = typing.get_args(f.annotation) or (f.annotation,) if f is not None else ()
+        if f is None or str in types or f.annotation is str:
+            out[name] = value
+            continue
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            out[name] = value
+    return out
+
+
+@dataclass
+class ToolSet:
+    """The tools of one condition bound to one participant's memory. A call's unknown arguments
+    are dropped (an agent's extra keys are noise, not an error); invalid ones and calls a tool
+    cannot answer come back as a `ToolErrorResult`, an observation for the agent, never a crash."""
+
+    participant: str
+    memory: Any
+    tools: list[ToolSpec]
+    _by_name: dict[str, ToolSpec] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._by_name = {s.name: s for s in self.tools}
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.tools]
+
+    def schemas(self) -> list[dict[str, Any]]:
+        return [s.schema() for s in self.tools]
+
+    def query_texts(self, calls: Iterable[tuple[str, dict[str, Any]]]) -> list[str]:
+        """The free-text arguments of a batch of calls, the ones their tools embed."""
+        out = []
+        for name, args in calls:
+            spec = self._by_name.get(name)
+            if spec is not None:
+                embedded = spec.embedded_arguments
+                out += [v for k, v in args.items() if k in embedded and isinstance(v, str)]
+        return out
+
+    def prefetch(self, calls: list[tuple[str, dict[str, Any]]]) -> None:
+        """Embed the query texts of one response's calls in one batch before they run."""
+        prefetch = getattr(self.memory, "prefetch", None)
+        if prefetch is not None:
+            prefetch(self.query_texts(calls))
+
+    def call(self, name: str, arguments: dict[str, Any]) -> ToolResult:
+        spec = self._by_name.get(name)
+        if spec is None:
+            return ToolErrorResult(error=f"unknown tool {name!r}; available: {', '.join(self._by_name)}")
+        known = set(spec.args.model_fields) | set(spec.aliases)
+        try:
+            return spec.fn(self.memory, **spec.validate({k: v for k, v in arguments.items() if k in known}))
+        except ToolError as exc:
+            return ToolErrorResult(error=str(exc))
+
+    def close(self) -> None:
+        closer = getattr(self.memory, "close", None)
+        if closer is not None:
+            closer()
+
+
+def tool_set(family: str, names: Iterable[str], participant: str, memory: Any) -> ToolSet:
+    return ToolSet(participant, memory, [get_tool(n, family) for n in names])

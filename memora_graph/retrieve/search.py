@@ -21,13 +21,14 @@ makes only when asked (`memora build --fts`, `memora index BANK --fts --hnsw`).
 from __future__ import annotations
 
 import math
-import re
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
+
+from memora_graph.text import index_tokens
 
 DEFAULT_TOP_K = 10
 MAX_TOP_K = 30
@@ -92,29 +93,6 @@ class VectorTable:
 
 
 # -- keywords --------------------------------------------------------------------------------
-STOPWORDS = frozenset(
-    "a an and are as at be by for from has have how i in into is it its me my of on or s that the their them then "
-    "there these they this to was were what when where which while who whom why will with you your do does did".split()
-)
-_WORD = re.compile(r"[a-z]+")
-
-
-def stem(word: str) -> str:
-    """A light suffix stemmer (the FTS index uses Porter; this agrees on plurals and -ing/-ed)."""
-    for suffix, keep in (("ies", "y"), ("sses", "ss"), ("ing", ""), ("ed", ""), ("es", ""), ("s", "")):
-        if word.endswith(suffix) and len(word) - len(suffix) >= 3 and not word.endswith("ss"):
-            word = word[: len(word) - len(suffix)] + keep
-            break
-    if len(word) > 3 and word[-1] == word[-2] and word[-1] not in "lsz":
-        word = word[:-1]
-    return word
-
-
-def tokens(text: str) -> list[str]:
-    """Lower-case words without digits (as Kùzu's FTS indexes them), stopwords dropped, stemmed."""
-    return [stem(w) for w in _WORD.findall(text.lower()) if w not in STOPWORDS]
-
-
 class Bm25:
     """Okapi BM25 over a small corpus, in process (k1 = 1.2, b = 0.75, as Kùzu's FTS)."""
 
@@ -123,7 +101,7 @@ class Bm25:
         self.postings: dict[str, list[tuple[int, int]]] = defaultdict(list)
         self.lengths = []
         for n, text in enumerate(texts):
-            toks = tokens(text)
+            toks = index_tokens(text)
             self.lengths.append(len(toks))
             for t, c in Counter(toks).items():
                 self.postings[t].append((n, c))
@@ -132,7 +110,7 @@ class Bm25:
 
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
         scores: dict[int, float] = defaultdict(float)
-        for t in set(tokens(query)):
+        for t in set(index_tokens(query)):
             plist = self.postings.get(t)
             if not plist:
                 continue

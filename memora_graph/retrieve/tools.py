@@ -1,10 +1,13 @@
 """The MEMORA retrieval tools over one participant's memory (a `MemoryView`).
 
-Each tool returns a JSON-serializable dict: the tool name, the participant, the arguments, the
-records, and for every record the ids of the bank nodes that support it (`evidence`) and a
-per-signal score breakdown (`score`: vector, keyword, graph, fused) that says why it was
-returned. Records whose embeddings have cosine >= 0.95 with a better-ranked one collapse into it
-(`duplicates`). Field names follow METHOD_NOTES section 3.3.
+Each tool is a function registered with its `ToolSpec` (the `@tool` line above it: name, argument
+model, result model, the store it reads, description); the spec is the one place the agent
+schemas, tool-call parsing, the tool sets of the evaluation, the report's store map and the
+`memora tool` / `memora tools` commands read. A tool returns a typed result (`retrieve.results`):
+the tool name, the participant, the arguments, the records, and for every record the ids of the
+bank nodes that support it (`evidence`) and a per-signal score breakdown (`score`: vector,
+keyword, graph, fused) that says why it was returned. Records whose embeddings have cosine >= 0.95
+with a better-ranked one collapse into it (`duplicates`). Field names follow METHOD_NOTES 3.3.
 
 "How to do it" lives in `get_routine_skill` / `search_activities` / `search_patterns`; "which
 object and where" in `search_objects` / `get_object_history` / `get_state_at_time`; `search`
@@ -20,16 +23,26 @@ import numpy as np
 
 from memora_graph.perceive.vocab import PLACE_NAMES
 from memora_graph.records import segment_id
-from memora_graph.retrieve.search import (
-    DEFAULT_TOP_K, MAX_TOP_K, Candidate, dedup, fuse, rank, stem, tokens,
+from memora_graph.retrieve.args import (
+    HistoryArgs, ObjectArgs, PreferenceArgs, QueryArgs, RoutineArgs, SearchArgs, StateArgs,
 )
+from memora_graph.retrieve.registry import Family, register_family, tool
+from memora_graph.retrieve.results import (
+    Action, ActivitiesResult, ActivityRecord, ObjectHistoryResult, ObjectRecord, ObjectsResult, PatternRecord,
+    PatternsResult, PlaceRecord, PlacesResult, PreferenceRecord, PreferencesResult, RoutineRecord, RoutinesResult,
+    Score, SearchResult, StateAtTimeResult, VisibleObject, PREFERENCE_FIELDS,
+)
+from memora_graph.retrieve.search import DEFAULT_TOP_K, MAX_TOP_K, Candidate, dedup, fuse, rank
 from memora_graph.retrieve.view import MemoryView, ToolError
+from memora_graph.text import index_stem, index_tokens
 
-ACTION_WORDS = frozenset(stem(w) for w in (
+register_family(Family("memora", "MEMORA typed stores", MemoryView.open))
+
+ACTION_WORDS = frozenset(index_stem(w) for w in (
     "wash", "cut", "cook", "stir", "mix", "pour", "put", "take", "open", "close", "rinse", "dry", "peel", "fry", "boil",
     "clean", "prepare", "make", "chop", "slice", "fill", "empty", "turn", "scrub", "wipe", "bake", "heat", "spread",
 ))
-PREFERENCE_WORDS = frozenset(stem(w) for w in (
+PREFERENCE_WORDS = frozenset(index_stem(w) for w in (
     "prefer", "preference", "usually", "typically", "often", "always", "habit", "tend", "like", "favorite", "favourite",
     "store", "keep", "routine",
 ))
@@ -49,11 +62,13 @@ def _query(query: str | None, name: str = "query") -> str:
     return q
 
 
-def _envelope(view: MemoryView, tool: str, args: dict, **body) -> dict:
-    out = {"tool": tool, "participant": view.participant, "arguments": args, **body}
-    if view.notes:
-        out["notes"] = list(view.notes)
-    return out
+def _envelope(view: MemoryView, result: type, tool_name: str, args: dict, **body):
+    return result(tool=tool_name, participant=view.participant, arguments=args, **body,
+                  **({"notes": list(view.notes)} if view.notes else {}))
+
+
+def _score(c: Candidate) -> Score:
+    return Score(**c.breakdown())
 
 
 def _place_name(location: str) -> str:
@@ -66,11 +81,11 @@ def grounded_entities(view: MemoryView, query: str) -> set[str]:
     if index is None:
         index = {}
         for eid, e in view.entities.items():
-            for t in set(tokens(f"{e['kind']} {e['name']}".replace("_", " "))):
+            for t in set(index_tokens(f"{e['kind']} {e['name']}".replace("_", " "))):
                 index.setdefault(t, set()).add(eid)
         view.__dict__["_entity_words"] = index
     out: set[str] = set()
-    for t in tokens(query):
+    for t in index_tokens(query):
         out |= index.get(t, set())
     return out
 
@@ -96,15 +111,49 @@ def _finish(view: MemoryView, table: str, cands: dict[str, Candidate], top_k: in
     return dedup(ranked, view.vectors(table), cfg.dedup_cosine, top_k)
 
 
+# -- unified ---------------------------------------------------------------------------------------
+CATEGORIES = ("objects", "activities", "places", "patterns")
+_ALIASES = {"environment": "places", "objects": "objects", "object": "objects", "activities": "activities",
+            "activity": "activities", "places": "places", "place": "places", "patterns": "patterns", "pattern": "patterns"}
+
+
+@tool("search", args=SearchArgs, result=SearchResult, store="unified search",
+      description="Search every memory store at once (objects, activities, places, patterns) and return the top few "
+                  "records of each.")
+def search(view: MemoryView, query: str, category: str | None = None, top_k_per_category: int = 3) -> SearchResult:
+    """One query over every store (objects, activities, places, patterns), top few per store.
+    Action queries get twice the activities; preference queries get three times the patterns."""
+    query, k = _query(query), _k(top_k_per_category, 3)
+    cats = CATEGORIES
+    if category:
+        if category.lower() not in _ALIASES:
+            raise ToolError(f"category must be one of: {', '.join(CATEGORIES)}")
+        cats = (_ALIASES[category.lower()],)
+    words = set(index_tokens(query))
+    k_of = {c: k for c in cats}
+    routing = []
+    if words & ACTION_WORDS and "activities" in k_of:
+        k_of["activities"] = min(2 * k, MAX_TOP_K)
+        routing.append("action query: 2x activities")
+    if words & PREFERENCE_WORDS and "patterns" in k_of:
+        k_of["patterns"] = min(3 * k, MAX_TOP_K)
+        routing.append("preference query: 3x patterns")
+    q = view.embed(query)
+    run = {"objects": _search_objects, "activities": _search_activities, "places": _search_places, "patterns": _search_patterns}
+    body = {c: run[c](view, query, q, k_of[c]) for c in cats}
+    return _envelope(view, SearchResult, "search", {"query": query, "category": category, "top_k_per_category": k},
+                     routing=routing, **body)
+
+
 # -- objects -------------------------------------------------------------------------------------
-def _object_record(view: MemoryView, c: Candidate) -> dict:
+def _object_record(view: MemoryView, c: Candidate) -> ObjectRecord:
     e = view.entities[c.id]
     places = view.graph.entity_places.get(c.id, Counter())
     used = view.graph.used_with(c.id, 5)
     visual = {k: e[k] for k in ("color", "material", "size") if e[k]}
     first_seg = segment_id(e["first_video"], int(e["first_turn"])) if e["first_video"] else None
     last_seg = segment_id(e["last_video"], int(e["last_turn"])) if e["last_video"] else None
-    return {
+    return ObjectRecord(**{
         "object_id": e["object_id"], "entity_id": e["id"], "name": e["name"], "kind": e["kind"], "category": e["category"],
         "visual_properties": visual,
         "spatial_info": {"location": e["location"], "place": _place_name(e["location"]), "is_fixture": e["is_fixture"]},
@@ -117,21 +166,24 @@ def _object_record(view: MemoryView, c: Candidate) -> dict:
                               "last": {"video": e["last_video"], "t": e["last_seen"]}},
         "n_observations": e["n_observations"],
         "similarity": round(c.similarity, 4),
-        "score": c.breakdown(),
+        "score": _score(c),
         "evidence": [x for x in (e["id"], first_seg, last_seg) if x],
-        **({"duplicates": c.duplicates} if c.duplicates else {}),
-    }
+        "duplicates": c.duplicates or None,
+    })
 
 
-def search_objects(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+@tool("search_objects", args=ObjectArgs, result=ObjectsResult, store="Entity",
+      description="Find objects the person has: identity, colour/material, current state and place, the places it "
+                  "was seen at and the objects used with it.")
+def search_objects(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> ObjectsResult:
     """Objects (entity memory) matching a description: identity, attributes, current state and
     place, the places it was seen at and the objects used with it."""
     query, k = _query(query), _k(top_k)
-    return _envelope(view, "search_objects", {"query": query, "top_k": k},
+    return _envelope(view, ObjectsResult, "search_objects", {"query": query, "top_k": k},
                      results=_search_objects(view, query, view.embed(query), k))
 
 
-def _search_objects(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+def _search_objects(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[ObjectRecord]:
     cands = _hybrid(view, "entity", query, q, view.config.pool)
     active, top = view.active_entities, view.max_observations
     for c in cands.values():
@@ -162,7 +214,7 @@ def _neighbour(seg: dict, delta: int) -> str:
     return segment_id(seg["video"], int(seg["turn"]) + delta)
 
 
-def _activity_record(view: MemoryView, seg: dict, rows: dict[str, dict], c: Candidate | None) -> dict:
+def _activity_record(view: MemoryView, seg: dict, rows: dict[str, dict], c: Candidate | None) -> ActivityRecord:
     prev, nxt = rows.get(_neighbour(seg, -1)), rows.get(_neighbour(seg, 1))
     scene = sorted({view.entities[e]["name"] for e in view.graph.segment_entities.get(seg["id"], ()) if e in view.entities})
     rec = {
@@ -173,21 +225,22 @@ def _activity_record(view: MemoryView, seg: dict, rows: dict[str, dict], c: Cand
         "scene_objects": scene[:10], "environment": _environment(view, seg["location"]),
     }
     if c is not None:
-        rec.update({"similarity": round(c.similarity, 4), "score": c.breakdown()})
-        if c.duplicates:
-            rec["duplicates"] = c.duplicates
+        rec.update({"similarity": round(c.similarity, 4), "score": _score(c), "duplicates": c.duplicates or None})
     rec["evidence"] = [seg["id"]]
-    return rec
+    return ActivityRecord(**rec)
 
 
-def search_activities(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+@tool("search_activities", args=QueryArgs, result=ActivitiesResult, store="Activity",
+      description="Find past episodes (10 s activity records): what was done, step by step, with the actions "
+                  "before and after.")
+def search_activities(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> ActivitiesResult:
     """Episodes (10 s activity records) matching a query, with what came before and after."""
     query, k = _query(query), _k(top_k)
-    return _envelope(view, "search_activities", {"query": query, "top_k": k},
+    return _envelope(view, ActivitiesResult, "search_activities", {"query": query, "top_k": k},
                      results=_search_activities(view, query, view.embed(query), k))
 
 
-def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[ActivityRecord]:
     cands = _hybrid(view, "segment", query, q, view.config.pool)
     grounded = grounded_entities(view, query)
     if grounded:  # share of the query's objects (by kind) that the segment observed
@@ -206,14 +259,16 @@ def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> l
 
 
 # -- places ----------------------------------------------------------------------------------------
-def search_environment(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+@tool("search_environment", args=QueryArgs, result=PlacesResult, store="Environment", advertised=False,
+      description="Find places (kitchen areas) with their zones, features and the objects there now.")
+def search_environment(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> PlacesResult:
     """Places (environment memory): zones, features, how much they are used, what is there now."""
     query, k = _query(query), _k(top_k)
-    return _envelope(view, "search_environment", {"query": query, "top_k": k},
+    return _envelope(view, PlacesResult, "search_environment", {"query": query, "top_k": k},
                      results=_search_places(view, query, view.embed(query), k))
 
 
-def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[PlaceRecord]:
     cands = _hybrid(view, "place", query, q, view.config.pool)
     by_id = {p["id"]: p for p in view.places.values()}
     top = max((p["turn_count"] or 0 for p in by_id.values()), default=0)
@@ -227,14 +282,13 @@ def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[
             continue
         here = sorted((e for e in view.entities.values() if e["status"] == "active" and e["location"] == p["location_id"]),
                       key=lambda e: (-(e["n_observations"] or 0), e["id"]))
-        out.append({
-            "place_id": p["location_id"], "name": p["name"], "zones": p["zones"], "features": p["features"],
-            "turns": p["turn_count"], "first_seen": {"video": p["first_video"], "t": p["first_seen"]},
-            "last_seen": {"video": p["last_video"], "t": p["last_seen"]},
-            "objects_here": [e["name"] for e in here[:10]],
-            "similarity": round(c.similarity, 4), "score": c.breakdown(), "evidence": [p["id"]],
-            **({"duplicates": c.duplicates} if c.duplicates else {}),
-        })
+        out.append(PlaceRecord(
+            place_id=p["location_id"], name=p["name"], zones=p["zones"] or [], features=p["features"] or [],
+            turns=p["turn_count"], first_seen={"video": p["first_video"], "t": p["first_seen"]},
+            last_seen={"video": p["last_video"], "t": p["last_seen"]},
+            objects_here=[e["name"] for e in here[:10]],
+            similarity=round(c.similarity, 4), score=_score(c), evidence=[p["id"]], duplicates=c.duplicates or None,
+        ))
     return out
 
 
@@ -261,10 +315,15 @@ def _inferred_graph(view: MemoryView, cands: dict[str, Candidate], query: str) -
         c.graph = len(used & kinds) / len(kinds)
 
 
-def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> dict:
+def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> RoutineRecord:
+    steps = r["detail"].get("steps")
+    if not (isinstance(steps, list) and all(isinstance(x, dict) and isinstance(x.get("verb"), str) for x in steps)):
+        steps = None  # a processor that recorded no structured steps (or something else under that key)
     rec = {
         "routine_id": r["id"], "goal": r["goal"], "activity_type": r["activity_type"],
         "canonical_steps": [{"action": s} for s in r["canonical_steps"]],
+        "steps": [Action(verb=x["verb"], noun=str(x.get("noun") or ""), place=x.get("place") or None)
+                  for x in steps] if steps else None,
         "key_objects": [{"object": o} for o in r["key_objects"]],
         "supporting_episodes": r["supporting_episodes"], "source_videos": r["source_videos"], "count": r["count"],
         "confidence": r["confidence"],
@@ -272,92 +331,118 @@ def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> dict:
         "kind": r["source"], "processor": r["processor"],
     }
     if c is not None:
-        rec.update({"similarity": round(c.similarity, 4), "score": c.breakdown()})
-        if c.duplicates:
-            rec["duplicates"] = c.duplicates
+        rec.update({"similarity": round(c.similarity, 4), "score": _score(c), "duplicates": c.duplicates or None})
     rec["evidence"] = [r["id"], *r["supporting_episodes"]]
-    return rec
+    return RoutineRecord(**rec)
 
 
-def _preference_record(view: MemoryView, p: dict, c: Candidate | None) -> dict:
+def _preference_fields(detail: dict) -> dict:
+    """The structured fields consolidation stored with a preference (object and preferred location,
+    trigger and next action, use and what follows, the alternatives), as the record's fields."""
+    out = {}
+    for key in PREFERENCE_FIELDS:
+        value = detail.get(key)
+        if key == "alternatives":
+            ok = isinstance(value, dict) and value and all(isinstance(n, int) for n in value.values())
+        elif key in ("trigger_step", "next_step"):
+            ok = isinstance(value, dict) and isinstance(value.get("verb"), str)
+        elif key in ("trigger_count", "total"):
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        else:
+            ok = isinstance(value, str) and value != ""
+        if ok:
+            out[key] = value
+    return out
+
+
+def _preference_record(view: MemoryView, p: dict, c: Candidate | None) -> PreferenceRecord:
     rec = {
         "preference_id": p["id"], "preference": p["statement"], "subtype": p["subtype"], "keywords": p["keywords"],
-        "objects": p["objects"], "context": p["context"], "evidence_summary": p["evidence_summary"],
+        "objects": p["objects"], "context": p["context"], **_preference_fields(p["detail"]),
+        "evidence_summary": p["evidence_summary"],
         "confidence": p["confidence"], "count": p["count"], "supporting_episodes": p["supporting_episodes"],
         "source_videos": p["source_videos"],
         "source": "generated_preference" if p["source"] == "enrichment" else "consolidated_preference",
         "processor": p["processor"],
     }
     if c is not None:
-        rec.update({"similarity": round(c.similarity, 4), "score": c.breakdown()})
-        if c.duplicates:
-            rec["duplicates"] = c.duplicates
+        rec.update({"similarity": round(c.similarity, 4), "score": _score(c), "duplicates": c.duplicates or None})
     else:
         rec["similarity"] = -1
     rec["evidence"] = [p["id"], *p["supporting_episodes"]]
-    return rec
+    return PreferenceRecord(**rec)
 
 
-def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> dict:
+@tool("get_routine_skill", args=RoutineArgs, result=RoutinesResult, store="Inferred",
+      description="Routine skills for a goal: canonical steps, key objects and the episodes they come from. Call this "
+                  "first when planning.")
+def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> RoutinesResult:
     """Routine skills (goal, canonical steps, key objects, supporting episodes) for a goal."""
     query, k = _query(goal_query, "goal_query"), _k(top_k, 3)
     args = {"goal_query": query, "top_k": k}
     if not view.routines:
-        return _envelope(view, "get_routine_skill", args, routines=[],
+        return _envelope(view, RoutinesResult, "get_routine_skill", args, routines=[],
                          error="no routine skills in this memory (a MEMORA-Episodic bank, or too little repetition)")
-    return _envelope(view, "get_routine_skill", args, routines=_search_routines(view, query, view.embed(query), k))
+    return _envelope(view, RoutinesResult, "get_routine_skill", args,
+                     routines=_search_routines(view, query, view.embed(query), k))
 
 
-def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[RoutineRecord]:
     cands = _hybrid(view, "routine", query, q, view.config.pool)
     _inferred_graph(view, cands, query)
     return [_routine_record(view, view.routines[c.id], c) for c in _finish(view, "routine", cands, k) if c.id in view.routines]
 
 
-def get_preferences(view: MemoryView, query: str = "", top_k: int = 5) -> dict:
+@tool("get_preferences", args=PreferenceArgs, result=PreferencesResult, store="Inferred",
+      description="The person's preferences (where things are kept, habits, tool choices) relevant to a query, with "
+                  "their evidence.")
+def get_preferences(view: MemoryView, query: str = "", top_k: int = 5) -> PreferencesResult:
     """Preferences (storage, habit, workflow, generated) by similarity to a query, or by
     confidence when the query is empty."""
     query, k = (query or "").strip(), _k(top_k, 5)
     args = {"query": query, "top_k": k}
     if not query:
         ranked = sorted(view.preferences.values(), key=lambda p: (-p["confidence"], -p["count"], p["id"]))[:k]
-        return _envelope(view, "get_preferences", args, preferences=[_preference_record(view, p, None) for p in ranked])
-    return _envelope(view, "get_preferences", args, preferences=_search_preferences(view, query, view.embed(query), k))
+        return _envelope(view, PreferencesResult, "get_preferences", args,
+                         preferences=[_preference_record(view, p, None) for p in ranked])
+    return _envelope(view, PreferencesResult, "get_preferences", args,
+                     preferences=_search_preferences(view, query, view.embed(query), k))
 
 
-def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[PreferenceRecord]:
     cands = _hybrid(view, "preference", query, q, view.config.pool)
     _inferred_graph(view, cands, query)
     return [_preference_record(view, view.preferences[c.id], c)
             for c in _finish(view, "preference", cands, k) if c.id in view.preferences]
 
 
-def search_patterns(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> dict:
+@tool("search_patterns", args=QueryArgs, result=PatternsResult, store="Inferred",
+      description="Find consolidated patterns: storage preferences, habits, workflows, routines and recurring action "
+                  "sequences.")
+def search_patterns(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> PatternsResult:
     """Consolidated patterns: preferences, habits, workflows, routines and recurring sequences."""
     query, k = _query(query), _k(top_k)
-    return _envelope(view, "search_patterns", {"query": query, "top_k": k},
+    return _envelope(view, PatternsResult, "search_patterns", {"query": query, "top_k": k},
                      results=_search_patterns(view, query, view.embed(query), k))
 
 
-def _pattern(rec: dict, kind: str) -> dict:
-    if kind == "routine":
-        desc = rec["goal"] + (": " + "; ".join(s["action"] for s in rec["canonical_steps"]) if rec["canonical_steps"] else "")
-        category = "routine" if rec["kind"] == "routine_skill" else "action_sequence"
-        pid = rec["routine_id"]
+def _pattern(rec: RoutineRecord | PreferenceRecord) -> PatternRecord:
+    if isinstance(rec, RoutineRecord):
+        category = "routine" if rec.kind == "routine_skill" else "action_sequence"
+        pid = rec.routine_id
     else:
-        desc, category, pid = rec["preference"], rec["subtype"], rec["preference_id"]
-    return {"category": category, "pattern_id": pid, "description": desc, "source": rec["source"],
-            "supporting_episodes": rec["supporting_episodes"][:3], "confidence": rec["confidence"], "count": rec["count"],
-            "similarity": rec["similarity"], "score": rec["score"], "evidence": rec["evidence"],
-            **({"duplicates": rec["duplicates"]} if rec.get("duplicates") else {})}
+        category, pid = rec.subtype, rec.preference_id
+    return PatternRecord(category=category, pattern_id=pid, description=rec.text(), source=rec.source,
+                         supporting_episodes=rec.supporting_episodes[:3], confidence=rec.confidence, count=rec.count,
+                         similarity=rec.similarity, score=rec.score, evidence=rec.evidence, duplicates=rec.duplicates)
 
 
-def _search_patterns(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[dict]:
+def _search_patterns(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[PatternRecord]:
     if not view.routines and not view.preferences:
         return []
-    merged = [(_pattern(r, "routine"), r["score"]["fused"]) for r in _search_routines(view, query, q, k)] + \
-             [(_pattern(p, "preference"), p["score"]["fused"]) for p in _search_preferences(view, query, q, k)]
-    merged.sort(key=lambda x: (-x[1], -x[0]["similarity"], x[0]["pattern_id"]))
+    merged = [(_pattern(r), r.score.fused) for r in _search_routines(view, query, q, k)] + \
+             [(_pattern(p), p.score.fused) for p in _search_preferences(view, query, q, k)]
+    merged.sort(key=lambda x: (-x[1], -x[0].similarity, x[0].pattern_id))
     return [m for m, _ in merged[:k]]
 
 
@@ -384,13 +469,16 @@ def resolve_object(view: MemoryView, text: str) -> tuple[list[str], str]:
     return [i for i, _ in hits], "embedding"
 
 
-def get_object_history(view: MemoryView, object_query: str, max_entries: int = 60) -> dict:
+@tool("get_object_history", args=HistoryArgs, result=ObjectHistoryResult, store="Entity",
+      description="The state history of one object across videos: every state and location, moves, first and last "
+                  "seen.")
+def get_object_history(view: MemoryView, object_query: str, max_entries: int = 60) -> ObjectHistoryResult:
     """One object's state history across videos: states, locations, moves, first / last seen."""
     query = _query(object_query, "object_query")
     args = {"object_query": query, "max_entries": max_entries}
     ids, how = resolve_object(view, query)
     if not ids:
-        return _envelope(view, "get_object_history", args, found=False,
+        return _envelope(view, ObjectHistoryResult, "get_object_history", args, found=False,
                          error=f"no object matching {query!r}; try search_objects first")
     e = view.entities[ids[0]]
     rows = view.fetch("_tool_history", entity=e["id"])
@@ -417,7 +505,7 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
             if val and val not in v[key]:
                 v[key].append(val)
     return _envelope(
-        view, "get_object_history", args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
+        view, ObjectHistoryResult, "get_object_history", args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
         match_type=how, status=e["status"], current_state=e["state"], current_location=e["location"],
         all_states_observed=sorted({r["state"] for r in rows if r["state"]}),
         all_locations_observed=sorted({r["location"] for r in rows if r["location"]}),
@@ -429,7 +517,11 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
     )
 
 
-def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None = None, window: float = 60.0) -> dict:
+@tool("get_state_at_time", args=StateArgs, result=StateAtTimeResult, store="Activity",
+      description="What was where, and in which state, at a time of a video (from the state history), with the "
+                  "activity and place at that moment.")
+def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None = None,
+                      window: float = 60.0) -> StateAtTimeResult:
     """What was where, in which state, at `time_seconds` of a video, from the state history: every
     object seen in the video by then and again after (or within `window` s before), each in its
     last recorded state at that time."""
@@ -459,55 +551,24 @@ def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None =
         if not (first[ent] <= t <= last_seen[ent] + window):
             continue
         info = view.entities.get(ent, {})
-        visible.append({
+        visible.append(VisibleObject(**{
             "entity_id": ent, "object_id": info.get("object_id"), "name": info.get("name", ent),
             "state": r["state"], "location": r["location"], "zone": r["zone"] or None, "held_by": r["held_by"] or None,
             "relative_to": r["relative_to"] or None, "relation": r["relation"] or None,
             "since_seconds": r["t"], "last_action": r["action"] or None, "event_id": r["id"],
             "segment_id": segment_id(video, int(r["turn"])),
-        })
-    visible.sort(key=lambda v: (-v["since_seconds"], v["entity_id"]))
+        }))
+    visible.sort(key=lambda v: (-v.since_seconds, v.entity_id))
     turn = int(t // 10)
     seg_ids = [segment_id(video, turn)]
     segs = {s["id"]: s for s in view.fetch("_tool_segments", ids=seg_ids)}
     seg = segs.get(seg_ids[0])
     return _envelope(
-        view, "get_state_at_time", args, segment_id=seg["id"] if seg else None,
+        view, StateAtTimeResult, "get_state_at_time", args, segment_id=seg["id"] if seg else None,
         current_activity=seg["summary"] if seg else None,
         environment=_environment(view, seg["location"]) if seg else None, visible_objects=visible,
-        evidence=([seg["id"]] if seg else []) + [v["event_id"] for v in visible],
+        evidence=([seg["id"]] if seg else []) + [v.event_id for v in visible],
     )
-
-
-# -- unified ---------------------------------------------------------------------------------------
-CATEGORIES = ("objects", "activities", "places", "patterns")
-_ALIASES = {"environment": "places", "objects": "objects", "object": "objects", "activities": "activities",
-            "activity": "activities", "places": "places", "place": "places", "patterns": "patterns", "pattern": "patterns"}
-
-
-def search(view: MemoryView, query: str, category: str | None = None, top_k_per_category: int = 3) -> dict:
-    """One query over every store (objects, activities, places, patterns), top few per store.
-    Action queries get twice the activities; preference queries get three times the patterns."""
-    query, k = _query(query), _k(top_k_per_category, 3)
-    cats = CATEGORIES
-    if category:
-        if category.lower() not in _ALIASES:
-            raise ToolError(f"category must be one of: {', '.join(CATEGORIES)}")
-        cats = (_ALIASES[category.lower()],)
-    words = set(tokens(query))
-    k_of = {c: k for c in cats}
-    routing = []
-    if words & ACTION_WORDS and "activities" in k_of:
-        k_of["activities"] = min(2 * k, MAX_TOP_K)
-        routing.append("action query: 2x activities")
-    if words & PREFERENCE_WORDS and "patterns" in k_of:
-        k_of["patterns"] = min(3 * k, MAX_TOP_K)
-        routing.append("preference query: 3x patterns")
-    q = view.embed(query)
-    run = {"objects": _search_objects, "activities": _search_activities, "places": _search_places, "patterns": _search_patterns}
-    body = {c: run[c](view, query, q, k_of[c]) for c in cats}
-    return _envelope(view, "search", {"query": query, "category": category, "top_k_per_category": k},
-                     routing=routing, **body)
 
 
 __all__ = [

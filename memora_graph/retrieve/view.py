@@ -122,6 +122,10 @@ class MemoryView:
     def embed(self, text: str) -> np.ndarray:
         return self.encoder(text)
 
+    def prefetch(self, texts: list[str]) -> None:
+        """Embed the queries of a batch of calls at once (an agent response carrying several)."""
+        self.encoder.prefetch(texts)
+
     # -- loaded once ----------------------------------------------------------------------
     def vectors(self, table: str) -> VectorTable:
         cache = self.__dict__.setdefault("_vector_cache", {})

@@ -10,9 +10,10 @@ from support.scripted_server import ScriptedServer, Turn, tool_call
 
 from memora_graph.agent.loop import ModelPolicy, run_agent
 from memora_graph.agent.prompts import PREMATURE_RETRY
-from memora_graph.bench.conditions import BASELINE_SCHEMAS, MethodToolSet
+from memora_graph.baselines.flat1d import FlatHit, FlatSearchResult
 from memora_graph.bench.run import make_policy
 from memora_graph.llm import get_backend
+from memora_graph.retrieve import tool_set
 
 QUESTION = {"question_id": "q1", "participant_id": "P09", "qa_type": "SPref", "question": "What does P09 use?",
             "choices": ["a knife", "a fork", "a spoon", "a pan", "The information is not available based on the given context"],
@@ -28,12 +29,13 @@ class RecordingMemory:
 
     def search(self, query, top_k=10):
         self.calls.append(query)
-        return {"query": query, "results": [{"text": f"record about {query}", "video": "P09_101"}]}
+        return FlatSearchResult(query=query, results=[FlatHit(kind="activity", text=f"record about {query}",
+                                                              video="P09_101", time=0.0, similarity=0.5)])
 
 
 def _tools(participant="P09"):
     memory = RecordingMemory()
-    return MethodToolSet(participant, memory, {"search": BASELINE_SCHEMAS["flat_search"]}), memory
+    return tool_set("flat1d", ["search"], participant, memory), memory
 
 
 def _policy(server, **options):
@@ -146,6 +148,6 @@ def test_tool_arguments_cannot_select_another_participant(small_bank):
     from memora_graph.baselines.flat1d import Flat1DMemory
 
     path, _ = small_bank
-    toolset = MethodToolSet("P09", Flat1DMemory.load(path, "P09"), {"search": BASELINE_SCHEMAS["flat_search"]})
+    toolset = tool_set("flat1d", ["search"], "P09", Flat1DMemory.load(path, "P09"))
     out = toolset.call("search", {"query": "wash plate", "participant": "P37", "participant_id": "P37"})
-    assert out["results"] and all(r["video"].startswith("P09_") for r in out["results"])
+    assert out.results and all(r.video.startswith("P09_") for r in out.results)

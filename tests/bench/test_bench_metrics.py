@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import pytest
 
+from memora_graph.bench.aggregate import eam_scores, eam_views, planning_panel, rgp
+from memora_graph.bench.answers import extract_plan, parse_answer_letter, plan_from_result
 from memora_graph.bench.metrics import (
-    FILLER, eam_scores, eam_views, exec_score, extract_action_verb, extract_plan, has_action, has_location,
-    has_object, jaccard, key_obj, match_routine, memory_nouns, object_grounding, order_exec, order_reference,
-    parse_answer_letter, plan_from_result, planning_panel, pref_adh, rgp, score_plan, stem, tokenize,
+    exec_score, has_action, has_location, has_object, key_obj, match_routine, memory_nouns, object_grounding,
+    order_exec, order_reference, pref_adh, score_plan,
 )
+from memora_graph.bench.vocabulary import FILLER, extract_action_verb
+from memora_graph.text import jaccard, stem, tokenize
 
 CHOICES = ["Moves them into a pan", "Transfers them into a container", "Drops them in the sink",
            "Leaves them on the board", "The information is not available based on the given context"]

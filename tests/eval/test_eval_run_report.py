@@ -9,7 +9,7 @@ from statistics import mean
 import polars as pl
 from click.testing import CliRunner
 
-from memora_graph.bench.metrics import planning_panel
+from memora_graph.bench.aggregate import planning_panel
 from memora_graph.bench.report import build_report, write_report
 from memora_graph.bench.run import load_run, run_bench
 from memora_graph.cli import main

@@ -98,7 +98,7 @@ def test_no_tool_returns_another_participants_records(merged, embedder, recipe):
         seen = set()
         for name, args in _calls(view, words, videos[:2]):
             result = call_tool(view, name, args)
-            ids = _ids(result)
+            ids = _ids(result.as_json())
             leaked = {i for i in ids if not i.startswith(a)}
             assert not leaked, f"{name}({args}) for {a} returned {sorted(leaked)[:5]}"
             seen |= ids
@@ -134,29 +134,29 @@ def test_state_at_time_follows_the_hand_built_history(hand_store, embedder):
 
     def at(t):
         r = call_tool(view, "get_state_at_time", {"time_seconds": t})  # one video: no `video` needed
-        return {o["name"]: o for o in r["visible_objects"]}, r
+        return {o.name: o for o in r.visible_objects}, r
 
     objs, r = at(30)
     assert set(objs) == {"spoon", "mug", "kettle"}, "the sponge is first seen at 80 s"
-    assert (objs["mug"]["state"], objs["mug"]["location"], objs["mug"]["relative_to"], objs["mug"]["relation"]) == \
+    assert (objs["mug"].state, objs["mug"].location, objs["mug"].relative_to, objs["mug"].relation) == \
         ("placed", "sink_area", "sink", "INSIDE")
-    assert objs["kettle"]["state"] == "on" and objs["spoon"]["state"] == "placed"
-    assert r["segment_id"] == "P01_101#t0003" and r["current_activity"] == "put mug in sink."
-    assert set(r["evidence"]) >= {"P01_101#t0003", objs["mug"]["event_id"]}
+    assert objs["kettle"].state == "on" and objs["spoon"].state == "placed"
+    assert r.segment_id == "P01_101#t0003" and r.current_activity == "put mug in sink."
+    assert set(r.evidence) >= {"P01_101#t0003", objs["mug"].event_id}
 
     objs, _ = at(70)
-    assert objs["mug"]["state"] == "washed", "an entry at exactly t counts"
-    assert objs["kettle"]["state"] == "off"
+    assert objs["mug"].state == "washed", "an entry at exactly t counts"
+    assert objs["kettle"].state == "off"
 
     objs, _ = at(90)
     assert "spoon" not in objs, "last seen at 3 s: gone after the 60 s window"
-    assert objs["kettle"]["state"] == "off" and objs["sponge"]["held_by"] == "hand"
-    assert objs["mug"]["since_seconds"] == 70.0
+    assert objs["kettle"].state == "off" and objs["sponge"].held_by == "hand"
+    assert objs["mug"].since_seconds == 70.0
 
     objs, _ = at(1)
     assert objs == {}
     narrow = call_tool(view, "get_state_at_time", {"time_seconds": 90, "window": 10})
-    assert {o["name"] for o in narrow["visible_objects"]} == {"sponge"}
+    assert {o.name for o in narrow.visible_objects} == {"sponge"}
     with pytest.raises(ToolError, match="invalid arguments"):
         call_tool(view, "get_state_at_time", {"time_seconds": "soon"})
 
@@ -164,24 +164,24 @@ def test_state_at_time_follows_the_hand_built_history(hand_store, embedder):
 def test_object_history_and_transitions(hand_store, embedder):
     view = MemoryView(hand_store, "P01", embedder)
     r = call_tool(view, "get_object_history", {"object_query": "mug"})
-    assert r["match_type"] == "exact" and r["entity_id"] == "P01:mug"
-    assert [h["state"] for h in r["state_history"]] == ["held", "placed", "washed"]
-    assert [(x["from"], x["to"]) for x in r["location_transitions"]] == [("counter_area", "sink_area")]
-    assert r["all_locations_observed"] == ["counter_area", "sink_area"]
+    assert r.match_type == "exact" and r.entity_id == "P01:mug"
+    assert [h.state for h in r.state_history] == ["held", "placed", "washed"]
+    assert [(x["from"], x["to"]) for x in r.as_json()["location_transitions"]] == [("counter_area", "sink_area")]
+    assert r.all_locations_observed == ["counter_area", "sink_area"]
     miss = call_tool(view, "get_object_history", {"object_query": "helicopter"})
-    assert miss["found"] is False
+    assert miss.found is False and "helicopter" in miss.error and "state_history" not in miss.as_json()
 
 
 def test_near_duplicates_collapse_into_the_better_record(hand_store, embedder):
     view = MemoryView(hand_store, "P01", embedder)
     r = call_tool(view, "search_activities", {"query": "put the mug in the sink", "top_k": 10})
-    summaries = [x["summary"] for x in r["results"]]
+    summaries = [x.summary for x in r.results]
     assert summaries[0].startswith("put mug in sink")
     assert len({s.rstrip(".") for s in summaries}) == len(summaries), "no two near-identical records"
-    top = r["results"][0]
-    assert {top["segment_id"], *top["duplicates"]} == {"P01_101#t0002", "P01_101#t0003"}
-    blanks = [x for x in r["results"] if x["summary"] == "no narrated action"]
-    assert len(blanks) <= 1 and (not blanks or len(blanks[0]["duplicates"]) == 2)
+    top = r.results[0]
+    assert {top.segment_id, *top.duplicates} == {"P01_101#t0002", "P01_101#t0003"}
+    blanks = [x for x in r.results if x.summary == "no narrated action"]
+    assert len(blanks) <= 1 and (not blanks or len(blanks[0].duplicates) == 2)
     # the rule itself: >= 0.95 collapses, below does not
     ids = ["a", "b", "c"]
     vecs = np.array([[1.0, 0.0], [0.96, np.sqrt(1 - 0.96 ** 2)], [0.90, np.sqrt(1 - 0.90 ** 2)]])
@@ -195,7 +195,7 @@ def test_results_are_deterministic_and_json(small_bank, embedder):
     for _ in range(2):
         with MemoryView.open(path, "P37", embedder) as view:
             view.encoder.clear()
-            outs.append([call_tool(view, n, a) for n, a in [
+            outs.append([call_tool(view, n, a).as_json() for n, a in [
                 ("search", {"query": "wash the pan"}), ("search_objects", {"query": "knife", "top_k": 10}),
                 ("search_activities", {"query": "cut vegetables"}), ("search_patterns", {"query": "after washing"}),
                 ("get_routine_skill", {"goal_query": "wash pan"}), ("get_preferences", {"query": "knife"}),
@@ -210,21 +210,21 @@ def test_results_are_deterministic_and_json(small_bank, embedder):
 
 def test_registry_schemas_and_argument_checks(hand_store, embedder):
     names = [s["function"]["name"] for s in tool_schemas()]
-    assert names == ["search", "search_objects", "get_object_history", "get_state_at_time", "search_activities",
-                     "search_patterns", "get_routine_skill", "get_preferences"]
+    assert names == ["search", "search_objects", "search_activities", "get_routine_skill", "get_preferences",
+                     "search_patterns", "get_object_history", "get_state_at_time"]
     assert "search_environment" in tool_names()
     fn = tool_schemas(["get_routine_skill"])[0]
     assert fn["type"] == "function" and fn["function"]["parameters"]["required"] == ["goal_query"]
     assert fn["function"]["parameters"]["properties"]["top_k"]["default"] == 3
     view = MemoryView(hand_store, "P01", embedder)
     by_name = call_tool(view, "search_objects", {"name": "kettle", "top_k": 1})  # the paper's prompt writes name=
-    assert [o["name"] for o in by_name["results"]] == ["kettle"]
+    assert [o.name for o in by_name.results] == ["kettle"]
     with pytest.raises(ToolError, match="top_k"):
         call_tool(view, "search_objects", {"query": "kettle", "top_k": 0})
     with pytest.raises(ToolError, match="no tool 'fly'"):
         call_tool(view, "fly", {})
     episodic = call_tool(view, "get_routine_skill", {"goal_query": "boil water"})
-    assert episodic["routines"] == [] and "MEMORA-Episodic" in episodic["error"]
+    assert episodic.routines == [] and "MEMORA-Episodic" in episodic.error
 
 
 def test_tool_cli(small_bank):
