@@ -30,9 +30,11 @@ class Model(BaseModel):
     @model_serializer(mode="wrap")
     def _drop_absent(self, handler):
         data = handler(self)
+        fields = type(self).model_fields
         for key in self._optional:
-            if key in data and data[key] is None:
-                del data[key]
+            for name in (key, fields[key].alias if key in fields else None):
+                if name in data and data[name] is None:
+                    del data[name]
         return data
 
 
