@@ -329,7 +329,7 @@
           onclick: () => update({ object: id }), text: entName(id) }))) : null,
         el("div", { class: "segs" }, `supporting segments (${k.segments.length}): `, segs.map((id) => {
           const s = segById.get(id), hit = s && ((objSegs && objSegs.has(id)) || (state.place && s.place === state.place));
-          return el("span", { class: "chip" + (hit ? " hit" : ""), "data-segment": id, onclick: () => selectSegment(id),
+          return el("span", { class: "chip" + (hit ? " hit" : "") + (id === state.segment ? " current" : ""), "data-segment": id, onclick: () => selectSegment(id),
             title: s ? `${placeName(s.place)}: ${s.summary}` : id, text: s ? `${s.video} ${clock(s.t0)}` : id });
         }), k.segments.length > segs.length ? el("button", { class: "more", type: "button", onclick: () => { expanded.add(k.key); render(); } },
           `+${k.segments.length - segs.length} more`) : null));
@@ -420,9 +420,11 @@
     document.documentElement.setAttribute("data-rendered", String(Number(document.documentElement.getAttribute("data-rendered") || 0) + 1));
   }
 
+  const t0 = performance.now();
   readHash();
   renderHeader();
   render();
+  document.documentElement.setAttribute("data-render-ms", String(Math.round(performance.now() - t0)));
   window.addEventListener("hashchange", () => { readHash(); render(); });
   let resizeTimer = null;
   window.addEventListener("resize", () => { clearTimeout(resizeTimer); resizeTimer = setTimeout(render, 150); });
