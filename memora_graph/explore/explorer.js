@@ -147,7 +147,7 @@
       el("optgroup", { label: "in memory now" }, DATA.entities.filter((e) => e.status === "active").sort(byName).map(option)),
       gone.length ? el("optgroup", { label: "gone (deleted or merged)" }, gone.map(option)) : null);
     $("filter-place").replaceChildren(el("option", { value: "", text: `all places (${places.length})` }),
-      ...places.map((p) => el("option", { value: p.id, text: `${p.name} · ${p.turns} turns` })));
+      ...places.map((p) => el("option", { value: p.id, text: `${p.name} · ${DATA.segments.filter((s) => s.place === p.id).length} segments` })));
     $("filter-object").addEventListener("change", (ev) => {
       const id = ev.target.value, changes = { object: id };
       if (id && state.video && !(eventsByVideo.get(state.video) || []).some((e) => objectIds(id).has(e.entity))) changes.video = "";

@@ -128,13 +128,15 @@ def import_participant(bank_path: str | Path, source: str | Path) -> ImportResul
         bank.init(mode=dump.bank["mode"], embed_model=dump.bank["embed_model"],
                   consolidated=bool(dump.manifest.get("consolidated", False)))
         _refuse_if_held(bank, dump, source)  # again: another process may have added it meanwhile
-        os.replace(work / f"{p}.kuzu", db)
-        moved = True
+        for f in sorted(work.glob(f"{p}.kuzu*"), key=lambda f: f.name != db.name):  # and any file Kùzu keeps beside it
+            os.replace(f, bank.path / f.name)
+            moved = True
         extra = {k: dump.manifest[k] for k in ("consolidated", "inferred") if k in dump.manifest}
         bank.record_participant(p, list(dump.manifest.get("videos") or []), counts, extra={**extra, "indexes": indexes})
     except BaseException:
         if moved:  # not recorded in the manifest: take it back out
-            db.unlink(missing_ok=True)
+            for f in bank.path.glob(f"{p}.kuzu*"):
+                f.unlink(missing_ok=True)
         shutil.rmtree(work, ignore_errors=True)
         if created_bank:
             shutil.rmtree(bank.path, ignore_errors=True)
