@@ -155,3 +155,14 @@ def test_screenshot_shows_the_page(p37, tmp_path):
         assert im.size == (1400, 1000)
         colours = im.convert("RGB").resize((140, 100)).getcolors(maxcolors=100_000)
     assert len(colours) > 50  # a rendered page, not a blank one
+
+
+@needs_chromium
+def test_a_memory_without_routines_renders(p37, tmp_path):
+    _, data, stats = p37
+    data = {**data, "routines": [], "preferences": []}  # a MEMORA-Episodic build has none
+    dom = dump_dom(_page(tmp_path, data))
+    assert _root(dom)["data-errors"] == ""
+    shown = {a["data-count"]: int(a["data-value"]) for a in elements(dom, "div", **{"class": "count"})}
+    assert (shown["routines"], shown["preferences"], shown["segments"]) == (0, 0, stats["segments"])
+    assert "not consolidated" in dom and not elements(dom, "div", **{"class": "card"})

@@ -31,11 +31,14 @@ def export_cmd(bank, participant, fmt, out, embeddings, force):
       memora export banks/epic --participant P01 --format parquet --out exports/P01
       memora import banks/other P01.json
     """
+    from rich.console import Console
+
     from memora_graph.transfer import export_participant
 
     if embeddings and fmt != "graphml":
         raise click.UsageError("--embeddings applies to --format graphml (JSON and Parquet always have them)")
-    path, dump = export_participant(bank, participant, fmt, out, embeddings=embeddings, force=force)
+    with Console(stderr=True).status(f"exporting {participant} from {bank} as {fmt}"):
+        path, dump = export_participant(bank, participant, fmt, out, embeddings=embeddings, force=force)
     nodes = sum(t.frame.height for t in dump.nodes())
     rels = sum(t.frame.height for t in dump.rels())
     click.echo(f"{participant}: {nodes} nodes and {rels} relationships in {len(dump.tables)} tables -> {path}")
