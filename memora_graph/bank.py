@@ -87,7 +87,9 @@ class Bank:
         tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
         os.replace(tmp, self.manifest_path)  # atomic: never a half-written manifest
 
-    def record_participant(self, participant: str, videos: list[str], counts: dict) -> None:
+    def record_participant(self, participant: str, videos: list[str], counts: dict, extra: dict | None = None) -> None:
+        """Record a participant's database in the manifest. `extra` sets entry fields a build
+        leaves to later steps (`consolidated`, `inferred`, `indexes`): an import brings them along."""
         with self.manifest_lock():
             data = self.manifest()
             entry = {"db": f"{participant}.kuzu", "videos": sorted(videos), "counts": dict(counts)}
@@ -97,8 +99,23 @@ class Bank:
             for k in ("routines", "preferences"):
                 if k in old.get("counts", {}) and k not in counts:
                     entry["counts"][k] = old["counts"][k]
+            extra = dict(extra or {})
+            indexes = extra.pop("indexes", None)
+            entry.update(extra)
             data["participants"][participant] = entry
+            if indexes is not None:
+                self.set_indexes(data, participant, indexes)
+            if "consolidated" in extra:
+                self.set_condition(data)
             self.write_manifest(data)
+
+    @staticmethod
+    def set_condition(data: dict) -> None:
+        """The bank-level condition in a manifest `data`, from its participants' `consolidated`:
+        memora_full when all are, memora_episodic when none is, else mixed."""
+        flags = [e.get("consolidated", False) for e in data["participants"].values()]
+        data["consolidated"] = bool(flags) and all(flags)
+        data["condition"] = "memora_full" if data["consolidated"] else ("memora_episodic" if not any(flags) else "mixed")
 
     # -- optional indexes ----------------------------------------------------------------
     @staticmethod

@@ -432,9 +432,13 @@ _register_perf_video()
 
 def _register_optional_groups() -> None:
     from memora_graph.consolidate.cli import consolidate_cmd
+    from memora_graph.explore.cli import explore_cmd
     from memora_graph.retrieve.cli import perf_tools_cmd, tool_cmd, tools_cmd
+    from memora_graph.transfer.cli import export_cmd, import_cmd
 
     main.add_command(consolidate_cmd, "consolidate")
+    for cmd in (explore_cmd, export_cmd, import_cmd):  # memora explore / export / import
+        main.add_command(cmd)
     main.add_command(tools_cmd, "tools")
     main.add_command(tool_cmd, "tool")
     perf.add_command(perf_tools_cmd, "tools")

@@ -215,6 +215,27 @@ class Store:
     def migrations(self) -> list[str]:
         return self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id").get_as_pl()["m.id"].to_list()
 
+    def migration_checksums(self) -> dict[str, str]:
+        """Schema file -> checksum of what was applied (an export carries them, an import compares)."""
+        return dict(self._execute("MATCH (m:SchemaMigration) RETURN m.id, m.checksum ORDER BY m.id").get_as_pl().iter_rows())
+
+    def catalog(self) -> dict[str, dict]:
+        """The participant tables as the database defines them: name -> {"kind": "NODE" | "REL",
+        "columns": [(name, Kùzu type), ...] in table order, "pairs": [(from, to), ...] for a REL}.
+        SchemaMigration, which holds no participant data, is left out."""
+        out = {}
+        for name, kind in sorted(self.tables().items()):
+            if name == "SchemaMigration" or not _IDENT.match(name):
+                continue
+            # table_info / show_connection take a literal, not a parameter; the name comes from the catalog
+            info = self._execute(f"CALL table_info('{name}') RETURN name, type").get_as_pl()
+            entry = {"kind": kind, "columns": list(info.iter_rows()), "pairs": []}
+            if kind == "REL":
+                conn = self._execute(f"CALL show_connection('{name}') RETURN *").get_as_pl()
+                entry["pairs"] = [tuple(r[:2]) for r in conn.iter_rows()]
+            out[name] = entry
+        return out
+
 
 INDEX_KINDS = ("fts", "hnsw")
 
