@@ -58,8 +58,8 @@ def test_json_round_trip_keeps_counts_ids_and_tool_results(exported, tmp_path, e
 
     with MemoryView.open(src, "P37", embedder=embedder) as v1, MemoryView.open(dst, "P37", embedder=embedder) as v2:
         for name, args in TOOL_CALLS:
-            r1, r2 = call_tool(v1, name, args), call_tool(v2, name, args)
-            assert json.dumps(r1, sort_keys=True, default=str) == json.dumps(r2, sort_keys=True, default=str), name
+            r1, r2 = call_tool(v1, name, args).as_json(), call_tool(v2, name, args).as_json()
+            assert json.dumps(r1, sort_keys=True) == json.dumps(r2, sort_keys=True), name
             assert r1.get("results") or r1.get("routines") or r1.get("preferences") or r1.get("state_history"), name
 
     entry, source_entry = Bank(dst).manifest()["participants"]["P37"], Bank(src).manifest()["participants"]["P37"]
