@@ -1,9 +1,11 @@
-"""Query embeddings for the tools: one LRU cache per process, encoded on one torch thread.
+"""Query embeddings for the tools: one LRU cache per process, encoded on one thread.
 
-On the 2-core machines this project targets, torch's default of one intra-op thread per core
-makes a MiniLM forward pass ~2x slower (batch) to ~25x slower (one short query) than a single
-thread, because the two threads spin against each other and against Kùzu. `torch_threads(1)`
-scopes the setting to the encode call and restores it after.
+Queries go through the embedder's query encoder (memora_graph/embed.py: ONNX Runtime on one
+thread by default, no torch). Where that is PyTorch: on the 2-core machines this project
+targets, torch's default of one intra-op thread per core makes a MiniLM forward pass ~2x slower
+(batch) to ~25x slower (one short query) than a single thread, because the two threads spin
+against each other and against Kùzu. `torch_threads(1)` scopes the setting to the encode call
+and restores it after.
 """
 
 from __future__ import annotations
@@ -13,9 +15,16 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from memora_graph.embed import uses_torch
+
 
 @contextmanager
-def torch_threads(n: int = 1):
+def torch_threads(n: int = 1, embedder=None, kind: str = "query"):
+    """Torch on `n` intra-op threads within the block; with `embedder`, only where it encodes
+    `kind` texts with torch (torch is then never imported for an ONNX query encoder)."""
+    if embedder is not None and not uses_torch(embedder, kind):
+        yield
+        return
     try:
         import torch
     except ImportError:  # an embedder without torch: nothing to scope
@@ -39,7 +48,7 @@ def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndar
     if before is not None:
         inner.batch_size = min(before, batch_size)
     try:
-        with torch_threads(1):
+        with torch_threads(1, embedder, "passage"):
             return embedder.encode(texts, kind="passage")
     finally:
         if before is not None:
@@ -65,7 +74,7 @@ class QueryEncoder:
         # through the embedder's own cache when it has one (the process-wide CachedEmbedder): a
         # query asked of several memories (the seven bench conditions) or warmed by `prefetch`
         # is encoded once
-        with torch_threads(1):
+        with torch_threads(1, self.embedder):
             v = np.asarray(self.embedder.encode([text], kind="query")[0], dtype=np.float32)
         self._cache[text] = v
         if len(self._cache) > self.size:
@@ -79,12 +88,16 @@ class QueryEncoder:
         todo = list(dict.fromkeys(t for t in stripped if t and t not in self._cache))
         if not todo:
             return
-        with torch_threads(1):
+        with torch_threads(1, self.embedder):
             vecs = np.asarray(self.embedder.encode(todo, kind="query"), dtype=np.float32)
         for t, v in zip(todo, vecs):
             self._cache[t] = v
         while len(self._cache) > self.size:
             self._cache.popitem(last=False)
 
-    def clear(self) -> None:
+    def clear(self, everywhere: bool = False) -> None:
+        """Forget the cached query vectors; `everywhere`: the embedder's process-wide cache too, so
+        that the next call embeds its query (a benchmark's cold call)."""
         self._cache.clear()
+        if everywhere and hasattr(self.embedder, "clear"):
+            self.embedder.clear()
