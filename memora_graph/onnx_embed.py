@@ -144,6 +144,11 @@ def _valid(directory: Path, fingerprint: str) -> bool:
         return False
 
 
+def is_valid_export(directory: Path, model_dir: Path | None = None) -> bool:
+    """Whether `directory` holds a complete, unchanged export of the model (the bundled MiniLM)."""
+    return _valid(Path(directory), _fingerprint(Path(model_dir) if model_dir is not None else bundled_model_path()))
+
+
 @contextlib.contextmanager
 def _lock(path: Path):
     """An exclusive lock held while exporting, so that concurrent first uses export once."""
@@ -377,4 +382,4 @@ class OnnxEmbedder:
         return self._session.encode(texts)
 
 
-__all__ = ["OnnxEmbedder", "EncoderExportError", "export_dir", "cache_root", "VARIANTS"]
+__all__ = ["OnnxEmbedder", "EncoderExportError", "export_dir", "is_valid_export", "cache_root", "VARIANTS"]
