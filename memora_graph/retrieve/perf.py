@@ -212,7 +212,7 @@ def _encoder_latency(embedder, rounds: int = 3) -> list[float]:
     return out
 
 
-def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: dict) -> str:
+def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: dict, reference=None) -> str:
     """recall@10 of exact search with the query encoder's vectors against exact search with the
     PyTorch query vectors, per table; and the share of tool calls (default recipe) whose top-10
     result ids differ between the two encoders."""
@@ -221,7 +221,7 @@ def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: 
     name = embedder.inner.query_encoder
     if name == "torch":
         return "query encoder torch: the reference itself (recall@10 1.0)"
-    reference = get_embedder(query_encoder="torch")
+    reference = reference or get_embedder(query_encoder="torch")
     qs = _benchmark_queries()
     ours, theirs = embedder.inner.encode(qs, kind="query"), reference.inner.encode(qs, kind="query")
     differ = reordered = calls = 0
