@@ -70,6 +70,19 @@ def _fallback_root() -> Path:
     return Path(tempfile.gettempdir()) / f"memora-graph-{uid}"
 
 
+def _private(root: Path) -> bool:
+    """A directory in a shared temp dir is used only if it is ours and no one else can write it
+    (otherwise another user could plant a model there, manifest and all)."""
+    try:
+        root.mkdir(mode=0o700, exist_ok=True)
+        st = root.lstat()
+    except OSError:
+        return False
+    if not hasattr(os, "getuid"):
+        return True
+    return not root.is_symlink() and st.st_uid == os.getuid() and not st.st_mode & 0o022
+
+
 def _writable(root: Path) -> bool:
     try:
         root.mkdir(parents=True, exist_ok=True)
@@ -155,12 +168,12 @@ def _lock(path: Path):
     try:
         import fcntl
     except ImportError:  # not POSIX: the atomic rename alone keeps the export whole
-        yield
+        yield False
         return
     with open(path, "a+") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
         try:
-            yield
+            yield True
         finally:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
@@ -189,19 +202,22 @@ def export_dir(model_dir: Path | None = None, root: Path | None = None) -> Path:
         base = _fallback_root()
         log.warning("memora: the cache directory %s cannot be written; the ONNX query encoder is kept in %s "
                     "instead (set MEMORA_CACHE_DIR to choose another place)", primary, base)
-        if not _writable(base):
-            raise EncoderExportError(f"neither {primary} nor {base} can be written: set MEMORA_CACHE_DIR to a "
-                                     "writable directory, or MEMORA_QUERY_ENCODER=torch")
+        if not (_private(base) and _writable(base)):
+            raise EncoderExportError(f"neither {primary} nor {base} (ours alone) can be written: set "
+                                     "MEMORA_CACHE_DIR to a writable directory, or MEMORA_QUERY_ENCODER=torch")
     final = base / name
-    with _lock(base / f".{name}.lock"):
+    with _lock(base / f".{name}.lock") as locked:
         if _valid(final, fingerprint):  # another process finished it while we waited
             return final
         if final.exists():
             log.warning("memora: %s is incomplete or damaged; exporting it again", final)
             _discard(final)
+        for stale in (*base.glob(f".tmp-{name}-*"), *base.glob(f".trash-{name}-*")) if locked else ():
+            shutil.rmtree(stale, ignore_errors=True)  # left by a killed export: we hold the lock, none is running
         tmp = Path(tempfile.mkdtemp(dir=base, prefix=f".tmp-{name}-"))
         try:
             _export(model_dir, tmp, fingerprint)
+            tmp.chmod(0o755)  # mkdtemp's 0700 would hide a shared MEMORA_CACHE_DIR from other users
             os.rename(tmp, final)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)

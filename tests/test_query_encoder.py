@@ -150,14 +150,19 @@ def test_a_damaged_export_is_redone_not_loaded(export_root, tmp_path, embedder):
     root = tmp_path / "cache"
     d = _copy(good, root)
     _truncate(d)
+    killed = root / f".tmp-{d.name}-x1y2z3"  # what an export killed half-way leaves behind
+    killed.mkdir()
+    (killed / VARIANTS["fp32"]).write_bytes(b"half")
     enc = OnnxEmbedder(variant="int8", root=root)
+    assert not killed.exists()
     assert enc.directory == d and is_valid_export(d)
     assert (d / VARIANTS["int8"]).stat().st_size == (good / VARIANTS["int8"]).stat().st_size
     assert json.loads((d / "manifest.json").read_text())["files"][VARIANTS["int8"]]["mtime_ns"] != \
         json.loads((good / "manifest.json").read_text())["files"][VARIANTS["int8"]]["mtime_ns"]  # written anew
     ref = embedder.inner.passage.encode(SENTENCES[:4], kind="query")
     assert (enc.encode(SENTENCES[:4]) * ref).sum(1).min() > 0.995
-    assert [p.name for p in root.iterdir() if p.is_dir()] == [d.name]  # the bad copy is gone
+    assert [p.name for p in root.iterdir() if p.is_dir()] == [d.name]  # the bad copy and the leftover are gone
+    assert oct(d.stat().st_mode & 0o777) == oct(0o755)
 
 
 def test_unwritable_cache_falls_back_to_the_temp_dir_with_a_note(export_root, tmp_path, monkeypatch, caplog):
@@ -174,6 +179,12 @@ def test_unwritable_cache_falls_back_to_the_temp_dir_with_a_note(export_root, tm
     assert d.parent == fallback and is_valid_export(d)
     assert "cannot be written" in caplog.text and str(fallback) in caplog.text
     assert not (blocker / "cache").exists()
+
+    shutil.rmtree(fallback)
+    fallback.mkdir()
+    fallback.chmod(0o777)  # another user could have planted a model here: not used
+    with pytest.raises(onnx_embed.EncoderExportError, match="MEMORA_CACHE_DIR"):
+        export_dir()
 
 
 def test_the_setting_switches_the_query_encoder(cache_env, monkeypatch):
