@@ -200,6 +200,22 @@ def adaptive_threads(embedder, governor: ThreadGovernor | None = None) -> Iterat
 # PyTorch model, whose vectors the banks store; each query encoder below maps into that same
 # space, and recall@10 measures how closely (`memora perf encoders`). The default model only:
 # another MEMORA_EMBED_MODEL embeds its queries with torch too.
+#
+# `memora perf encoders` on a 4-participant bank (P01-P04), 56 benchmark queries x 3, one thread;
+# CPU ms = this thread's CPU time per query (what an idle machine's wall time would be: the
+# machine was shared, load 4-5 on 2 cores, so wall times were ~1.5-2x that):
+#
+# | encoder                      | CPU ms p50 / p95 | recall@10 | import      | first use      |
+# |------------------------------|------------------|-----------|-------------|----------------|
+# | torch                        | 13.6 / 15.3      | 1.0       | torch+st 2+ s | model load   |
+# | onnx (fp32)                  | 3.2 / 4.4        | 1.0       | ort+tok 0.1 s | export ~17 s once |
+# | onnx-int8 (8-bit weights)    | 2.7 / 4.0        | 0.994     | ort+tok 0.1 s | export ~17 s once |
+# | rejected: ORT quantize_dynamic int8 | 1.4 / 2.1 | 0.92 (0.96 per-channel, 0.97 with SmoothQuant) | | |
+# | rejected: model2vec distilled from MiniLM | 0.12 | 0.80 | | distill ~4 min |
+#
+# Passages in batches of 32 on one thread (how build workers embed): torch and ONNX fp32 embed
+# at the same rate (23.9 vs 23.8 texts/s on the bank's segment texts, shared machine), so
+# passages stay on torch: the stored vectors stay exactly those of existing banks.
 QUERY_ENCODERS = {
     "onnx-int8": "MiniLM in ONNX Runtime, 8-bit weights in blocks of 32 (recall@10 0.99)",
     "onnx": "MiniLM in ONNX Runtime, fp32 (recall@10 1.0)",
