@@ -201,21 +201,22 @@ def adaptive_threads(embedder, governor: ThreadGovernor | None = None) -> Iterat
 # space, and recall@10 measures how closely (`memora perf encoders`). The default model only:
 # another MEMORA_EMBED_MODEL embeds its queries with torch too.
 #
-# `memora perf encoders` on a 4-participant bank (P01-P04), 56 benchmark queries x 3, one thread;
-# CPU ms = this thread's CPU time per query (what an idle machine's wall time would be: the
-# machine was shared, load 4-5 on 2 cores, so wall times were ~1.5-2x that):
+# `memora perf encoders` on a 4-participant bank (P01-P04): 56 benchmark queries x 3, one thread,
+# each query outside every cache; CPU = this thread's CPU time per query. The machine was shared
+# (load average 4-6 on 2 cores), so wall times ran up to ~2x CPU; recall@10 of exact search with
+# the encoder's query vectors against exact search with the torch query vectors, all 5 tables:
 #
-# | encoder                      | CPU ms p50 / p95 | recall@10 | import      | first use      |
-# |------------------------------|------------------|-----------|-------------|----------------|
-# | torch                        | 13.6 / 15.3      | 1.0       | torch+st 2+ s | model load   |
-# | onnx (fp32)                  | 3.2 / 4.4        | 1.0       | ort+tok 0.1 s | export ~17 s once |
-# | onnx-int8 (8-bit weights)    | 2.7 / 4.0        | 0.994     | ort+tok 0.1 s | export ~17 s once |
-# | rejected: ORT quantize_dynamic int8 | 1.4 / 2.1 | 0.92 (0.96 per-channel, 0.97 with SmoothQuant) | | |
-# | rejected: model2vec distilled from MiniLM | 0.12 | 0.80 | | distill ~4 min |
+#   encoder                        CPU ms p50/p95   recall@10   import     first use
+#   torch                          15.2 / 17.6      1.0         ~2-10 s    model load 0.15 s
+#   onnx (fp32)                     4.3 / 5.8       1.0         0.27 s     export 16 s once, then 0.2 s
+#   onnx-int8 (8-bit weights)       2.3 / 3.7       0.994       0.27 s     the same export
+#   rejected: quantize_dynamic int8 1.4 / 2.1       0.92 (0.96 per channel, 0.97 with SmoothQuant)
+#   rejected: model2vec distilled   0.12            0.80        (distillation ~4 min)
 #
-# Passages in batches of 32 on one thread (how build workers embed): torch and ONNX fp32 embed
-# at the same rate (23.9 vs 23.8 texts/s on the bank's segment texts, shared machine), so
-# passages stay on torch: the stored vectors stay exactly those of existing banks.
+# onnx-int8 changes the top-10 ids of 3.8% of the benchmark's tool calls (onnx: none). Passages in
+# batches of 32 run at the same rate in torch and ONNX fp32 (15.4 vs 16.0 texts/s on one thread,
+# 34.8 vs 30.2 on two, the bank's segment texts), so passages stay on torch and the stored vectors
+# stay exactly those of existing banks.
 QUERY_ENCODERS = {
     "onnx-int8": "MiniLM in ONNX Runtime, 8-bit weights in blocks of 32 (recall@10 0.99)",
     "onnx": "MiniLM in ONNX Runtime, fp32 (recall@10 1.0)",

@@ -398,4 +398,4 @@ class OnnxEmbedder:
         return self._session.encode(texts)
 
 
-__all__ = ["OnnxEmbedder", "EncoderExportError", "export_dir", "is_valid_export", "cache_root", "VARIANTS"]
+__all__ = ["VARIANTS", "EncoderExportError", "OnnxEmbedder", "cache_root", "export_dir", "is_valid_export"]

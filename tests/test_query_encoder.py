@@ -21,8 +21,8 @@ from memora_graph.onnx_embed import VARIANTS, OnnxEmbedder, export_dir, is_valid
 
 SENTENCES = ["knife", "bowl", "wash the dishes", "cut vegetables on the board", "where are the knives kept",
              "what happens after washing a plate", "spatula or fork for eggs", "take milk from the fridge",
-             "pour water into the kettle", "", "a considerably longer sentence about putting every clean plate "
-             "back into the cupboard above the sink once the drying rack is full"]
+             "pour water into the kettle", "", ("a considerably longer sentence about putting every clean plate "
+                                                "back into the cupboard above the sink once the drying rack is full")]
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -42,7 +42,7 @@ def cache_env(export_root, monkeypatch):
 
 def _run(code: str, **env) -> str:
     out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=600,
-                         env={**os.environ, "PYTHONPATH": str(REPO), **env})
+                         check=False, env={**os.environ, "PYTHONPATH": str(REPO), **env})
     assert out.returncode == 0, out.stderr
     return out.stdout
 

@@ -38,7 +38,7 @@ def _import_seconds(stmt: str, runs: int = 3) -> float:
 
 def _pct(xs: list[float], p: float) -> float:
     xs = sorted(xs)
-    return xs[min(len(xs) - 1, max(0, int(round(p * (len(xs) - 1)))))]
+    return xs[min(len(xs) - 1, max(0, round(p * (len(xs) - 1))))]
 
 
 def _latency(encode, queries: list[str], rounds: int) -> tuple[list[float], list[float]]:
@@ -163,4 +163,4 @@ def perf_encoders_cmd(bank, participants, rounds, export, fmt):
             click.echo(line)
 
 
-__all__ = ["run_encoder_perf", "perf_encoders_cmd"]
+__all__ = ["perf_encoders_cmd", "run_encoder_perf"]
