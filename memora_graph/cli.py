@@ -434,6 +434,7 @@ def _register_optional_groups() -> None:
     from memora_graph.consolidate.cli import consolidate_cmd
     from memora_graph.explore.cli import explore_cmd
     from memora_graph.retrieve.cli import perf_tools_cmd, tool_cmd, tools_cmd
+    from memora_graph.retrieve.perf_encoders import perf_encoders_cmd
     from memora_graph.transfer.cli import export_cmd, import_cmd
 
     main.add_command(consolidate_cmd, "consolidate")
@@ -442,6 +443,7 @@ def _register_optional_groups() -> None:
     main.add_command(tools_cmd, "tools")
     main.add_command(tool_cmd, "tool")
     perf.add_command(perf_tools_cmd, "tools")
+    perf.add_command(perf_encoders_cmd, "encoders")
     try:
         from memora_graph.bench.cli import bench_group
     except ImportError:

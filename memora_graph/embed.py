@@ -99,7 +99,6 @@ class CachedEmbedder:
     def __init__(self, inner: Embedder):
         self.inner = inner
         self.name = inner.name
-        self.dim = inner.dim
         self._cache: dict[bytes, np.ndarray] = {}
         self.encoded = 0
         self.seconds = 0.0
@@ -108,9 +107,15 @@ class CachedEmbedder:
     def _key(kind: str, text: str) -> bytes:
         return hashlib.blake2b(f"{kind}\x00{text}".encode(), digest_size=16).digest()
 
-    def encode(self, texts: list[str], kind: str = "passage") -> np.ndarray:
-        import time
+    @property
+    def dim(self) -> int:  # asked of the inner embedder only when needed: it may load a model
+        return self.inner.dim
 
+    def clear(self) -> None:
+        """Forget every cached vector (a benchmark's 'cold' call must embed its query)."""
+        self._cache.clear()
+
+    def encode(self, texts: list[str], kind: str = "passage") -> np.ndarray:
         keys = [self._key(kind, t) for t in texts]
         todo: dict[bytes, str] = {}
         for k, t in zip(keys, texts):
@@ -191,7 +196,12 @@ def adaptive_threads(embedder, governor: ThreadGovernor | None = None) -> Iterat
 
 
 @contextmanager
-def torch_threads(n: int = 1):
+def torch_threads(n: int = 1, embedder=None, kind: str = "query"):
+    """Torch on `n` intra-op threads within the block; with `embedder`, only where it encodes
+    `kind` texts with torch (torch is then never imported for an ONNX query encoder)."""
+    if embedder is not None and not uses_torch(embedder, kind):
+        yield
+        return
     try:
         import torch
     except ImportError:  # an embedder without torch: nothing to scope
@@ -215,19 +225,128 @@ def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndar
     if before is not None:
         inner.batch_size = min(before, batch_size)
     try:
-        with torch_threads(1):
+        with torch_threads(1, embedder, "passage"):
             return embedder.encode(texts, kind="passage")
     finally:
         if before is not None:
             inner.batch_size = before
 
 
-_DEFAULT: dict[str, CachedEmbedder] = {}
+# -- query encoders ----------------------------------------------------------------------------
+# How a tool's query is embedded. Passages (builds, consolidation) are always embedded by the
+# PyTorch model, whose vectors the banks store; each query encoder below maps into that same
+# space, and recall@10 measures how closely (`memora perf encoders`). The default model only:
+# another MEMORA_EMBED_MODEL embeds its queries with torch too.
+#
+# `memora perf encoders` on a 4-participant bank (P01-P04): 56 benchmark queries x 3, one thread,
+# each query outside every cache; CPU = this thread's CPU time per query. The machine was shared
+# (load average 4-6 on 2 cores), so wall times ran up to ~2x CPU; recall@10 of exact search with
+# the encoder's query vectors against exact search with the torch query vectors, all 5 tables:
+#
+#   encoder                        CPU ms p50/p95   recall@10   import     first use
+#   torch                          15.2 / 17.6      1.0         ~2-10 s    model load 0.15 s
+#   onnx (fp32)                     4.3 / 5.8       1.0         0.27 s     export 16 s once, then 0.2 s
+#   onnx-int8 (8-bit weights)       2.3 / 3.7       0.994       0.27 s     the same export
+#   rejected: quantize_dynamic int8 1.4 / 2.1       0.92 (0.96 per channel, 0.97 with SmoothQuant)
+#   rejected: model2vec distilled   0.12            0.80        (distillation ~4 min)
+#
+# onnx-int8 changes the top-10 ids of 3.8% of the benchmark's tool calls (onnx: none). Passages in
+# batches of 32 run at the same rate in torch and ONNX fp32 (15.4 vs 16.0 texts/s on one thread,
+# 34.8 vs 30.2 on two, the bank's segment texts), so passages stay on torch and the stored vectors
+# stay exactly those of existing banks.
+QUERY_ENCODERS = {
+    "onnx-int8": "MiniLM in ONNX Runtime, 8-bit weights in blocks of 32 (recall@10 0.99)",
+    "onnx": "MiniLM in ONNX Runtime, fp32 (recall@10 1.0)",
+    "torch": "MiniLM in PyTorch through sentence-transformers, the passage model itself",
+}
+DEFAULT_QUERY_ENCODER = "onnx-int8"
 
 
-def get_embedder(model: str | None = None) -> CachedEmbedder:
-    """The process-wide cached embedder for a model (MEMORA_EMBED_MODEL or the MiniLM default)."""
+def query_encoder_setting(choice: str | None = None, model: str = DEFAULT_MODEL) -> str:
+    """The query encoder to use: `choice`, else MEMORA_QUERY_ENCODER, else the default (torch for a
+    model other than the bundled MiniLM)."""
+    name = (choice or os.environ.get("MEMORA_QUERY_ENCODER") or "").strip().lower()
+    if not name:
+        return DEFAULT_QUERY_ENCODER if model == DEFAULT_MODEL else "torch"
+    if name not in QUERY_ENCODERS:
+        raise MemoraError(f"unknown query encoder {name!r} (MEMORA_QUERY_ENCODER); choose one of: "
+                          + ", ".join(QUERY_ENCODERS))
+    if name != "torch" and model != DEFAULT_MODEL:
+        raise MemoraError(f"query encoder {name!r} exists for the default model {DEFAULT_MODEL} only, not {model!r}; "
+                          "use MEMORA_QUERY_ENCODER=torch")
+    return name
+
+
+class SplitEmbedder:
+    """Passages through the PyTorch model, queries through the chosen query encoder; each is
+    loaded on first use, so a process that only embeds queries never imports torch."""
+
+    def __init__(self, model: str = DEFAULT_MODEL, query_encoder: str | None = None):
+        self.name = model
+        self.query_encoder = query_encoder_setting(query_encoder, model)
+        self._passage: SentenceTransformerEmbedder | None = None
+        self._query = None
+
+    @property
+    def passage(self) -> SentenceTransformerEmbedder:
+        if self._passage is None:
+            self._passage = SentenceTransformerEmbedder(self.name)
+        return self._passage
+
+    @property
+    def query(self) -> Embedder:
+        if self._query is None:
+            if self.query_encoder == "torch":
+                self._query = self.passage
+            else:
+                from memora_graph.onnx_embed import OnnxEmbedder
+
+                self._query = OnnxEmbedder(variant="int8" if self.query_encoder == "onnx-int8" else "fp32")
+        return self._query
+
+    def uses_torch(self, kind: str) -> bool:
+        return kind != "query" or self.query_encoder == "torch"
+
+    @property
+    def dim(self) -> int:
+        return (self._passage or self._query or self.passage).dim  # the stored vectors' width
+
+    # build-time knobs (`encode_passages`, `adaptive_threads`) belong to the passage model
+    @property
+    def batch_size(self) -> int:
+        return self.passage.batch_size
+
+    @batch_size.setter
+    def batch_size(self, n: int) -> None:
+        self.passage.batch_size = n
+
+    @property
+    def threads(self):
+        return self.passage.threads
+
+    @threads.setter
+    def threads(self, fn) -> None:
+        self.passage.threads = fn
+
+    def encode(self, texts: list[str], kind: str = "passage") -> np.ndarray:
+        return (self.query if kind == "query" else self.passage).encode(texts, kind=kind)
+
+
+def uses_torch(embedder, kind: str) -> bool:
+    """Whether encoding `kind` texts with this embedder runs PyTorch (torch thread settings matter)."""
+    inner = getattr(embedder, "inner", embedder)
+    check = getattr(inner, "uses_torch", None)
+    return check(kind) if check is not None else isinstance(inner, SentenceTransformerEmbedder)
+
+
+_DEFAULT: dict[tuple[str, str], CachedEmbedder] = {}
+
+
+def get_embedder(model: str | None = None, query_encoder: str | None = None) -> CachedEmbedder:
+    """The process-wide cached embedder for a model (MEMORA_EMBED_MODEL or the MiniLM default),
+    with its queries embedded by `query_encoder` (MEMORA_QUERY_ENCODER or the default)."""
     name = model or os.environ.get("MEMORA_EMBED_MODEL", DEFAULT_MODEL)
-    if name not in _DEFAULT:
-        _DEFAULT[name] = CachedEmbedder(SentenceTransformerEmbedder(name))
-    return _DEFAULT[name]
+    key = (name, query_encoder_setting(query_encoder, name))
+    if key not in _DEFAULT:
+        _DEFAULT[key] = CachedEmbedder(SplitEmbedder(name, key[1]))
+    return _DEFAULT[key]

@@ -112,8 +112,9 @@ def prefetch_queries(texts: list[str]) -> None:
     process-wide embedding cache)."""
     texts = list(dict.fromkeys(texts))
     if texts:
-        with torch_threads(1):
-            get_embedder().encode(texts, kind="query")
+        embedder = get_embedder()
+        with torch_threads(1, embedder):
+            embedder.encode(texts, kind="query")
 
 
 def top_k(matrix: np.ndarray, query: np.ndarray, k: int, mask: np.ndarray | None = None,

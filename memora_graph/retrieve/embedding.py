@@ -1,10 +1,11 @@
-"""Query embeddings for the tools: one LRU cache per process, encoded on one torch thread
-(`memora_graph.embed.torch_threads`).
+"""Query embeddings for the tools: one LRU cache per process, encoded on one thread.
 
-On the 2-core machines this project targets, torch's default of one intra-op thread per core
-makes a MiniLM forward pass ~2x slower (batch) to ~25x slower (one short query) than a single
-thread, because the two threads spin against each other and against Kùzu. `torch_threads(1)`
-scopes the setting to the encode call and restores it after.
+Queries go through the embedder's query encoder (memora_graph/embed.py: ONNX Runtime on one
+thread by default, no torch). Where that is PyTorch: on the 2-core machines this project
+targets, torch's default of one intra-op thread per core makes a MiniLM forward pass ~2x slower
+(batch) to ~25x slower (one short query) than a single thread, because the two threads spin
+against each other and against Kùzu. `torch_threads(1)` (memora_graph/embed.py) scopes the setting to
+the encode call and restores it after.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class QueryEncoder:
         # through the embedder's own cache when it has one (the process-wide CachedEmbedder): a
         # query asked of several memories (the seven bench conditions) or warmed by `prefetch`
         # is encoded once
-        with torch_threads(1):
+        with torch_threads(1, self.embedder):
             v = np.asarray(self.embedder.encode([text], kind="query")[0], dtype=np.float32)
         self._cache[text] = v
         if len(self._cache) > self.size:
@@ -49,12 +50,16 @@ class QueryEncoder:
         todo = list(dict.fromkeys(t for t in stripped if t and t not in self._cache))
         if not todo:
             return
-        with torch_threads(1):
+        with torch_threads(1, self.embedder):
             vecs = np.asarray(self.embedder.encode(todo, kind="query"), dtype=np.float32)
         for t, v in zip(todo, vecs):
             self._cache[t] = v
         while len(self._cache) > self.size:
             self._cache.popitem(last=False)
 
-    def clear(self) -> None:
+    def clear(self, everywhere: bool = False) -> None:
+        """Forget the cached query vectors; `everywhere`: the embedder's process-wide cache too, so
+        that the next call embeds its query (a benchmark's cold call)."""
         self._cache.clear()
+        if everywhere and hasattr(self.embedder, "clear"):
+            self.embedder.clear()
