@@ -225,7 +225,7 @@ def test_a_tool_call_embeds_its_query_without_importing_torch(small_bank, cache_
         from memora_graph.retrieve import MemoryView, call_tool
         with MemoryView.open({str(path)!r}, 'P37') as view:
             r = call_tool(view, 'search_objects', {{'query': 'bowl'}})
-            assert r['results'], r
+            assert r.results, r
             call_tool(view, 'search_activities', {{'query': 'wash the dishes'}})
             n = view.encoder.misses
         heavy = [m for m in ('torch', 'transformers', 'sentence_transformers') if m in sys.modules]

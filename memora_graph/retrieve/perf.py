@@ -259,8 +259,9 @@ def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: 
 _ID_KEYS = ("segment_id", "object_id", "place_id", "pattern_id", "routine_id", "preference_id", "event_id", "entity_id")
 
 
-def _result_ids(result: dict) -> list[tuple[str, list]]:
+def _result_ids(result) -> list[tuple[str, list]]:
     """Every ranked list of a tool result as its top-10 record ids (and a resolved entity)."""
+    result = result.as_json()
     out: list[tuple[str, list]] = [("entity", [result["entity_id"]])] if "entity_id" in result else []
     for key, value in result.items():
         if isinstance(value, list) and value and isinstance(value[0], dict):
