@@ -26,6 +26,7 @@ class StepAction(_Record):
     verb: str
     noun: str = ""
     place: str = ""
+    instrument: str = ""  # the object it is done with ("wash spoon with sponge")
 
 
 class StoragePreference(_Record):
@@ -142,6 +143,7 @@ class GeneratedPreference(_Record):
     entities: list[str] = Field(default_factory=list)
     alternatives: dict[str, int] = Field(default_factory=dict)
     videos: dict[str, int] = Field(default_factory=dict)
+    actions: list[StepAction] = Field(default_factory=list)  # what it is about as classes (a tool: verb, target, tool)
 
 
 class Enrichment(_Record):

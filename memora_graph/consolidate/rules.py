@@ -19,7 +19,7 @@ from collections import Counter, defaultdict
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.memory import ParticipantMemory, Step, display
 from memora_graph.consolidate.records import (
-    ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, OrganizationalHabit, RoutineSkill,
+    ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, OrganizationalHabit, RoutineSkill, StepAction,
     StoragePreference, VideoConsolidation, WorkflowPattern,
 )
 from memora_graph.sequences import lcs_length
@@ -532,4 +532,5 @@ class RuleEnricher:
             evidence_summary=f"{len(steps)} narrated actions in {len(videos)} video(s), e.g. \"{example.narration}\" ({example.segment})",
             supporting_evidence_ids=segments, entities=_uniq(o.entity for s in steps for o in s.objects if o.kind in (tool, *targets)),
             alternatives=alternatives, videos=dict(sorted(videos.items())),
+            actions=[StepAction(verb=verb, noun=t, instrument=tool) for t in targets],
         )

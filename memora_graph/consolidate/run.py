@@ -203,7 +203,9 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
         c.preference("pref", ("generated", g.subtype, g.preference), subtype=g.subtype, statement=g.preference,
                      keywords=g.keywords, objects=g.objects, context=g.context, episodes=g.supporting_evidence_ids,
                      entities=g.entities, videos=g.videos, count=g.count, confidence=g.confidence, source="enrichment",
-                     evidence_summary=g.evidence_summary, detail={"alternatives": g.alternatives})
+                     evidence_summary=g.evidence_summary,
+                     detail={"alternatives": g.alternatives,
+                             **({"actions": [x.model_dump() for x in g.actions]} if g.actions else {})})
     c.out.calls = _calls_since(processors, call_mark, memory.participant)
     c.out.steps = [r for r in (processors.reports or [])[report_mark:] if r.participant == memory.participant]
     c.out.seconds = {"consolidation": round(t1 - t0, 3), "enrichment": round(t2 - t1, 3),
