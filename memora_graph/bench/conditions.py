@@ -90,7 +90,7 @@ class BankSet:
 
 
 MEMORA_EPISODIC_TOOLS = ("search", "search_objects", "get_object_history", "get_state_at_time", "search_activities",
-                         "search_patterns")
+                         "get_video_activities", "search_patterns")
 MEMORA_FULL_TOOLS = MEMORA_EPISODIC_TOOLS + ("get_routine_skill", "get_preferences")
 GRAPH_TOOLS = ("search", "get_object_history", "get_state_at_time")
 

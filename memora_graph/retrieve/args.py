@@ -65,3 +65,10 @@ class RoutineArgs(ToolArgs):
 class PreferenceArgs(ToolArgs):
     query: QueryText = Field("", description="What the preference is about; empty returns the most confident ones.")
     top_k: int = Field(5, ge=1, le=MAX_TOP_K, description="How many preferences to return.")
+
+
+class VideoArgs(ToolArgs):
+    video: str = Field(validation_alias=AliasChoices("video", "video_id"), description="The video id, e.g. P03_101.")
+    query: QueryText = Field("", description="Only the moments about this (an object or an action); empty: the "
+                                             "whole video, evenly sampled.")
+    top_k: int = Field(MAX_TOP_K, ge=1, le=MAX_TOP_K, description="How many activity records to return.")

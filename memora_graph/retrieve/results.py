@@ -65,15 +65,18 @@ class TimePoint(Model):
 
 
 class Action(Model):
-    """One action as (verb, noun) EPIC-KITCHENS class keys, with where it happened when known."""
+    """One action as (verb, noun) EPIC-KITCHENS class keys, with where it happened (or went) and
+    what it was done with, when known."""
 
-    _optional = frozenset({"place"})
+    _optional = frozenset({"place", "instrument"})
     verb: str
     noun: str = ""
     place: str | None = None
+    instrument: str | None = None
 
     def text(self) -> str:
-        return f"{self.verb} {self.noun}".strip() + (f" at {self.place}" if self.place else "")
+        return f"{self.verb} {self.noun}".strip() + (f" with {self.instrument}" if self.instrument else "") + \
+            (f" at {self.place}" if self.place else "")
 
 
 # -- entity memory ------------------------------------------------------------------------------
@@ -317,7 +320,7 @@ class RoutineRecord(Record):
         return self.goal + (": " + "; ".join(s.action for s in self.canonical_steps) if self.canonical_steps else "")
 
 
-PREFERENCE_FIELDS = ("object", "preferred_location", "place", "trigger", "next_action", "trigger_step", "next_step",
+PREFERENCE_FIELDS = ("object", "preferred_location", "place", "trigger", "next_action", "trigger_step", "next_step", "actions",
                      "use", "then", "alternatives", "trigger_count", "total")
 
 
@@ -340,6 +343,7 @@ class PreferenceRecord(Record):
     next_action: str | None = None
     trigger_step: Action | None = None  # a habit's trigger and next action as (verb, noun, place) classes
     next_step: Action | None = None
+    actions: list[Action] | None = None  # what a generated preference is about (a tool: verb, target, tool)
     use: str | None = None
     then: str | None = None
     alternatives: dict[str, int] | None = None
@@ -492,6 +496,24 @@ class ObjectHistoryResult(MemoraResult):
     last_seen: TimePoint | None = None
     other_matches: list[OtherMatch] | None = None
     evidence: list[str] | None = None
+    notes: list[str] | None = None
+
+
+class ObjectCount(Model):
+    name: str
+    kind: str
+    segments: int
+
+
+class VideoActivitiesResult(MemoraResult):
+    """One video's activity log: its records in time order, and the objects handled most in it."""
+
+    _lists = ("results",)
+    video: str
+    duration: float | None = None
+    segments: int
+    objects: list[ObjectCount]
+    results: list[ActivityRecord]
     notes: list[str] | None = None
 
 

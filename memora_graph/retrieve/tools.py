@@ -24,13 +24,13 @@ import numpy as np
 from memora_graph.perceive.vocab import PLACE_NAMES
 from memora_graph.records import segment_id
 from memora_graph.retrieve.args import (
-    HistoryArgs, ObjectArgs, PreferenceArgs, QueryArgs, RoutineArgs, SearchArgs, StateArgs,
+    HistoryArgs, ObjectArgs, PreferenceArgs, QueryArgs, RoutineArgs, SearchArgs, StateArgs, VideoArgs,
 )
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import (
     Action, ActivitiesResult, ActivityRecord, ObjectHistoryResult, ObjectRecord, ObjectsResult, PatternRecord,
     PatternsResult, PlaceRecord, PlacesResult, PreferenceRecord, PreferencesResult, RoutineRecord, RoutinesResult,
-    Score, SearchResult, StateAtTimeResult, VisibleObject, PREFERENCE_FIELDS,
+    ObjectCount, Score, SearchResult, StateAtTimeResult, VideoActivitiesResult, VisibleObject, PREFERENCE_FIELDS,
 )
 from memora_graph.retrieve.search import DEFAULT_TOP_K, MAX_TOP_K, Candidate, dedup, fuse, rank
 from memora_graph.retrieve.view import MemoryView, ToolError
@@ -258,6 +258,47 @@ def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> l
     return [_activity_record(view, rows[c.id], rows, c) for c in kept if c.id in rows]
 
 
+@tool("get_video_activities", args=VideoArgs, result=VideoActivitiesResult, store="Activity",
+      description="One video's activity log in time order: the moments about an object or action (query), or the "
+                  "whole video evenly sampled, with the objects handled most in it.")
+def get_video_activities(view: MemoryView, video: str, query: str = "", top_k: int = MAX_TOP_K) -> VideoActivitiesResult:
+    """The activity records of one video, in time order: those closest to `query` (vector and the
+    objects it names), or evenly spaced over the video; with the objects handled in most of its
+    segments."""
+    k = _k(top_k, MAX_TOP_K)
+    if video not in view.videos:
+        raise ToolError(f"no video {video!r} in {view.participant}'s memory (has: {', '.join(sorted(view.videos))})")
+    query = (query or "").strip()
+    rows = view.fetch("_tool_video_segments", video=video)
+    by_id = {r["id"]: r for r in rows}
+    if query and rows:
+        q = view.embed(query)
+        vt = view.vectors("segment")
+        grounded = grounded_entities(view, query)
+        kinds = {view.entities[e]["kind"] for e in grounded}
+
+        def relevance(r: dict) -> float:
+            v = vt.vec(r["id"])
+            sim = float(v @ q) if v is not None else 0.0
+            seen = {view.entities[e]["kind"] for e in view.graph.segment_entities.get(r["id"], ()) if e in view.entities}
+            return sim + (len(seen & kinds) / len(kinds) if kinds else 0.0)
+
+        chosen = sorted(sorted(rows, key=lambda r: (-relevance(r), r["turn"]))[:k], key=lambda r: r["turn"])
+    else:
+        step = max(1, -(-len(rows) // k))
+        chosen = rows[::step][:k]
+    counts: Counter[str] = Counter()
+    for r in rows:
+        for e in view.graph.segment_entities.get(r["id"], ()):
+            counts[e] += 1
+    objects = [ObjectCount(name=view.entities[e]["name"], kind=view.entities[e]["kind"], segments=n)
+               for e, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])) if e in view.entities][:15]
+    info = view.videos[video]
+    return _envelope(view, VideoActivitiesResult, "get_video_activities", {"video": video, "query": query, "top_k": k},
+                     video=video, duration=info.get("duration"), segments=len(rows), objects=objects,
+                     results=[_activity_record(view, r, by_id, None) for r in chosen])
+
+
 # -- places ----------------------------------------------------------------------------------------
 @tool("search_environment", args=QueryArgs, result=PlacesResult, store="Environment", advertised=False,
       description="Find places (kitchen areas) with their zones, features and the objects there now.")
@@ -346,13 +387,25 @@ def _preference_fields(detail: dict) -> dict:
             ok = isinstance(value, dict) and value and all(isinstance(n, int) for n in value.values())
         elif key in ("trigger_step", "next_step"):
             ok = isinstance(value, dict) and isinstance(value.get("verb"), str)
+        elif key == "actions":
+            ok = isinstance(value, list) and bool(value) and all(isinstance(a, dict) and isinstance(a.get("verb"), str)
+                                                                  for a in value)
         elif key in ("trigger_count", "total"):
             ok = isinstance(value, int) and not isinstance(value, bool)
         else:
             ok = isinstance(value, str) and value != ""
         if ok:
-            out[key] = value
+            out[key] = _drop_blank(value)
     return out
+
+
+def _drop_blank(value):
+    """A stored step's empty fields ("place": "") are absent, not empty strings."""
+    if isinstance(value, dict) and "verb" in value:
+        return {k: v for k, v in value.items() if v != ""}
+    if isinstance(value, list):
+        return [_drop_blank(v) for v in value]
+    return value
 
 
 def _preference_record(view: MemoryView, p: dict, c: Candidate | None) -> PreferenceRecord:
