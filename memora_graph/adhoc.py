@@ -73,11 +73,13 @@ def bind_params(statement: Statement, params: dict, participant: str) -> dict:
 
 
 def run_query(bank_path: str | Path, cypher: str, params: dict | None = None, participant: str | None = None,
-              write: bool = False, timeout: float = DEFAULT_TIMEOUT, memory_mb: int = MEMORY_MB) -> pl.DataFrame:
+              write: bool = False, timeout: float = DEFAULT_TIMEOUT, memory_mb: int = MEMORY_MB,
+              grace: float = GRACE_SECONDS) -> pl.DataFrame:
     """Run one ad-hoc statement over a bank and return its rows (every participant's, concatenated,
     unless one is chosen). Read-only unless `write`, which needs exactly one participant and
     allows data writes only. Raises QueryRefused before anything runs, QueryTimeout past
-    `timeout` seconds, StoreError / BankError for what Kùzu or the bank reports."""
+    `timeout` seconds (the child is killed `grace` seconds later if Kùzu cannot interrupt the
+    query), StoreError / BankError for what Kùzu or the bank reports."""
     statement = check_query(cypher, write=write)
     if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not math.isfinite(timeout) \
             or not 0 < timeout <= MAX_TIMEOUT:
@@ -87,7 +89,7 @@ def run_query(bank_path: str | Path, cypher: str, params: dict | None = None, pa
     bank = Bank(bank_path)
     pids = resolve_participants(bank, participant, params, write)
     jobs = [(p, bind_params(statement, params, p)) for p in pids]
-    return _in_child(str(bank.path), jobs, statement.text, write, float(timeout), memory_mb)
+    return _in_child(str(bank.path), jobs, statement.text, write, float(timeout), memory_mb, grace)
 
 
 # -- the child process ----------------------------------------------------------------------------
@@ -96,19 +98,20 @@ def run_query(bank_path: str | Path, cypher: str, params: dict | None = None, pa
 # child imports the caller's main module again, which a script without a main guard would run.
 
 
-def _in_child(bank_path: str, jobs: list, cypher: str, write: bool, timeout: float, memory_mb: int) -> pl.DataFrame:
+def _in_child(bank_path: str, jobs: list, cypher: str, write: bool, timeout: float, memory_mb: int,
+              grace: float = GRACE_SECONDS) -> pl.DataFrame:
     import pickle
     import subprocess
     import sys
 
     root = str(Path(__file__).resolve().parents[1])  # this checkout's memora_graph, whatever the caller's path
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
-    request = pickle.dumps((bank_path, jobs, cypher, write, timeout, memory_mb))
+    request = pickle.dumps((bank_path, jobs, cypher, write, timeout, memory_mb, grace))
     child = subprocess.Popen([sys.executable, "-m", "memora_graph.adhoc"], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     try:
         # the child stops itself at the time limit; this is the backstop, start-up included
-        out, err = child.communicate(request, timeout=timeout + GRACE_SECONDS + STARTUP_SECONDS)
+        out, err = child.communicate(request, timeout=timeout + grace + STARTUP_SECONDS)
     except subprocess.TimeoutExpired:
         child.kill()
         child.communicate()
@@ -169,8 +172,8 @@ def _child_main() -> None:
 
     reply = _Reply(os.fdopen(os.dup(1), "wb"))
     os.dup2(2, 1)  # anything printed (by Kùzu or a library) goes to stderr, not into the reply
-    bank_path, jobs, cypher, write, timeout, memory_mb = pickle.loads(sys.stdin.buffer.read())
-    _watch(reply, time.monotonic() + timeout + GRACE_SECONDS, timeout, memory_mb, write)
+    bank_path, jobs, cypher, write, timeout, memory_mb, grace = pickle.loads(sys.stdin.buffer.read())
+    _watch(reply, time.monotonic() + timeout + grace, timeout, memory_mb, write)
     deadline = time.monotonic() + timeout
     try:
         bank = Bank(bank_path)

@@ -251,6 +251,8 @@ def check_writable(path: str | Path) -> Path:
             pass
     except OSError as exc:
         raise BankError(f"{p}: cannot write here ({exc.strerror or exc}: {parent})") from exc
-    if (p / MANIFEST).exists() and not os.access(p / MANIFEST, os.W_OK):
-        raise BankError(f"{p / MANIFEST}: not writable")
+    if (p / MANIFEST).exists():
+        Bank(p).manifest()  # a damaged manifest fails now too
+        if not os.access(p / MANIFEST, os.W_OK):
+            raise BankError(f"{p / MANIFEST}: not writable")
     return p

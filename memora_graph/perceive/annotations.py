@@ -10,6 +10,7 @@ from __future__ import annotations
 import ast
 import functools
 import math
+import operator
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -148,9 +149,12 @@ def load_video_info(folder: Path) -> pl.DataFrame:
 
 
 def _int(text: str) -> int | None:
-    if not re.fullmatch(r"-?\d{1,18}", text.strip()):  # at most 18 digits: any more is no frame or class
+    if len(text) > 19:  # more digits than a frame or a class can have (10^30 frames)
         return None
-    return int(text)
+    try:
+        return int(text)
+    except ValueError:
+        return None
 
 
 def _float(text: str) -> float | None:
@@ -173,8 +177,14 @@ def _seconds(ts: str) -> float | None:
 
 
 def _parse_list(text: str, kind: type) -> list | None:
+    parsed = _literal_list(text, kind)
+    return None if parsed is None else list(parsed)
+
+
+@functools.lru_cache(maxsize=8192)  # the same few hundred lists recur across 37k rows
+def _literal_list(text: str, kind: type) -> tuple | None:
     if text == "":
-        return []
+        return ()
     if len(text) > 100_000:
         return None
     try:
@@ -183,13 +193,16 @@ def _parse_list(text: str, kind: type) -> list | None:
         return None
     if not isinstance(value, list) or not all(type(v) is kind for v in value):
         return None
-    return value
+    return tuple(value)
 
 
 def noun_phrase(noun: str) -> str:
     """EPIC writes 'container:plastic' for 'plastic container'; read it as English."""
     parts = [p for p in noun.replace("_", " ").split(":") if p]
     return " ".join(reversed(parts)) if parts else noun
+
+
+_CONTENT = operator.itemgetter(*[c for c in REQUIRED_COLUMNS if c != "narration_id"])  # a row but its id
 
 
 def _check_row(r: dict, classes: ClassTables, videos: dict, problems: _Problems, first_id: dict,
@@ -204,7 +217,7 @@ def _check_row(r: dict, classes: ClassTables, videos: dict, problems: _Problems,
             add(col, r[col], "empty")
     if before != len(problems.items):
         return None
-    key = tuple(v for k, v in r.items() if k not in ("row", "narration_id"))
+    key = _CONTENT(r)
     if key in first_row:
         add("narration_id", r["narration_id"], f"the same action as row {first_row[key]} (every other column is equal)")
         return None

@@ -23,7 +23,7 @@ def _arg_value(spec, name: str, raw: str):
         return raw
     try:
         return json.loads(raw)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):  # too deeply nested: let validation refuse the text
         return raw
 
 

@@ -173,3 +173,110 @@ BAD_PARAMS = [
     ("x", "{}"), ("x", "99999999999999999999999999"), ("x", "Infinity"), ("x", "NaN"), ("x", "-Infinity"),
     ("x", "[[1], [2, [3]]]"), ("x", '{"": 1}'), ("x", '[' * 9 + ']' * 9), ("bad name", "1"), ("1x", "1"),
 ]
+
+
+# Manifests a bank can be left with (hand edits, a disk filling up, another program): name -> bytes.
+BAD_MANIFESTS = {
+    "not JSON": b"{not json",
+    "a JSON list": b"[]",
+    "a JSON string": b'"manifest"',
+    "a JSON number": b"42",
+    "JSON null": b"null",
+    "empty": b"",
+    "binary": bytes(range(256)),
+    "deeply nested": b"[" * 100000 + b"]" * 100000,
+    "no participants": b'{"format": 1}',
+    "participants a list": b'{"format": 1, "participants": ["P09"]}',
+    "a participant not a map": b'{"format": 1, "participants": {"P09": 5}}',
+    "a bad participant id": b'{"format": 1, "participants": {"../../etc": {"counts": {}}}}',
+    "counts not a map": b'{"format": 1, "participants": {"P09": {"counts": [1, 2]}}}',
+    "unknown format": b'{"format": 99, "participants": {}}',
+    "format a list": b'{"format": [1], "participants": {}}',
+}
+
+
+def bad_cli_inputs(bank: str, scratch: str) -> list[tuple[str, list[str]]]:
+    """(what, argv) of bad parameters and bad paths for every command that takes them. `bank` is
+    a good bank (P09, P37); `scratch` a directory with `afile` (a file), `empty/` (an empty
+    directory), `orphan/` (a database file but no manifest) and `damaged-NAME/` banks whose
+    manifest is BAD_MANIFESTS[NAME]."""
+    cases: list[tuple[str, list[str]]] = []
+    q = "MATCH (e:Entity) WHERE e.participant = $participant RETURN count(e) AS n"
+    for name, value in BAD_PARAMS:
+        cases.append((f"query -p {name} {value[:20]}", ["query", bank, "RETURN $x AS x", "-p", name, value,
+                                                       "--participant", "P09"]))
+        cases.append((f"run -p {name} {value[:20]}", ["run", bank, "object_history", "-p", name, value,
+                                                     "-p", "object", "plate"]))
+    bad_ids = ("", " ", "P9", "p09", "P099", "../P09", "P09;", "*", "\u0000", "P09,,x")
+    for value in (*bad_ids, "P11", "all", "P09,P37"):  # the last three: no one id, or not in this bank
+        cases.append((f"query --participant {value!r}", ["query", bank, q, "--participant", value]))
+        cases.append((f"stats --participant {value!r}", ["stats", bank, "--participant", value]))
+        cases.append((f"tool --participant {value!r}", ["tool", bank, "search", "plate", "--participant", value]))
+    for value in (*bad_ids, ","):
+        cases.append((f"index --participants {value!r}", ["index", bank, "--fts", "--participants", value]))
+        cases.append((f"build --participants {value!r}", ["build", f"{scratch}/never", "--participants", value,
+                                                          "--quiet"]))
+    cases.append(("index --participants P11", ["index", bank, "--fts", "--participants", "P11"]))
+    cases += [
+        ("query conflicting participants", ["query", bank, q, "-p", "participant", "P37", "--participant", "P09"]),
+        ("query --write without participant", ["query", bank, "CREATE (:Participant {id: 'X'})", "--write"]),
+        ("query param given twice", ["query", bank, q, "-p", "participant", "P09", "-p", "participant", "P09"]),
+        ("query unused param", ["query", bank, "RETURN 1 AS a", "-p", "y", "1", "--participant", "P09"]),
+        ("query missing param", ["query", bank, "RETURN $y AS a", "--participant", "P09"]),
+        ("query empty", ["query", bank, ""]),
+        ("query only a comment", ["query", bank, "// nothing"]),
+        ("query syntax error", ["query", bank, "MATCH (x) RETRUN x", "--participant", "P09"]),
+        ("query unknown table", ["query", bank, "MATCH (x:Nope) RETURN x", "--participant", "P09"]),
+        ("query huge", ["query", bank, "RETURN '" + "x" * 40000 + "' AS a"]),
+        ("query deep", ["query", bank, "RETURN " + "(" * 5000 + "1" + ")" * 5000]),
+        ("query nested CASE", ["query", bank, "RETURN " + "CASE WHEN true THEN " * 25 + "1" + " END" * 25]),
+        ("query timeout 0", ["query", bank, "RETURN 1 AS a", "--timeout", "0"]),
+        ("query timeout nan", ["query", bank, "RETURN 1 AS a", "--timeout", "nan"]),
+        ("query timeout text", ["query", bank, "RETURN 1 AS a", "--timeout", "soon"]),
+        ("run unknown query", ["run", bank, "no_such_query"]),
+        ("run missing param", ["run", bank, "object_history", "-p", "participant", "P09"]),
+        ("run unknown param", ["run", bank, "videos", "-p", "participant", "P09", "-p", "nope", "1"]),
+        ("tool unknown", ["tool", bank, "no_such_tool", "x", "--participant", "P09"]),
+        ("tool time Infinity", ["tool", bank, "get_state_at_time", "Infinity", "--participant", "P09", "--arg", "video",
+                                "P09_104"]),
+        ("tool time NaN", ["tool", bank, "get_state_at_time", "NaN", "--participant", "P09", "--arg", "video",
+                           "P09_104"]),
+        ("tool time -Infinity", ["tool", bank, "get_state_at_time", "-Infinity", "--participant", "P09"]),
+        ("tool time negative", ["tool", bank, "get_state_at_time", "--participant", "P09", "--arg", "time_seconds",
+                                "-5", "--arg", "video", "P09_104"]),
+        ("tool time 1e400", ["tool", bank, "get_state_at_time", "1e400", "--participant", "P09", "--arg", "video",
+                             "P09_104"]),
+        ("tool time a list", ["tool", bank, "get_state_at_time", "[1]", "--participant", "P09"]),
+        ("tool window Infinity", ["tool", bank, "get_state_at_time", "10", "--participant", "P09", "--arg", "video",
+                                  "P09_104", "--arg", "window", "Infinity"]),
+        ("tool unknown video", ["tool", bank, "get_state_at_time", "10", "--participant", "P09", "--arg", "video",
+                                "P99_999"]),
+        ("tool top_k 0", ["tool", bank, "search_objects", "plate", "--participant", "P09", "--arg", "top_k", "0"]),
+        ("tool top_k text", ["tool", bank, "search_objects", "plate", "--participant", "P09", "--arg", "top_k", "x"]),
+        ("tool top_k nested", ["tool", bank, "search_objects", "plate", "--participant", "P09", "--arg", "top_k",
+                               "[" * 100000]),
+        ("tool unknown arg", ["tool", bank, "search_objects", "plate", "--participant", "P09", "--arg", "nope", "1"]),
+        ("tool query nested", ["tool", bank, "get_state_at_time", "--participant", "P09", "--arg", "time_seconds",
+                               "[" * 100000]),
+        ("build empty bank path", ["build", "", "--participants", "P09", "--quiet"]),
+        ("build blank bank path", ["build", "  ", "--participants", "P09", "--quiet"]),
+        ("build under a file", ["build", f"{scratch}/afile/bank", "--participants", "P09", "--quiet"]),
+        ("build in /proc", ["build", "/proc/memora-bank", "--participants", "P09", "--quiet"]),
+        ("build annotations /etc/passwd", ["build", f"{scratch}/never", "--annotations", "/etc/passwd", "--quiet"]),
+        ("build annotations binary", ["build", f"{scratch}/never", "--annotations", "/bin/sh", "--quiet"]),
+        ("build annotations empty", ["build", f"{scratch}/never", "--annotations", f"{scratch}/afile", "--quiet"]),
+        ("build unknown participant", ["build", f"{scratch}/never", "--participants", "P99", "--quiet"]),
+        ("perf build empty participants", ["perf", "build", "--participants", ","]),
+    ]
+    for path in ("", "/nonexistent", "/etc", "/etc/passwd", f"{scratch}/afile", f"{scratch}/empty", f"{scratch}/orphan",
+                 *(f"{scratch}/damaged-{n}" for n in BAD_MANIFESTS)):
+        cases += [
+            (f"stats {path}", ["stats", path]),
+            (f"query {path}", ["query", path, "RETURN 1 AS a"]),
+            (f"run {path}", ["run", path, "videos"]),
+            (f"tool {path}", ["tool", path, "search", "plate", "--participant", "P09"]),
+            (f"index {path}", ["index", path, "--fts"]),
+        ]
+        if path.startswith(f"{scratch}/damaged-"):
+            cases.append((f"build into {path}", ["build", path, "--participants", "P09", "--quiet"]))
+    return cases
