@@ -108,7 +108,10 @@ class Store:
         string as they are, and polars would carry them until something panics on them."""
         import pyarrow as pa
 
-        table = result.get_as_arrow(chunk_size=-1)
+        try:
+            table = result.get_as_arrow(chunk_size=-1)
+        except RuntimeError as exc:  # a statement that fails while its rows are fetched
+            raise translate_error(exc, self.path) from exc
         try:
             table.validate(full=True)
         except pa.ArrowInvalid as exc:
