@@ -193,7 +193,7 @@ _KIND = {"narration_id": "narration_id", "participant_id": "participant_id", "vi
          "noun": "text", "noun_class": "class", "all_nouns": "list", "all_noun_classes": "list"}
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                   HealthCheck.too_slow])
 @given(st.lists(st.fixed_dictionaries({c: _CELL[_KIND[c]] for c in REQUIRED_COLUMNS}), min_size=1, max_size=3))
 def test_no_generated_row_makes_the_loader_traceback(tmp_path, rows):
