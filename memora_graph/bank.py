@@ -211,7 +211,6 @@ class Bank:
         return out
 
 
-
 def parse_participants(text: object, option: str = "--participants") -> list[str] | None:
     """A comma-separated participant list ('P01,P02') as ids, or None for 'all'. An empty list
     ('', ',') is an error, not everyone."""

@@ -117,10 +117,9 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     if backend != "offline":
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
+    from memora_graph.bank import parse_participants
     from memora_graph.form.build import decision_shares
     from memora_graph.pipeline import build_bank
-
-    from memora_graph.bank import parse_participants
 
     pids = parse_participants(participants)
     progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -214,12 +213,10 @@ def index(bank, fts, hnsw, participants, fmt):
       memora index banks/epic --fts
       memora index banks/epic --fts --hnsw --participants P01
     """
-    from memora_graph.bank import Bank
+    from memora_graph.bank import Bank, parse_participants
 
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
-    from memora_graph.bank import parse_participants
-
     pids = parse_participants(participants)
     done = Bank(bank).build_indexes(pids, fts=fts, hnsw=hnsw)
     rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),
@@ -250,7 +247,7 @@ def query(bank, cypher, params, participant, write, timeout, fmt):
       memora query banks/epic "MATCH (p:Place) WHERE p.participant = \\$participant RETURN p.name, p.turn_count" -p participant P01
       memora query banks/epic "MATCH (e:Entity) RETURN e.participant, count(*) AS n" --csv
       memora query banks/epic "CALL show_tables() RETURN name, type" --participant P01
-      memora query banks/epic "MATCH (e:Entity {object_id: 'plate'}) SET e.note = 'mine'" --participant P01 --write
+      memora query banks/epic "MATCH (e:Entity {object_id: 'plate'}) SET e.state = 'clean'" --participant P01 --write
     """
     from memora_graph.adhoc import run_query
 
@@ -290,9 +287,8 @@ def run(bank, name, params, fmt):
       memora run banks/epic places_most_used --json
     """
     from memora_graph.bank import Bank
-    from memora_graph.queries import get_query
-
     from memora_graph.cypher_guard import check_participant
+    from memora_graph.queries import get_query
 
     q = get_query(name)
     bound = _params(params)
@@ -365,9 +361,8 @@ def perf_build(bank_dir, participants, episodic, fts, jobs):
     import os
     import tempfile
 
-    from memora_graph.pipeline import build_bank
-
     from memora_graph.bank import parse_participants
+    from memora_graph.pipeline import build_bank
 
     pids = parse_participants(participants)
     load_before = os.getloadavg()
