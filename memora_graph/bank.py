@@ -46,10 +46,19 @@ class Bank:
             raise BankError(f"{self.path}: no memory bank here (no {MANIFEST}). Build one with `memora build {self.path}`.")
         try:
             data = json.loads(self.manifest_path.read_text())
-        except json.JSONDecodeError as exc:
-            raise BankError(f"{self.manifest_path}: damaged manifest ({exc})") from exc
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+            raise BankError(f"{self.manifest_path}: damaged manifest ({type(exc).__name__}: {exc})") from exc
+        except OSError as exc:
+            raise BankError(f"{self.manifest_path}: cannot be read ({exc.strerror or exc})") from exc
+        if not isinstance(data, dict):
+            raise BankError(f"{self.manifest_path}: damaged manifest (a JSON {type(data).__name__}, not an object)")
         if data.get("format") != FORMAT:
             raise BankError(f"{self.manifest_path}: unknown bank format {data.get('format')!r}")
+        parts = data.get("participants")
+        if not isinstance(parts, dict) or not all(isinstance(k, str) and _PID.match(k) and isinstance(v, dict)
+                                                  and isinstance(v.get("counts", {}), dict) for k, v in parts.items()):
+            raise BankError(f"{self.manifest_path}: damaged manifest ('participants' is not a map of participant ids "
+                            "to their records)")
         return data
 
     def init(self, mode: str, embed_model: str, consolidated: bool) -> dict:
@@ -218,3 +227,48 @@ class Bank:
                           for r in store.rows("object_registry", participant=p)]
         return out
 
+
+def parse_participants(text: object, option: str = "--participants") -> list[str] | None:
+    """A comma-separated participant list ('P01,P02') as ids, or None for 'all'. An empty list
+    ('', ',') is an error, not everyone."""
+    if not isinstance(text, str):
+        raise BankError(f"{option}: expected participant ids like P01,P02 or 'all', not {text!r}")
+    if text.strip().lower() == "all":
+        return None
+    pids = [p.strip() for p in text.split(",") if p.strip()]
+    if not pids:
+        raise BankError(f"{option}: no participant given (ids like P01,P02, or 'all')")
+    bad = [p for p in pids if not _PID.match(p)]
+    if bad:
+        raise BankError(f"{option}: {bad[0]!r} is not a participant id like P01")
+    return list(dict.fromkeys(pids))
+
+
+def check_writable(path: str | Path) -> Path:
+    """Refuse a bank path that a build could not write, before any slow work (loading a model):
+    an empty path, a file, or a directory (or its nearest existing parent) where no file can
+    be created."""
+    import tempfile
+
+    if not isinstance(path, (str, Path)) or not str(path).strip():
+        raise BankError("the bank path is empty; name a directory, e.g. banks/epic")
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise BankError(f"{p}: exists and is not a directory; a bank is a directory")
+    parent = p
+    while not parent.exists():
+        if parent.parent == parent:
+            break
+        parent = parent.parent
+    if not parent.is_dir():
+        raise BankError(f"{p}: cannot be created: {parent} is a file, not a directory")
+    try:
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=".memora-write-check-"):
+            pass
+    except OSError as exc:
+        raise BankError(f"{p}: cannot write here ({exc.strerror or exc}: {parent})") from exc
+    if (p / MANIFEST).exists():
+        Bank(p).manifest()  # a damaged manifest fails now too
+        if not os.access(p / MANIFEST, os.W_OK):
+            raise BankError(f"{p / MANIFEST}: not writable")
+    return p

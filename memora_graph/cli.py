@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import statistics
 import sys
 
@@ -23,15 +22,10 @@ class _Group(click.Group):
             raise click.ClickException(str(exc)) from exc
 
 
-def _parse_value(text: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
-
 def _params(pairs) -> dict:
-    return {k: _parse_value(v) for k, v in pairs}
+    from memora_graph.cypher_guard import parse_params
+
+    return parse_params(pairs)
 
 
 param_option = click.option(
@@ -123,10 +117,11 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     if backend != "offline":
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
+    from memora_graph.bank import parse_participants
     from memora_graph.stats import decision_shares
     from memora_graph.pipeline import build_bank
 
-    pids = None if participants.strip().lower() == "all" else [p.strip() for p in participants.split(",") if p.strip()]
+    pids = parse_participants(participants)
     progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                         disable=quiet, transient=False)
     task = {}
@@ -218,11 +213,11 @@ def index(bank, fts, hnsw, participants, fmt):
       memora index banks/epic --fts
       memora index banks/epic --fts --hnsw --participants P01
     """
-    from memora_graph.bank import Bank
+    from memora_graph.bank import Bank, parse_participants
 
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
-    pids = None if participants.strip().lower() == "all" else [p.strip() for p in participants.split(",") if p.strip()]
+    pids = parse_participants(participants)
     done = Bank(bank).build_indexes(pids, fts=fts, hnsw=hnsw)
     rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),
              "seconds": round(r["seconds"], 1)} for p, r in done.items()]
@@ -234,26 +229,30 @@ def index(bank, fts, hnsw, participants, fmt):
 @click.argument("cypher")
 @param_option
 @click.option("--participant", help="Only this participant's database (default: every participant, concatenated).")
-@click.option("--write", is_flag=True, help="Allow writes (the default is read-only).")
+@click.option("--write", is_flag=True, help="Allow data writes (CREATE, MERGE, SET, DELETE, REMOVE) to the one "
+                                            "--participant; never files, extensions or the schema.")
+@click.option("--timeout", type=float, default=30.0, show_default=True, metavar="SECONDS",
+              help="Stop the query after this long.")
 @output_options
-def query(bank, cypher, params, participant, write, fmt):
-    """Run ad-hoc Cypher over a bank (read-only unless --write).
+def query(bank, cypher, params, participant, write, timeout, fmt):
+    """Run one ad-hoc Cypher statement over a bank (read-only unless --write).
+
+    The statement must be one read query (MATCH, OPTIONAL MATCH, UNWIND, WITH, RETURN, or CALL of
+    a read-only procedure such as show_tables); COPY, LOAD, EXPORT, ATTACH, extensions, schema
+    and transaction statements are refused before anything runs. $participant is bound to the
+    participant whose database is read unless -p participant says otherwise.
 
     \b
     Examples:
       memora query banks/epic "MATCH (p:Place) WHERE p.participant = \\$participant RETURN p.name, p.turn_count" -p participant P01
       memora query banks/epic "MATCH (e:Entity) RETURN e.participant, count(*) AS n" --csv
+      memora query banks/epic "CALL show_tables() RETURN name, type" --participant P01
+      memora query banks/epic "MATCH (e:Entity {object_id: 'plate'}) SET e.state = 'clean'" --participant P01 --write
     """
-    from memora_graph.bank import Bank
+    from memora_graph.adhoc import run_query
 
-    b = Bank(bank)
-    bound = _params(params)
-    pids = [participant] if participant else ([bound["participant"]] if "participant" in bound else b.participants())
-    frames = []
-    for p in pids:
-        with b.open(p, read_only=not write) as store:
-            frames.append(store.query(cypher, bound))
-    click.echo(render(pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame(), fmt))
+    click.echo(render(run_query(bank, cypher, _params(params), participant=participant, write=write, timeout=timeout),
+                      fmt))
 
 
 @main.command("queries")
@@ -288,11 +287,14 @@ def run(bank, name, params, fmt):
       memora run banks/epic places_most_used --json
     """
     from memora_graph.bank import Bank
+    from memora_graph.cypher_guard import check_participant
     from memora_graph.queries import get_query
 
     q = get_query(name)
     bound = _params(params)
     b = Bank(bank)
+    if "participant" in bound:
+        check_participant(bound["participant"], "-p participant")
     if "participant" in q.params and "participant" not in bound:
         df = b.run_each(name, **bound)
     else:
@@ -324,11 +326,12 @@ def stats(bank, participant, calls, fmt):
     """
     from memora_graph.stats import bank_stats, call_stats
 
+    one = None if participant is None else [participant]  # --participant "" is an error, not everyone
     if calls:
-        df = call_stats(bank, [participant] if participant else None, by=calls)
+        df = call_stats(bank, one, by=calls)
         click.echo(render(df, fmt) if not df.is_empty() or fmt != "table" else "no model calls recorded in this bank")
         return
-    df = bank_stats(bank, [participant] if participant else None)
+    df = bank_stats(bank, one)
     click.echo(render(df, fmt))
     if fmt == "table" and df.height > 1:
         ratios = [r for r in df["compression"].to_list() if r]
@@ -358,9 +361,10 @@ def perf_build(bank_dir, participants, episodic, fts, jobs):
     import os
     import tempfile
 
+    from memora_graph.bank import parse_participants
     from memora_graph.pipeline import build_bank
 
-    pids = None if participants == "all" else participants.split(",")
+    pids = parse_participants(participants)
     load_before = os.getloadavg()
     others = _OtherCPU()
     with tempfile.TemporaryDirectory() as tmp:

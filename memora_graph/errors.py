@@ -24,3 +24,13 @@ class BankError(MemoraError):
 class ConsolidationError(MemoraError):
     """Offline consolidation produced nothing usable (every model step failed); the participant's
     inferred knowledge is left as it was."""
+
+
+class QueryRefused(QueryError):
+    """An ad-hoc Cypher statement (or a parameter) the read guard will not send to Kùzu: it
+    writes, touches files, extensions or other databases, or is not exactly one statement.
+    The message names the clause refused and why (memora_graph/cypher_guard.py)."""
+
+
+class QueryTimeout(StoreError):
+    """An ad-hoc query ran past its time limit and was stopped; nothing it did was kept."""

@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from memora_graph.bank import Bank
+from memora_graph.bank import Bank, check_writable
 from memora_graph.consolidate import finish_participant
 from memora_graph.embed import ThreadGovernor, adaptive_threads, get_embedder
 from memora_graph.errors import DataError
@@ -151,6 +151,9 @@ def build_bank(
     per batch (ThreadGovernor); workers embed on one thread each, which on 2 cores beats two
     threads spinning against each other."""
     t_start = time.perf_counter()
+    if participants is not None and not list(participants):
+        raise DataError("no participants given: name some (P01,P02), or pass None for every participant")
+    check_writable(bank_path)  # before anything slow: a path no build can write fails now, not after the model loads
     out = BankBuild()
     t0 = time.perf_counter()
     df = load_annotations(annotations, participants=participants)
@@ -161,6 +164,8 @@ def build_bank(
     classes = load_class_tables(meta)
     durations = dict(load_video_info(meta).select("video_id", "duration").iter_rows())
     found = sorted(df["participant_id"].unique().to_list())
+    if not found:
+        raise DataError(f"{annotations or 'bundled annotations'}: no actions to build")
     if participants:
         missing = sorted(set(participants) - set(found))
         if missing:
@@ -371,7 +376,7 @@ def build_from_video(
     from memora_graph.embed import torch_threads
 
     t_start = time.perf_counter()
-    bank = Bank(bank_path)
+    bank = Bank(check_writable(bank_path))
     bank.db_path(participant)  # a bad participant id fails before any work
     files = list_videos(video)
     if video_id and len(files) > 1:

@@ -16,7 +16,7 @@ from pathlib import Path
 import kuzu
 import polars as pl
 
-from memora_graph.errors import StoreError
+from memora_graph.errors import QueryTimeout, StoreError
 from memora_graph.paths import SCHEMA_DIR
 from memora_graph.queries import NamedQuery, bind, get_query
 
@@ -39,6 +39,9 @@ def translate_error(exc: Exception, path: Path, cypher: str | None = None) -> St
         if "cannot create an empty database" in low:
             return StoreError(f"{path}: no database here (nothing to open read-only). Build it first with `memora build`.")
         return StoreError(f"{path}: this database is open read-only; pass --write to allow writes.")
+    if low.strip() == "interrupted.":  # Connection.set_query_timeout ran out (or interrupt())
+        return QueryTimeout(f"{path}: the query ran past its time limit and was stopped; nothing it did was kept "
+                            "(narrow it, or give it more time with --timeout SECONDS)")
     if "parser exception" in low:
         detail = msg.split("Parser exception:", 1)[-1].strip()
         return StoreError(f"Cypher syntax error: {detail}")
@@ -93,19 +96,45 @@ class Store:
             return self._conn.execute(cypher, params or {})
         except RuntimeError as exc:
             raise translate_error(exc, self.path, cypher) from exc
+        except (TypeError, ValueError, OverflowError) as exc:  # a parameter value Kùzu cannot convert
+            raise StoreError(f"{self.path}: Kùzu cannot bind these parameters ({exc})") from exc
+
+    def _damaged(self, exc: Exception) -> StoreError:
+        return StoreError(f"{self.path}: the database returned text that is not valid UTF-8 ({exc}); it is damaged. "
+                          "Delete it and rebuild the participant with `memora build`.")
+
+    def _frame(self, result) -> pl.DataFrame:
+        """A result as a polars frame, its text checked: Kùzu hands over the bytes of a damaged
+        string as they are, and polars would carry them until something panics on them."""
+        import pyarrow as pa
+
+        try:
+            table = result.get_as_arrow(chunk_size=-1)
+        except RuntimeError as exc:  # a statement that fails while its rows are fetched
+            raise translate_error(exc, self.path) from exc
+        try:
+            table.validate(full=True)
+        except pa.ArrowInvalid as exc:
+            raise self._damaged(exc) from exc
+        return pl.from_arrow(table)
+
+    def set_timeout(self, seconds: float | None) -> None:
+        """Stop each later query after `seconds` (Kùzu interrupts it: QueryTimeout); None: never."""
+        self._conn.set_query_timeout(0 if seconds is None else max(1, int(seconds * 1000)))
 
     def query(self, cypher: str, params: dict | None = None) -> pl.DataFrame:
-        """Ad-hoc Cypher (the `memora query` path); writes fail unless opened read-write."""
+        """Cypher from the library and tests (the `memora query` path goes through the read guard
+        first, memora_graph/adhoc.py); writes fail unless opened read-write."""
         result = self._execute(cypher, params)
         if isinstance(result, list):  # several statements: keep the last result
             result = result[-1]
-        return result.get_as_pl()
+        return self._frame(result)
 
     def run(self, name: str | NamedQuery, **params) -> pl.DataFrame:
         q = name if isinstance(name, NamedQuery) else get_query(name)
         if q.writes and self.read_only:
             raise StoreError(f"{self.path}: query '{q.name}' writes; the database is open read-only.")
-        return self._execute(q.cypher, bind(q, params)).get_as_pl()
+        return self._frame(self._execute(q.cypher, bind(q, params)))
 
     def rows(self, name: str, **params) -> list[dict]:
         return self.run(name, **params).to_dicts()
@@ -125,7 +154,10 @@ class Store:
         except RuntimeError as exc:
             raise translate_error(exc, self.path, q.cypher) from exc
         columns = result.get_column_names()
-        return [dict(zip(columns, row)) for row in result.get_all()]
+        try:
+            return [dict(zip(columns, row)) for row in result.get_all()]
+        except UnicodeDecodeError as exc:
+            raise self._damaged(exc) from exc
 
     # -- writes ------------------------------------------------------------------------
     @contextmanager
@@ -146,7 +178,7 @@ class Store:
         self._execute("COMMIT")
 
     def tables(self) -> dict[str, str]:
-        df = self._execute("CALL show_tables() RETURN name, type").get_as_pl()
+        df = self._frame(self._execute("CALL show_tables() RETURN name, type"))
         return dict(df.iter_rows())
 
     def copy(self, table: str, frame: pl.DataFrame, from_table: str | None = None, to_table: str | None = None) -> int:
@@ -170,7 +202,7 @@ class Store:
         if not files:
             raise StoreError(f"{folder}: no schema files found")
         self._execute(_MIGRATIONS)
-        done = dict(self._execute("MATCH (m:SchemaMigration) RETURN m.id, m.checksum").get_as_pl().iter_rows())
+        done = dict(self._frame(self._execute("MATCH (m:SchemaMigration) RETURN m.id, m.checksum")).iter_rows())
         applied = []
         for f in files:
             text = f.read_text()
@@ -192,7 +224,7 @@ class Store:
 
     def indexes(self) -> dict[str, str]:
         """Index name -> table, for the FTS / vector indexes this database has."""
-        df = self._execute("CALL SHOW_INDEXES() RETURN index_name, table_name").get_as_pl()
+        df = self._frame(self._execute("CALL SHOW_INDEXES() RETURN index_name, table_name"))
         return dict(df.iter_rows())
 
     def ensure_indexes(self, fts: bool = True, hnsw: bool = False, folder: Path = INDEX_DIR) -> list[str]:
@@ -213,7 +245,7 @@ class Store:
         return created
 
     def migrations(self) -> list[str]:
-        return self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id").get_as_pl()["m.id"].to_list()
+        return self._frame(self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id"))["m.id"].to_list()
 
     def migration_checksums(self) -> dict[str, str]:
         """Schema file -> checksum of what was applied (an export carries them, an import compares)."""

@@ -51,9 +51,10 @@ class HistoryArgs(ToolArgs):
 
 
 class StateArgs(ToolArgs):
-    time_seconds: float = Field(ge=0, description="Seconds from the start of the video.")
+    time_seconds: float = Field(ge=0, allow_inf_nan=False, description="Seconds from the start of the video.")
     video: str | None = Field(None, description="The video id (e.g. P03_101); optional if the memory has one video.")
-    window: float = Field(60.0, ge=0, description="Seconds after an object's last sighting it still counts as present.")
+    window: float = Field(60.0, ge=0, allow_inf_nan=False,
+                          description="Seconds after an object's last sighting it still counts as present.")
 
 
 class RoutineArgs(ToolArgs):

@@ -205,7 +205,7 @@ def parse_arguments(spec: ToolSpec, raw: dict[str, str]) -> dict[str, Any]:
             continue
         try:
             out[name] = json.loads(value)
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):  # too deeply nested: let validation refuse the text
             out[name] = value
     return out
 

@@ -17,6 +17,7 @@ dispatches one query to every store.
 from __future__ import annotations
 
 import json
+import math
 from collections import Counter
 
 import numpy as np
@@ -579,9 +580,12 @@ def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None =
     object seen in the video by then and again after (or within `window` s before), each in its
     last recorded state at that time."""
     try:
-        t = float(time_seconds)
+        t, window = float(time_seconds), float(window)
     except (TypeError, ValueError) as exc:
-        raise ToolError("time_seconds must be a number of seconds") from exc
+        raise ToolError("time_seconds and window must be numbers of seconds") from exc
+    if not (math.isfinite(t) and t >= 0 and math.isfinite(window) and window >= 0):
+        raise ToolError(f"time_seconds and window must be finite numbers of seconds, 0 or more (got {time_seconds!r}, "
+                        f"{window!r})")
     videos = sorted(view.videos)
     if video is None:
         if len(videos) != 1:
