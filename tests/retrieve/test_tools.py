@@ -210,8 +210,8 @@ def test_results_are_deterministic_and_json(small_bank, embedder):
 
 def test_registry_schemas_and_argument_checks(hand_store, embedder):
     names = [s["function"]["name"] for s in tool_schemas()]
-    assert names == ["search", "search_objects", "search_activities", "get_routine_skill", "get_preferences",
-                     "search_patterns", "get_object_history", "get_state_at_time"]
+    assert names == ["search", "search_objects", "search_activities", "get_video_activities", "get_routine_skill",
+                     "get_preferences", "search_patterns", "get_object_history", "get_state_at_time"]
     assert "search_environment" in tool_names()
     fn = tool_schemas(["get_routine_skill"])[0]
     assert fn["type"] == "function" and fn["function"]["parameters"]["required"] == ["goal_query"]
