@@ -218,7 +218,10 @@ class ModelPolicy:
     def respond(self, messages, tools, *, forced: bool, state: AgentState) -> PolicyReply:
         kwargs: dict[str, Any] = {}
         if tools:
-            kwargs["tools"] = tools
+            # "auto" said out loud: OpenAI and vLLM assume it when tools are given, but
+            # llama-cpp-python's server (chatml-function-calling) then leaves the tools out of the
+            # prompt and never returns a tool call.
+            kwargs["tools"], kwargs["tool_choice"] = tools, "auto"
         tags = {**self.tags, "item": str(state.view.get("question_id") or state.view.get("task_id") or ""),
                 "iteration": str(state.iteration)}
         reply = self.backend.chat(messages, role="answer", tags=tags, **kwargs)

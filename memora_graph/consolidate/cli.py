@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 
 import click
@@ -25,9 +26,13 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 @click.option("--model", help="The consolidation model (default: the first model the server lists).")
 @click.option("--enrichment-model", help="A different model for enrichment (default: --model).")
 @click.option("--api-key", help="With --backend openai: the API key (default: $OPENAI_API_KEY).")
+@click.option("-o", "--option", "options", type=(str, str), multiple=True, metavar="NAME VALUE",
+              help="With --processor llm: any other backend option (JSON if it parses), e.g. "
+                   "-o structured_output json_object for llama-cpp-python's server. Repeatable.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @output_options
-def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, quiet, fmt):
+def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options, quiet,
+                    fmt):
     """Re-run offline consolidation and enrichment on an existing bank.
 
     Each participant's routines and preferences are replaced in one transaction (a failed or
@@ -44,6 +49,8 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
       memora consolidate banks/epic --participants P01 --processor llm --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
       memora stats banks/epic --participant P01 --calls role
+      python -m llama_cpp.server --model MODEL.gguf --chat_format chatml-function-calling
+      memora consolidate banks/epic --participants P09 --processor llm -o structured_output json_object
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -56,7 +63,7 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
                                  param_hint="'--processor'")
     given = dict(zip(_MODEL_OPTIONS, (backend, base_url, model, enrichment_model, api_key)))
     if processor != "llm":
-        extra = [f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None]
+        extra = [f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None] + (["-o"] if options else [])
         if extra:
             raise click.UsageError(f"{', '.join(extra)} only apply with --processor llm")
 
@@ -80,7 +87,8 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     def on_step(participant: str, step: str) -> None:
         progress.update(task, description=f"{participant} {step}")
 
-    procs = get_processors(processor, options=_llm_options(given, on_step) if processor == "llm" else None)
+    procs = get_processors(processor, options=_llm_options(given, _backend_options(options), on_step)
+                           if processor == "llm" else None)
     if processor == "llm":
         from memora_graph.consolidate.llm import check_servers
 
@@ -127,7 +135,7 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
         raise click.ClickException("some participants were left unchanged; see the failures above")
 
 
-def _llm_options(given: dict, on_step) -> dict:
+def _llm_options(given: dict, backend_options: dict, on_step) -> dict:
     backend = given["backend"] or "openai"
     if backend == "offline":
         from memora_graph.consolidate.llm import OFFLINE_MESSAGE
@@ -142,4 +150,18 @@ def _llm_options(given: dict, on_step) -> dict:
     opts = {"backend": backend, "on_step": on_step, "model": given["model"],
             "enrichment_model": given["enrichment_model"]}
     opts.update({k: given[k] for k in ("base_url", "api_key") if given[k]})
+    clash = sorted(set(backend_options) & {*opts, "call_log", "limits", "consolidation_model"})
+    if clash:
+        raise click.UsageError(f"-o {', '.join(clash)}: use the command's own option for it")
+    opts.update(backend_options)
     return opts
+
+
+def _backend_options(pairs) -> dict:
+    out = {}
+    for key, value in pairs:
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out

@@ -30,7 +30,7 @@ import urllib.request
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -251,7 +251,11 @@ class _NoJSON(ValueError):
 
 def extract_json(text: str) -> Any:
     """The JSON value in a model reply: the whole reply, a ```json fence, or the first
-    object/array embedded in prose. Raises ValueError when there is none."""
+    object/array embedded in prose. Raises ValueError when there is none.
+
+    Raw control characters (a newline, a tab) inside strings are accepted (`strict=False`):
+    llama-cpp-python's schema grammar lets a small model write them, and nothing else about
+    such a reply is wrong."""
     if text is None or not text.strip():
         raise _NoJSON("the reply is empty")
     candidates = [text.strip()]
@@ -260,16 +264,16 @@ def extract_json(text: str) -> Any:
         candidates.append(without_think)
     for body in candidates:
         try:
-            return json.loads(body)
+            return json.loads(body, strict=False)
         except json.JSONDecodeError:
             pass
     body = candidates[-1]
     for match in _FENCE.finditer(body):
         try:
-            return json.loads(match.group(2).strip())
+            return json.loads(match.group(2).strip(), strict=False)
         except json.JSONDecodeError:
             continue
-    decoder = json.JSONDecoder()
+    decoder = json.JSONDecoder(strict=False)
     for match in re.finditer(r"[\[{]", body):
         try:
             value, _ = decoder.raw_decode(body, match.start())
@@ -527,7 +531,12 @@ class OpenAIOptions(_Options):
     temperature: float = Field(0.0, ge=0, le=2)
     max_tokens: int | None = Field(2048, gt=0)
     top_p: float | None = Field(None, gt=0, le=1)
-    json_schema: bool = True  # send response_format json_schema (constrained decoding)
+    json_schema: bool = True  # send a response_format that carries the reply's JSON schema
+    # How the schema is sent: "json_schema" is OpenAI's {"type": "json_schema", "json_schema": {...}}
+    # (vLLM, SGLang, llama.cpp's llama-server); "json_object" is {"type": "json_object", "schema": {...}},
+    # which llama-cpp-python's server (python -m llama_cpp.server) turns into a grammar and which
+    # answers "json_schema" with HTTP 500 "Input should be 'text' or 'json_object'".
+    structured_output: Literal["json_schema", "json_object"] = "json_schema"
     extra_body: dict[str, Any] = Field(default_factory=dict)  # e.g. chat_template_kwargs, repetition_penalty
 
     @field_validator("base_url")
@@ -591,7 +600,7 @@ class OpenAIBackend(Backend):
         if tool_choice is not None:
             payload["tool_choice"] = tool_choice
         if response_format is not None and opts.json_schema:
-            payload["response_format"] = response_format
+            payload["response_format"] = _as_structured_output(response_format, opts.structured_output)
         payload.update(opts.extra_body)
         data = self._request("POST", "/chat/completions", payload, stats)
         url = f"{opts.base_url}/chat/completions"
@@ -665,6 +674,13 @@ class OpenAIBackend(Backend):
             stats.retries += 1
 
 
+def _as_structured_output(response_format: dict[str, Any], style: str) -> dict[str, Any]:
+    """The `response_format` in the form the server takes (option structured_output)."""
+    if style == "json_object" and response_format.get("type") == "json_schema":
+        return {"type": "json_object", "schema": response_format["json_schema"]["schema"]}
+    return response_format
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -690,8 +706,10 @@ def _http_message(url: str, status: int, body: str, payload: dict | None) -> str
     except (json.JSONDecodeError, AttributeError):
         pass
     message = f"{url}: HTTP {status}: {_clip(str(detail), 400)}"
-    if status == 400 and payload and "response_format" in payload:
-        message += " (if this server does not support response_format json_schema, pass json_schema=false)"
+    if payload and "response_format" in payload and (status == 400 or "response_format" in body):
+        # llama-cpp-python's server rejects {"type": "json_schema"} with HTTP 500, not 400.
+        message += (" (if this server does not support response_format json_schema, pass "
+                    "structured_output=json_object (llama-cpp-python's server) or json_schema=false)")
     if status in (401, 403):
         message += " (check the API key: option api_key or the OPENAI_API_KEY environment variable)"
     if status == 404:

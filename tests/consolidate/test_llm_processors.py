@@ -381,3 +381,26 @@ def test_cli_consolidate_says_plainly_what_is_wrong(bank):
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_cli_consolidate_passes_backend_options(bank):
+    """-o NAME VALUE reaches the backend: llama-cpp-python's server needs structured_output json_object."""
+    runner = CliRunner()
+    path = str(bank.path)
+    with ScriptedServer(turns(*SCRIPT), models=(MODEL,)) as server:
+        result = runner.invoke(main, ["consolidate", path, "--participants", P, "--processor", "llm", "--base-url",
+                                      server.base_url, "-o", "structured_output", "json_object", "-o", "max_tokens",
+                                      "512", "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert len(server.requests) == len(SCRIPT)
+    for request in server.requests:
+        assert request["response_format"]["type"] == "json_object" and request["response_format"]["schema"]["properties"]
+        assert request["max_tokens"] == 512
+    stray = runner.invoke(main, ["consolidate", path, "-o", "max_tokens", "512"])
+    assert stray.exit_code == 2 and "-o only apply with --processor llm" in stray.output
+    clash = runner.invoke(main, ["consolidate", path, "--processor", "llm", "-o", "model", "m"])
+    assert clash.exit_code == 2 and "-o model: use the command's own option" in clash.output
+    with ScriptedServer([]) as server:
+        unknown = runner.invoke(main, ["consolidate", path, "--processor", "llm", "--base-url", server.base_url,
+                                       "-o", "max_tokenz", "5", "--quiet"])
+    assert unknown.exit_code == 1 and "'max_tokenz': unknown option" in unknown.output
