@@ -1,20 +1,16 @@
 """The `offline` answer policy: a deterministic reader that uses the same tools and the same loop as
 a model, so every condition runs on a CPU with no model. It is NOT a language model; numbers it
-produces measure the memories through a fixed, simple reader, not an LLM's reasoning.
+produces measure the memories through a fixed reader, not an LLM's reasoning.
 
-EAM-QA: it searches the question stem, adds the typed lookups the question calls for where the
-condition advertises them (get_preferences for a preference or habit question, get_routine_skill
-for a routine question, search_activities for a question about one video: `typed_calls`), then
-checks each content option in the question's situation: the query for option X is the hypothesis
-"<stem>: X" (`hypothesis`). At most 3 calls per response, so three tool rounds. It then scores
-each option against the retrieved evidence:
-
-    support(option) = max cosine(hypothesis(option), evidence text)   (MiniLM, query vs passage)
-                    + LEXICAL_WEIGHT * share of the option's content words found in the evidence
-
-and answers the best option, or E when the best support is below E_THRESHOLD (weak evidence) or
-within E_MARGIN of the runner-up (evidence that does not discriminate). On ERecall items naming a
-video, evidence from that video is preferred when the tools report videos.
+EAM-QA: the typed question reader (`agent.reading`). It parses the question into an intent (a
+habit, a preference or method, a routine, or recall of one video; its actions and objects as EPIC
+classes), makes the typed lookups the intent needs with whatever tools the condition advertises
+(`agent.lookups`: the episodes around the subject, the person's habits and preferences, routines,
+the named video's log, whether the subject is in memory at all), turns every record returned into
+actions and objects (`agent.evidence`), and scores each option by how its actions and objects
+occur in that evidence and how close it is in meaning to the records. It answers the best option
+with the evidence ids behind it, or E: when memory holds no record of the subject, or when no
+option is supported well enough. At most 3 calls per response, four tool rounds.
 
 Parametric (no tools) is a closed-book prior: the content option closest to the question stem,
 never E.
@@ -26,9 +22,6 @@ or, without a routine, from the best-matching remembered activity sequence. Wher
 has preferences (MEMORA's get_preferences), the plan honours the ones about its objects: it puts
 an object back where the person keeps it, adds a habitual next action, follows a workflow
 (`apply_preferences`).
-
-Every tool result is read round-robin across its record kinds (`read_evidence`), so a unified
-`search` contributes objects, activities, places and patterns alike.
 
 The policy reads only the task view and its own tool results; never gold answers or references.
 """
@@ -42,7 +35,10 @@ from typing import Any
 
 import numpy as np
 
+from memora_graph.agent import lookups
+from memora_graph.agent.evidence import events_of
 from memora_graph.agent.loop import AgentState, PolicyReply
+from memora_graph.agent.reading import Decision, parse_question, score
 from memora_graph.baselines.flat1d import FlatHit
 from memora_graph.baselines.graph2d import GraphNode
 from memora_graph.consolidate.vocab import past_tense
@@ -51,18 +47,15 @@ from memora_graph.retrieve.results import (
     ActivityRecord, ObjectRecord, OtherMatch, PlaceRecord, PreferenceRecord, Record, RoutineRecord, RoutinesResult,
     ToolResult, VisibleObject,
 )
+from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.text import KITCHEN_NOUNS, tokenize
 
-E_THRESHOLD = 0.62
-E_MARGIN = 0.01
-LEXICAL_WEIGHT = 0.3
 ROUTINE_ADOPT = 0.5
 MAX_STEPS = 12
 MAX_PREFERENCES = 4  # retrieved preferences considered for one plan
 MAX_PREFERENCE_STEPS = 3  # steps a plan may gain from them
 EVIDENCE_PER_CALL = 6  # the best results of each call are read
 EVIDENCE_CHARS = 240
-_VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
 _KITCHEN = frozenset(KITCHEN_NOUNS)
 
 
@@ -117,29 +110,6 @@ def read_evidence(result: Any, n: int = EVIDENCE_PER_CALL) -> list[dict[str, Any
     return out
 
 
-def hypothesis(stem: str, option: str) -> str:
-    """The statement a reader checks for one option: the question's content words with the option
-    (\"When P01 picks up a spoon ... next? lathers it with soap\"), so evidence is sought for the
-    option in the question's situation, not for the option anywhere in memory."""
-    return f"{stem.rstrip('?').strip()}: {option}"
-
-
-_PREFERENCE_CUES = re.compile(r"\b(prefer\w*|typical\w*|usually|often|tend\w*|habit\w*|style|next|after)\b", re.I)
-_ROUTINE_CUES = re.compile(r"\b(routine\w*|approach|pattern|steps?|order|procedure|sequence|how does|workflow)\b", re.I)
-
-
-def typed_calls(stem: str, names: list[str]) -> list[dict[str, Any]]:
-    """The typed lookups a careful reader adds to a question, by what it asks, when the condition
-    advertises them: a preference or habit question asks get_preferences, a routine question
-    get_routine_skill, a question about one video search_activities."""
-    calls = []
-    if "get_preferences" in names and _PREFERENCE_CUES.search(stem):
-        calls.append(_call("get_preferences", query=stem))
-    if "get_routine_skill" in names and _ROUTINE_CUES.search(stem):
-        calls.append(_call("get_routine_skill", goal_query=stem))
-    if "search_activities" in names and (_VIDEO.search(stem) or not calls):
-        calls.append(_call("search_activities", query=stem))
-    return calls[:2]
 
 
 class OfflinePolicy:
@@ -158,49 +128,37 @@ class OfflinePolicy:
     # -- EAM-QA ----------------------------------------------------------------------------
     def _qa(self, tools, forced, state: AgentState) -> PolicyReply:
         view = state.view
-        stem = _stem(view["question"])
         names = _tool_names(tools)
         if not forced and names:
-            tool = "search" if "search" in names else names[0]
-            arg = "query" if tool != "get_object_history" else "object_query"
-            plan = [_call(tool, **{arg: stem})] + typed_calls(stem, names) + \
-                [_call(tool, **{arg: hypothesis(stem, c)}) for c in view["choices"][:4]]
-            todo = plan[len(state.calls):len(state.calls) + 3]
-            if todo:
-                return PolicyReply(content="", tool_calls=todo)
+            rounds = lookups.plan(parse_question(view["question"], self.lexicon), names)
+            if state.iteration < len(rounds):
+                return PolicyReply(content="", tool_calls=[_call(n, **a) for n, a in rounds[state.iteration]])
         letter, detail = self.choose(view, state.calls)
         return PolicyReply(content=f"{detail}\nAnswer: {letter}")
 
+    @property
+    def lexicon(self) -> Lexicon:
+        return Lexicon.load()
+
+    def embed(self, texts: list[str]):
+        return self.embedder.encode(texts, kind="query")
+
+    def decide(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> Decision:
+        """The typed reader's decision over the tool results of the calls made."""
+        events = [e for c in calls for e in events_of(c["result"], self.lexicon)]
+        return score(view["question"], view["choices"], events, self.lexicon, embed=self.embed)
+
     def choose(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> tuple[str, str]:
         choices = view["choices"][:4]
-        stem = _stem(view["question"])
         if not calls:  # closed-book prior (Parametric)
-            q = self.embedder.encode([stem], kind="query")[0]
+            q = self.embedder.encode([_stem(view["question"])], kind="query")[0]
             c = self.embedder.encode(choices, kind="query")
             best = int(np.argmax(c @ q))
             return "ABCD"[best], "Closed-book prior: no memory available."
-        items = [it for call in calls for it in read_evidence(call["result"], EVIDENCE_PER_CALL)]
-        videos = set(_VIDEO.findall(stem))
-        if videos and any(it["video"] in videos for it in items):
-            items = [it for it in items if it["video"] in videos]
-        texts = list(dict.fromkeys(it["text"] for it in items if it["text"]))
-        if not texts:
-            return "E", "No evidence retrieved."
-        ev = self.embedder.encode(texts, kind="passage")
-        cv = self.embedder.encode([hypothesis(stem, c) for c in choices], kind="query")
-        sims = cv @ ev.T
-        ev_tokens = set().union(*(tokenize(t) for t in texts))
-        scores = []
-        for i, choice in enumerate(choices):
-            words = tokenize(choice)
-            lexical = len(words & ev_tokens) / len(words) if words else 0.0
-            scores.append(float(sims[i].max()) + LEXICAL_WEIGHT * lexical)
-        order = sorted(range(4), key=lambda i: (-scores[i], i))
-        best, second = order[0], order[1]
-        detail = "Support: " + ", ".join(f"{'ABCD'[i]}={scores[i]:.3f}" for i in range(4))
-        if scores[best] < E_THRESHOLD or scores[best] - scores[second] < E_MARGIN:
-            return "E", detail + " (weak or non-discriminating evidence)"
-        return "ABCD"[best], detail
+        d = self.decide(view, calls)
+        cited = d.support["ABCD".index(d.letter)] if d.letter in "ABCD" else []
+        detail = f"{d.text()}" + (f"; evidence: {', '.join(cited[:8])}" if cited else "")
+        return d.letter, detail
 
     # -- Planning ---------------------------------------------------------------------------
     def _plan(self, tools, forced, state: AgentState) -> PolicyReply:

@@ -1,0 +1,165 @@
+"""Typed tool results -> `Event`s: every memory's records as actions and objects at the class level.
+
+The question reader (`agent.reading`) scores options against events and never looks at which
+memory they came from: MEMORA's activity records (their narrated steps), consolidated habits,
+storage, tool and workflow preferences and routine steps; Flat-1D's time-stamped text records;
+Graph-2D's activity, object and pattern nodes. Each event keeps the ids of the bank nodes (or
+the record) behind it, so an answer can cite them.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+from memora_graph.agent.reading import Event
+from memora_graph.baselines.flat1d import FlatHit
+from memora_graph.baselines.graph2d import GraphNode
+from memora_graph.perceive.lexicon import Lexicon
+from memora_graph.records import segment_id
+from memora_graph.retrieve.results import (
+    Action, ActivityRecord, ObjectHistoryResult, ObjectRecord, PreferenceRecord, RoutineRecord, ToolResult,
+    VideoActivitiesResult,
+)
+
+_STAMP = re.compile(r"^\[(?P<video>P\d{2}_\d{2,3}) (?P<t>[\d.]+)(?:-[\d.]+)?s[^\]]*\]\s*")
+_STEP_T = re.compile(r"^([\d.]+)")
+
+
+def events_of(result: ToolResult, lex: Lexicon) -> list[Event]:
+    """Every action and object a tool result holds, as events."""
+    out: list[Event] = []
+    for kind, rec in result.records():
+        out += _record_events(kind, rec, lex)
+    if isinstance(result, ObjectHistoryResult) and result.found and result.state_history:
+        nouns = tuple(lex.noun_classes(result.name or "")) or ()
+        for h in result.state_history:
+            out.append(Event(h.video, float(h.time_seconds), lex.verb(h.action), nouns, (h.event_id, h.segment_id)))
+    if isinstance(result, VideoActivitiesResult):
+        for o in result.objects:
+            out.append(Event(result.video, -1.0, None, tuple(lex.noun_classes(o.kind.replace("_", " ") or o.name)),
+                             (), origin="object"))
+    return out
+
+
+def _actions(text: str, lex: Lexicon) -> list[tuple[str | None, tuple[str, ...]]]:
+    """A summary line ("take plate; wash plate; put plate on rack") as its actions, in order."""
+    out = []
+    for part in re.split(r"[;.]\s*|\s->\s", text):
+        part = part.strip()
+        if not part:
+            continue
+        for c in lex.parse(part):
+            if c.verb or c.nouns:
+                out.append((c.verb, tuple(dict.fromkeys(c.nouns))))
+    return out
+
+
+def _line_events(video: str, t0: float, text: str, ids: tuple[str, ...], lex: Lexicon, spacing: float = 1.0,
+                 weight: float = 1.0, origin: str = "log") -> list[Event]:
+    return [Event(video, t0 + i * spacing, v, ns, ids, weight, origin, text=text)
+            for i, (v, ns) in enumerate(_actions(text, lex))]
+
+
+def _weight(count: int | None) -> float:
+    """What repetition is worth: a record counted n times weighs 1 + ln n (diminishing)."""
+    return 1.0 + math.log(max(1, count or 1))
+
+
+def _step_action(a: Action, lex: Lexicon) -> tuple[str | None, tuple[str, ...]]:
+    nouns = [n for n in (a.noun, a.instrument, a.place) if n]
+    classes = []
+    for n in nouns:
+        classes += lex.noun_classes(n.replace("_", " ").replace(":", " ")) or [n]
+    return lex.verb(a.verb), tuple(dict.fromkeys(classes))
+
+
+def _record_events(kind: str, rec, lex: Lexicon) -> list[Event]:
+    if isinstance(rec, ActivityRecord):
+        return _activity_events(rec, lex)
+    if isinstance(rec, ObjectRecord):
+        nouns = tuple(lex.noun_classes(rec.kind.replace("_", " ")) or lex.noun_classes(rec.name))
+        return [Event("", -1.0, None, nouns, (rec.entity_id,), origin="object")]
+    if isinstance(rec, PreferenceRecord):
+        return _preference_events(rec, lex)
+    if isinstance(rec, RoutineRecord):
+        ids = (rec.routine_id, *rec.supporting_episodes[:5])
+        if rec.steps:
+            steps = [_step_action(s, lex) for s in rec.steps]
+        else:
+            steps = [a for s in rec.canonical_steps for a in _actions(s.action, lex)]
+        weight = _weight(rec.count)
+        return [Event(f"routine:{rec.routine_id}", float(i), v, ns, ids, weight, text=rec.text())
+                for i, (v, ns) in enumerate(steps)]
+    if isinstance(rec, FlatHit):
+        m = _STAMP.match(rec.text())
+        video, t = (m["video"], float(m["t"])) if m else (rec.video, rec.time)
+        body = rec.text()[m.end():] if m else rec.text()
+        ids = (f"{video}@{t:.1f}s",)
+        if rec.kind == "activity":
+            return _line_events(video, t, body, ids, lex)
+        nouns = tuple(lex.noun_classes(body.split(":")[0]))
+        return [Event(video, -1.0, None, nouns, ids, origin="object")] if nouns else []
+    if isinstance(rec, GraphNode):
+        if kind in ("activities", "history", "moments") or rec.turn is not None:
+            t = float(rec.time if rec.time is not None else 0.0)
+            out = _line_events(rec.video or "", t, rec.text(), (rec.id,), lex)
+            if rec.context is not None:
+                out = _line_events(rec.video or "", t - 10, rec.context.previous, (rec.id,), lex) + out + \
+                    _line_events(rec.video or "", t + 10, rec.context.next, (rec.id,), lex)
+            return out
+        if kind == "objects" or rec.name:
+            nouns = tuple(lex.noun_classes(rec.name or rec.text().split(":")[0]))
+            return [Event(rec.video or "", -1.0, None, nouns, (rec.id,), origin="object")] if nouns else []
+        if kind == "patterns":
+            goal, _, steps = rec.text().partition(":")
+            return [Event(f"pattern:{rec.id}", float(i), v, ns, (rec.id,)) for i, (v, ns) in
+                    enumerate(_actions(steps.split("(objects:")[0], lex))]
+        return []
+    return []
+
+
+def _activity_events(rec: ActivityRecord, lex: Lexicon) -> list[Event]:
+    video, t0 = rec.source_video, float(rec.time.start)
+    out = []
+    for s in rec.action_breakdown:
+        m = _STEP_T.match(s.t)
+        t = t0 + (float(m.group(1)) if m else 0.0)
+        nouns = lex.noun_classes(s.object.replace("_", " ").replace(":", " ")) if s.object else []
+        if s.narration:
+            nouns += [n for c in lex.parse(s.narration) for n in c.nouns if n not in nouns]
+        verb = lex.verb(s.action) or next((c.verb for c in lex.parse(s.narration) if c.verb), None)
+        out.append(Event(video, t, verb, tuple(dict.fromkeys(nouns)), (rec.segment_id,), text=s.narration))
+    if not out and rec.summary:
+        out = _line_events(video, t0, rec.summary, (rec.segment_id,), lex)
+    turn = rec.turn_id
+    if rec.previous_action:
+        out = _line_events(video, t0 - 10, rec.previous_action, (segment_id(video, turn - 1),), lex) + out
+    if rec.next_action:
+        out += _line_events(video, float(rec.time.end), rec.next_action, (segment_id(video, turn + 1),), lex)
+    return out
+
+
+def _preference_events(p: PreferenceRecord, lex: Lexicon) -> list[Event]:
+    ids = (p.preference_id, *p.supporting_episodes[:5])
+    weight = _weight(p.count)
+    if p.subtype == "habit" and p.trigger_step is not None and p.next_step is not None:
+        v, ns = _step_action(p.trigger_step, lex)
+        nv, nns = _step_action(p.next_step, lex)
+        return [Event("", -1.0, v, ns, ids, weight, "habit", ((nv, nns),), text=p.preference)]
+    if p.subtype == "habit" and p.trigger and p.next_action:
+        trig, nxt = _actions(p.trigger, lex), _actions(p.next_action, lex)
+        if trig and nxt:
+            return [Event("", -1.0, trig[0][0], trig[0][1], ids, weight, "habit", tuple(nxt[:1]), text=p.preference)]
+    if p.subtype == "storage" and p.object and p.preferred_location:
+        nouns = lex.noun_classes(p.object.replace("_", " ")) + lex.noun_classes(p.preferred_location)
+        return [Event("", -1.0, "put", tuple(dict.fromkeys(nouns)), ids, weight, "storage", text=p.preference)]
+    if p.subtype == "workflow" and p.use:
+        verb, _, where = p.use.partition(" @ ")
+        nouns = [n for o in p.objects for n in lex.noun_classes(o)] + lex.noun_classes(where)
+        after = _actions(p.then or "", lex)
+        return [Event("", -1.0, lex.verb(verb.strip()), tuple(dict.fromkeys(nouns)), ids, weight, "storage",
+                      tuple(after[:1]), text=p.preference)]
+    if p.actions:
+        return [Event("", -1.0, *_step_action(a, lex), ids, weight, "tool", text=p.preference) for a in p.actions]
+    return []

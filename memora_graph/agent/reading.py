@@ -1,0 +1,455 @@
+"""The typed question reader: a question and its options, read at the level of actions and objects,
+scored against typed evidence, answered with the evidence ids, or "not in memory".
+
+1. Question -> `Intent` (`parse_question`): the kind of question (a habit: what follows an action;
+   a preference or method; a routine or approach; recall of one video), its action clauses as
+   EPIC verb and noun classes (`perceive.lexicon`), the subject objects, the place, the videos it
+   names, and the relation asked (next, where, tool, method, order, what happened).
+2. Typed evidence -> `Event`s: every record a tool returned, as (video, time, verb class, object
+   classes) with the ids of the bank nodes behind it (`evidence.events_of`). Episodes, a
+   consolidated habit's trigger and next step, a storage preference's object and place, a
+   routine's steps, a Flat-1D text record and a Graph-2D node all become events; the reader does
+   not know which memory they came from.
+3. Options -> items: each option parsed the same way into (verb, object, place, instrument) items;
+   an item all four options share says nothing, one option alone has says most (`_weights`).
+4. Scoring (`score`): for a habit, the actions that followed the trigger; for a preference or a
+   routine, the actions around the subject (how often each option's items occur there); for
+   recall, whether the video holds each of the option's actions, in the option's order.
+5. Abstaining: E when memory holds no record of the subject (nothing retrieved mentions it), or
+   when the evidence does not separate the options (the best is weak or barely ahead). `Decision`
+   says which.
+
+Deterministic, no model, no embedding: a few thousand dictionary lookups per question.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from bisect import bisect_left, bisect_right
+from collections import defaultdict
+from dataclasses import dataclass
+
+from memora_graph.perceive.lexicon import Clause, Lexicon
+
+KINDS = ("habit", "preference", "routine", "recall")
+OPTION_E = "E"
+_VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
+_PARTICIPANT = re.compile(r"\bP\d{2}\b(?:'s)?")
+_NEXT = frozenset({"next", "follow", "afterwards", "afterward", "lead", "subsequently", "then"})
+_WHERE = frozenset({"where", "keep", "store", "storage", "kept", "stored", "put", "place"})
+_TOOL = frozenset({"tool", "utensil", "instrument", "implement", "device", "appliance"})
+_ROUTINE = frozenset({"approach", "strategy", "routine", "sequence", "order", "procedure", "process", "workflow",
+                      "steps", "step", "organize", "organise", "manage", "plan", "overall", "structure", "typically",
+                      "start", "begin"})
+_METHOD = frozenset({"method", "technique", "style", "way", "how", "choose", "choice", "prefer", "favor", "favour"})
+HABIT_WINDOW = 30.0  # seconds: what follows an action must follow within this
+CONTEXT_WINDOW = {"preference": 8.0, "routine": 25.0, "recall": 0.0}
+NEXT_ACTIONS = 2  # actions after a trigger read as what followed it
+
+
+@dataclass
+class Intent:
+    kind: str
+    relation: str  # next | where | tool | method | order | what
+    clauses: list[Clause]
+    subject_nouns: list[str]
+    subject_verbs: list[str]
+    place: str | None
+    videos: list[str]
+    text: str  # the stem without the participant id or the instructions
+
+    @property
+    def trigger(self) -> Clause | None:
+        return next((c for c in self.clauses if c.verb), None)
+
+    def query(self) -> str:
+        """Words to search memory with: the stem's action, objects and place."""
+        return re.sub(r"\s+", " ", _PARTICIPANT.sub("", self.text)).strip(" ?.,")
+
+
+@dataclass(frozen=True)
+class Event:
+    """One action in memory as classes, with the ids of the bank nodes it comes from."""
+
+    video: str
+    t: float
+    verb: str | None
+    nouns: tuple[str, ...]
+    ids: tuple[str, ...] = ()
+    weight: float = 1.0
+    origin: str = "log"  # log | habit | storage | tool | routine | object
+    follows: tuple[tuple[str | None, tuple[str, ...]], ...] = ()  # a habit: the actions that follow it
+    text: str = ""  # the record's own words (a narration, a statement), for the semantic check
+
+
+@dataclass
+class Decision:
+    letter: str  # A-D, or E
+    reason: str  # "supported" | "no record of the subject" | "evidence does not separate the options"
+    scores: list[float]
+    support: list[list[str]]  # evidence ids behind each option's score
+    intent: Intent
+    events: int = 0
+
+    @property
+    def abstained(self) -> bool:
+        return self.letter == OPTION_E
+
+    def text(self) -> str:
+        s = ", ".join(f"{'ABCD'[i]}={x:.3f}" for i, x in enumerate(self.scores))
+        return f"{self.intent.kind}/{self.intent.relation}: {s}; {self.reason}"
+
+
+def stem_of(question: str) -> str:
+    return question.split("\n\nIMPORTANT:")[0].strip()
+
+
+def parse_question(question: str, lex: Lexicon) -> Intent:
+    """The stem as an intent. The kind comes from what the question asks, not from item metadata:
+    a video it names (recall), what follows an action (habit), an approach or sequence (routine),
+    else a preference or method."""
+    text = stem_of(question)
+    videos = list(dict.fromkeys(_VIDEO.findall(text)))
+    clauses = lex.parse(text)
+    asked = set(lex.question_words(text))
+    words = set(lex.lemmas(text))
+    nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
+    nouns += [n for n in lex.noun_classes(" ".join(lex.question_words(text))) if n not in nouns]
+    verbs = list(dict.fromkeys(c.verb for c in clauses if c.verb))
+    place = next((c.place for c in clauses if c.place), None)
+    starts_after = text.lower().startswith(("after", "once"))
+    if asked & {"where"} or (asked & _WHERE and not asked & _NEXT and "do" not in asked):
+        relation = "where"
+    elif asked & _NEXT or (starts_after and asked & {"do", "does", "what"} and not asked & _METHOD):
+        relation = "next"
+    elif words & _TOOL or asked & _TOOL:
+        relation = "tool"
+    elif words & {"order", "sequence", "first", "before", "steps"}:
+        relation = "order"
+    elif videos:
+        relation = "what"
+    else:
+        relation = "method"
+    if videos:
+        kind = "recall"
+    elif relation == "next":
+        kind = "habit"
+    elif words & _ROUTINE:
+        kind = "routine"
+    else:
+        kind = "preference"
+    return Intent(kind, relation, clauses, nouns, verbs, place, videos, text)
+
+
+# -- options --------------------------------------------------------------------------------------
+
+Item = tuple[str, str]  # ("v", verb class) | ("n", noun class)
+
+
+def option_items(option: str, intent: Intent, lex: Lexicon) -> tuple[list[list[Item]], set[Item]]:
+    """Per non-negated clause, its items (verb, objects, place, instrument); and the items the
+    option negates. The subject's own objects stay: weighted by how many options name them
+    (`_weights`), they count only where they tell options apart ("on the bowl" vs "on the counter")."""
+    clauses, negated = [], set()
+    for c in lex.parse(option):
+        items = ([("v", c.verb)] if c.verb else []) + [("n", n) for n in dict.fromkeys(c.nouns)]
+        if c.negated:
+            negated.update(items)
+        elif items:
+            clauses.append(items)
+    return clauses, negated
+
+
+def _weights(per_option: list[list[list[Item]]]) -> dict[Item, float]:
+    """An item's weight: how much it tells the options apart (1 for one option, 1/4 for all)."""
+    df: dict[Item, int] = defaultdict(int)
+    for clauses in per_option:
+        for x in {x for c in clauses for x in c}:
+            df[x] += 1
+    return {x: 1.0 / n for x, n in df.items()}
+
+
+# -- evidence -------------------------------------------------------------------------------------
+
+def _items_of(e: Event) -> set[Item]:
+    return ({("v", e.verb)} if e.verb else set()) | {("n", n) for n in e.nouns}
+
+
+def _hit(x: Item, have: set[Item], verbs: set[str], lex: Lexicon) -> float:
+    if x in have:
+        return 1.0
+    if x[0] == "v" and any(lex.same_category(x[1], v) for v in verbs):
+        return 0.5
+    return 0.0
+
+
+def _match(items: list[Item], have: set[Item], w: dict[Item, float], lex: Lexicon) -> float:
+    total = sum(w.get(x, 1.0) for x in items)
+    if not total:
+        return 0.0
+    verbs = {v for k, v in have if k == "v"}
+    return sum(w.get(x, 1.0) * _hit(x, have, verbs, lex) for x in items) / total
+
+
+def _mentions(e: Event, intent: Intent) -> bool:
+    return bool(set(e.nouns) & set(intent.subject_nouns))
+
+
+def _sequences(events: list[Event]) -> dict[str, list[Event]]:
+    by_video: dict[str, list[Event]] = defaultdict(list)
+    seen = set()
+    for e in events:
+        if e.origin != "log":
+            continue
+        key = (e.video, round(e.t, 2), e.verb, e.nouns)
+        if key not in seen:
+            seen.add(key)
+            by_video[e.video].append(e)
+    for seq in by_video.values():
+        seq.sort(key=lambda e: e.t)
+    return by_video
+
+
+def _is_trigger(e: Event, trigger: Clause, nouns: set[str], lex: Lexicon) -> bool:
+    if trigger.verb and e.verb != trigger.verb and not (e.verb and lex.same_category(e.verb, trigger.verb)
+                                                         and trigger.verb in ("put", "insert", "take", "lift")):
+        return False
+    return not nouns or bool(nouns & set(e.nouns))
+
+
+def habit_windows(intent: Intent, events: list[Event], lex: Lexicon) -> list[tuple[set[Item], float, tuple[str, ...]]]:
+    """What followed the question's trigger action: per occurrence in the activity log, the items
+    of the next actions (within HABIT_WINDOW s); per consolidated habit with that trigger, its next
+    step, weighted by how often it was counted."""
+    trigger = intent.trigger
+    if trigger is None:
+        return []
+    nouns = set(trigger.objects() or trigger.nouns) or set(intent.subject_nouns)
+    out = []
+    for seq in _sequences(events).values():
+        for i, e in enumerate(seq):
+            if not _is_trigger(e, trigger, nouns, lex):
+                continue
+            have: set[Item] = set()
+            ids: list[str] = list(e.ids)
+            n = 0
+            for f in seq[i + 1:]:
+                if f.t - e.t > HABIT_WINDOW:
+                    break
+                if (f.verb, f.nouns) == (e.verb, e.nouns):
+                    continue
+                have |= _items_of(f)
+                ids += f.ids
+                n += 1
+                if n >= NEXT_ACTIONS:
+                    break
+            if have:
+                out.append((have, 1.0, tuple(dict.fromkeys(ids))))
+    for e in events:
+        if e.origin == "habit" and e.follows and _is_trigger(e, trigger, nouns, lex):
+            have = set()
+            for verb, ns in e.follows:
+                have |= ({("v", verb)} if verb else set()) | {("n", n) for n in ns}
+            out.append((have, e.weight, e.ids))
+    return out
+
+
+def context_windows(intent: Intent, events: list[Event], lex: Lexicon) -> list[tuple[set[Item], float, tuple[str, ...]]]:
+    """The actions around the subject: for every logged action on one of its objects (in the named
+    video, for recall), the items of the actions within the kind's window; every consolidated
+    record about the subject (storage place, tool, routine steps) as one window, weighted by its
+    count."""
+    width = CONTEXT_WINDOW[intent.kind]
+    subject = set(intent.subject_nouns)
+    out = []
+    for video, seq in _sequences(events).items():
+        if intent.videos and video not in intent.videos:
+            continue
+        times = [f.t for f in seq]
+        for e in seq:
+            if subject and not (subject & set(e.nouns)):
+                continue
+            have: set[Item] = set()
+            ids: list[str] = []
+            for f in seq[bisect_left(times, e.t - width):bisect_right(times, e.t + width)]:
+                have |= _items_of(f)
+                ids += f.ids
+            out.append((have, 1.0, tuple(dict.fromkeys(ids))))
+    if not intent.videos:
+        for e in events:
+            if e.origin in ("storage", "tool", "routine", "habit") and (not subject or subject & set(e.nouns)):
+                have = _items_of(e)
+                for verb, ns in e.follows:
+                    have |= ({("v", verb)} if verb else set()) | {("n", n) for n in ns}
+                out.append((have, e.weight, e.ids))
+    return out
+
+
+def _specificity(events: list[Event], intent: Intent):
+    """How little an item says because it is everywhere: 1 for an action or object rare in the
+    retrieved memory, less for one most records share ("take", "put", "hand"). Computed over the
+    logged actions outside the question's own video."""
+    log = [e for e in events if e.origin == "log" and e.video not in intent.videos]
+    if len(log) < 20:
+        return lambda x: 1.0
+    df: dict[Item, int] = defaultdict(int)
+    for e in log:
+        for x in _items_of(e):
+            df[x] += 1
+    n, floor = len(log), 0.01
+
+    def spec(x: Item) -> float:
+        p = df.get(x, 0) / n
+        return math.log(1 + 1 / (p + floor)) / math.log(1 + 1 / floor)
+    return spec
+
+
+# -- scoring --------------------------------------------------------------------------------------
+
+POWER = 2.0  # a window that matches the whole option counts more than two that match half of it
+# Tuned on P01-P03 of the calibration cohort (P04 held out), for the highest accuracy over answerable
+# questions and E-correct controls together; a margin rule (best barely ahead) lost more answerable
+# items than it won controls, so only an exact tie counts as not separating the options.
+MIN_SUPPORT = 2.2  # the best option's support (classes + SEMANTIC x cosine) below this: too weak to answer
+
+
+SEMANTIC = 3.0  # weight of the options' closeness in meaning to the evidence records, next to their classes
+MAX_TEXTS = 80  # evidence records compared in meaning with the options
+
+
+def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, embed=None) -> Decision:
+    """Score the options against the events and decide. `embed(texts) -> unit vectors` (optional)
+    adds how close each option is in meaning to the evidence records the typed lookups selected:
+    paraphrases the classes miss ("a squeeze of washing-up liquid" for "pour soap")."""
+    intent = parse_question(question, lex)
+    parsed = [option_items(c, intent, lex) for c in choices[:4]]
+    w = _weights([p[0] for p in parsed])
+    spec = _specificity(events, intent)
+    w = {x: v * spec(x) for x, v in w.items()}
+    build = habit_windows if intent.kind == "habit" else context_windows
+    windows = build(intent, events, lex)
+    subject = set(intent.subject_nouns)
+    if subject and not any(subject & set(e.nouns) for e in events):
+        return Decision(OPTION_E, "no record of the subject", [0.0] * 4, [[] for _ in range(4)], intent, len(events))
+    if not windows:
+        return Decision(OPTION_E, "no record of the subject", [0.0] * 4, [[] for _ in range(4)], intent, len(events))
+    scores, support = [], []
+    for clauses, negated in parsed:
+        if not clauses:
+            scores.append(0.0)
+            support.append([])
+            continue
+        if intent.kind == "recall":
+            s, ids = _presence(clauses, windows, w, lex)
+            if len(clauses) > 1:  # a sequence: the order the video holds them in counts too
+                a, aids = _aligned(clauses, _recall_sequence(intent, events), w, lex)
+                s, ids = 0.4 * s + 0.6 * a, aids or ids
+        else:
+            s, ids = _frequency(clauses, windows, w, lex)
+        if negated:
+            neg, _ = _frequency([sorted(negated)], windows, {x: 1.0 for x in negated}, lex)
+            s *= max(0.0, 1.0 - neg)
+        scores.append(s)
+        support.append(ids)
+    if embed is not None and SEMANTIC:
+        for i, sim in enumerate(_closeness(choices[:4], _context_texts(events, windows), embed)):
+            if parsed[i][0] or sim:
+                scores[i] += SEMANTIC * sim
+    order = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
+    best, second = scores[order[0]], scores[order[1]] if len(order) > 1 else 0.0
+    if best < MIN_SUPPORT:
+        return Decision(OPTION_E, "the evidence is too weak to support any option", scores, support, intent, len(events))
+    if best == second:
+        return Decision(OPTION_E, "the evidence does not separate the options", scores, support, intent, len(events))
+    return Decision("ABCD"[order[0]], "supported", scores, support, intent, len(events))
+
+
+def _context_texts(events: list[Event], windows) -> list[str]:
+    """The words of the records the windows were built from (most supported first)."""
+    ids = {i for _, _, wid in windows for i in wid}
+    out = [e.text for e in events if e.text and (set(e.ids) & ids)]
+    return list(dict.fromkeys(out))[:MAX_TEXTS]
+
+
+def _closeness(options: list[str], texts: list[str], embed) -> list[float]:
+    """Per option, its best cosine to any of the texts (0 without texts)."""
+    if not texts:
+        return [0.0] * len(options)
+    import numpy as np
+
+    opts, ev = embed(list(options)), embed(texts)
+    return [float(x) for x in np.max(np.asarray(opts) @ np.asarray(ev).T, axis=1)]
+
+
+def _frequency(clauses: list[list[Item]], windows, w, lex) -> tuple[float, list[str]]:
+    """How strongly, and how often, the option's actions occur in the windows (weighted)."""
+    items = [x for c in clauses for x in c]
+    total = sum(weight for _, weight, _ in windows) or 1.0
+    acc, ids = 0.0, []
+    for have, weight, wid in windows:
+        m = _match(items, have, w, lex)
+        if m > 0:
+            acc += weight * m ** POWER
+            if m >= 0.5:
+                ids += wid
+    return (acc / total) ** (1 / POWER), list(dict.fromkeys(ids))[:12]
+
+
+ORDER_SPAN = 90.0  # seconds an option's sequence of actions may span in the video
+
+
+def _recall_sequence(intent: Intent, events: list[Event]) -> list[Event]:
+    """The named video's logged actions in time order (near the subject, when the question has one)."""
+    seqs = _sequences(events)
+    out = [e for v in intent.videos for e in seqs.get(v, [])]
+    subject = set(intent.subject_nouns)
+    if subject:
+        near = [e.t for e in out if subject & set(e.nouns)]
+        out = [e for e in out if any(abs(e.t - t) <= ORDER_SPAN / 2 for t in near)]
+    return out[:400]
+
+
+def _aligned(clauses: list[list[Item]], seq: list[Event], w, lex) -> tuple[float, list[str]]:
+    """The best match of the option's actions to the video's actions in the option's order, within
+    ORDER_SPAN seconds: dynamic programming over (clause, event)."""
+    if not seq:
+        return 0.0, []
+    n = len(seq)
+    have = [_items_of(e) for e in seq]
+    m = [[_match(c, have[j], w, lex) for j in range(n)] for c in clauses]
+    best = [row[:] for row in m]
+    back: list[list[int]] = [[-1] * n for _ in clauses]
+    for i in range(1, len(clauses)):
+        for j in range(n):
+            top, arg = -1.0, -1
+            for jj in range(j):
+                if seq[j].t - seq[jj].t <= ORDER_SPAN and best[i - 1][jj] > top:
+                    top, arg = best[i - 1][jj], jj
+            best[i][j] = m[i][j] + top if arg >= 0 else -1.0
+            back[i][j] = arg
+    last = max(range(n), key=lambda j: best[-1][j])
+    total = best[-1][last]
+    if total < 0:
+        return 0.0, []
+    ids, j = [], last
+    for i in range(len(clauses) - 1, -1, -1):
+        ids += seq[j].ids
+        j = back[i][j]
+        if j < 0 and i > 0:
+            break
+    return total / len(clauses), list(dict.fromkeys(ids))[:12]
+
+
+def _presence(clauses: list[list[Item]], windows, w, lex) -> tuple[float, list[str]]:
+    """Whether each of the option's actions is in the video, best match per action, averaged."""
+    vals, ids = [], []
+    for c in clauses:
+        best, best_ids = 0.0, ()
+        for have, _, wid in windows:
+            m = _match(c, have, w, lex)
+            if m > best:
+                best, best_ids = m, wid
+        vals.append(best)
+        ids += best_ids
+    return sum(vals) / len(vals), list(dict.fromkeys(ids))[:12]
