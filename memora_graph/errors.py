@@ -24,3 +24,8 @@ class BankError(MemoraError):
 class ConsolidationError(MemoraError):
     """Offline consolidation produced nothing usable (every model step failed); the participant's
     inferred knowledge is left as it was."""
+
+
+class DiskFullError(StoreError):
+    """A write ran out of disk space. The database was not checkpointed and its Kùzu handles were
+    abandoned unclosed (closing them after a failed write makes Kùzu 0.11.3 spin in its rollback)."""

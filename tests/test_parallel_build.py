@@ -39,8 +39,9 @@ def test_parallel_build_matches_the_serial_one(small_bank, tmp_path):
 
 
 def _staged(bank, p):
-    d = bank / ".staging" / p
-    return sorted(d.glob("*.pkl")) if d.is_dir() else []
+    from memora_graph.form.staging import Staging
+
+    return Staging(bank / ".staging" / p).entries()
 
 
 def test_killed_parallel_build_leaves_no_worker_and_resumes(tmp_path):
