@@ -32,6 +32,7 @@ from memora_graph.store import Store
 MANIFEST = "manifest.json"
 FORMAT = 1
 BUILD_LOCK = ".build.lock"
+VERIFIED = ".verified.json"
 NO_VERIFY_ENV = "MEMORA_NO_VERIFY"  # set by `--no-verify`; inherited by worker processes
 _PID = re.compile(r"^P\d{2}$")
 _DB = re.compile(r"^(P\d{2})\.kuzu$")
@@ -117,15 +118,21 @@ class Bank:
 
     def write_manifest(self, data: dict) -> None:
         tmp = self.manifest_path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
+        try:
+            tmp.write_text(json.dumps(data, indent=2, sort_keys=True))
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
         os.replace(tmp, self.manifest_path)  # atomic: never a half-written manifest
 
     def update_manifest(self, change: Callable[[dict], None]) -> dict:
         """Read, change and write the manifest under its lock."""
         with self.manifest_lock():
             data = self.manifest()
+            before = json.dumps(data, sort_keys=True)
             change(data)
-            self.write_manifest(data)
+            if json.dumps(data, sort_keys=True) != before:  # an unchanged manifest is not rewritten
+                self.write_manifest(data)
         return data
 
     def record_participant(self, participant: str, videos: list[str], counts: dict,
@@ -154,6 +161,22 @@ class Bank:
         the mark says which write did not finish."""
         mark = {"op": op, "pid": os.getpid(), "since": _now()}
         self.update_manifest(lambda data: data.setdefault("writing", {}).__setitem__(participant, mark))
+
+    def abandon_writing(self, participant: str) -> None:
+        """After this process's write of a participant failed: keep the mark (the write did not
+        finish) but no longer as this process's own, so that later opens here check the
+        participant like any reader does."""
+        def change(data: dict) -> None:
+            mark = data.get("writing", {}).get(participant)
+            if mark and mark.get("pid") == os.getpid():
+                mark["pid"] = None
+                mark["failed_in"] = os.getpid()
+
+        if self.exists():
+            try:
+                self.update_manifest(change)
+            except OSError:  # e.g. a full disk: the mark stays this process's, and reads as unfinished once it exits
+                pass
 
     def clear_writing(self, participant: str) -> None:
         def change(data: dict) -> None:
@@ -195,6 +218,7 @@ class Bank:
                 data.pop("writing", None)
 
         self.update_manifest(change)
+        self._remember(participant, st, record["sha256"])
         return record
 
     def check(self, participant: str, data: dict | None = None) -> None:
@@ -229,8 +253,11 @@ class Bank:
         st = db.stat()
         digest = None
         if st.st_size == integ.get("bytes"):
+            if self._seen_unchanged(participant, st, integ.get("sha256")):
+                return
             digest = file_sha256(db, st)
             if digest == integ.get("sha256"):
+                self._remember(participant, st, digest)
                 return
         owner = self._recorded_for(data, participant, st.st_size, db, st, digest)
         if owner:
@@ -268,6 +295,43 @@ class Bank:
         if entry.get("integrity"):
             self.check(participant, data)
 
+    # A file's (device, inode, size, mtime, ctime) after it last hashed to its recorded sha256, in
+    # BANK/.verified.json, so that a reader need not hash an unchanged file again. Any write to
+    # the file, copy or swap changes ctime or the inode (ctime cannot be set back without root
+    # changing the clock), so changed bytes are always hashed; damage beneath the filesystem (bit
+    # rot) is what only `memora verify`, which always hashes, can see.
+    @staticmethod
+    def _stat_key(st) -> list[int]:
+        return [st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns]
+
+    def _seen(self) -> dict:
+        try:
+            data = json.loads((self.path / VERIFIED).read_text())
+            return data if isinstance(data, dict) else {}
+        except (OSError, ValueError):
+            return {}
+
+    def _seen_unchanged(self, participant: str, st, sha256: str | None) -> bool:
+        seen = self._seen().get(participant) or {}
+        return bool(sha256) and seen.get("sha256") == sha256 and seen.get("stat") == self._stat_key(st)
+
+    def _remember(self, participant: str, st, sha256: str) -> None:
+        seen = self._seen()
+        seen[participant] = {"sha256": sha256, "stat": self._stat_key(st)}
+        tmp = self.path / f"{VERIFIED}.{os.getpid()}.tmp"
+        try:
+            tmp.write_text(json.dumps(seen, sort_keys=True))
+            os.replace(tmp, self.path / VERIFIED)
+        except OSError:  # a read-only bank: hash again next time
+            tmp.unlink(missing_ok=True)
+
+    def forget_seen(self, participant: str) -> None:
+        seen = self._seen()
+        if seen.pop(participant, None) is not None:
+            tmp = self.path / f"{VERIFIED}.{os.getpid()}.tmp"
+            tmp.write_text(json.dumps(seen, sort_keys=True))
+            os.replace(tmp, self.path / VERIFIED)
+
     def _recorded_for(self, data: dict, participant: str, size: int, db: Path, st, digest: str | None) -> str | None:
         for other, entry in sorted(data["participants"].items()):
             integ = entry.get("integrity") or {}
@@ -278,14 +342,15 @@ class Bank:
 
     def interrupted_message(self, participant: str, mark: dict) -> str:
         db, op, pid, since = self.db_path(participant), mark.get("op", "write"), mark.get("pid"), mark.get("since", "?")
-        if _alive(pid):
+        pid = pid if pid is not None else mark.get("failed_in")
+        if mark.get("pid") is not None and _alive(pid):
             return (f"{db}: being written by process {pid} ({op} since {since}); wait for it to finish "
                     "(or stop it), then retry.")
         if op == "build":
-            return (f"{db}: its build was interrupted ({since}, process {pid} is gone), so {participant}'s memory is "
+            return (f"{db}: its build was interrupted ({since}, process {pid} failed or is gone), so {participant}'s memory is "
                     f"incomplete. Resume it with `memora build {self.path} --participants {participant}` (or "
                     f"`memora build {self.path} --rebuild {participant}`).")
-        return (f"{db}: a write to it ({op}, {since}) did not finish (process {pid} is gone). `memora verify {self.path}` "
+        return (f"{db}: a write to it ({op}, {since}) did not finish (process {pid} failed or is gone). `memora verify {self.path}` "
                 f"reports it; `memora verify {self.path} --accept {participant}` keeps what that write committed, "
                 f"or rebuild: `memora build {self.path} --rebuild {participant}`.")
 
@@ -422,8 +487,9 @@ class Bank:
         verify = verify_default() if verify is None else verify
         if participant not in data["participants"] and not (not verify and self.db_path(participant).exists()):
             raise BankError(self._not_listed(participant, data))
-        self._notify(data, skip=participant if verify else None)
         ours = self.writing_here(participant, data)  # a build of this process: its content is in flux
+        if not ours:
+            self._notify(data, skip=participant if verify else None)
         checked = check and verify and not ours
         if checked:
             self.check(participant, data)
@@ -434,7 +500,8 @@ class Bank:
             self.mark_writing(participant, "write")
         try:
             store = Store(self.db_path(participant), read_only=read_only,
-                          on_close=None if read_only or ours else (lambda s: self.record_integrity(participant)))
+                          on_close=None if read_only or ours else (lambda s: self.record_integrity(participant)),
+                          on_fail=None if read_only or ours else (lambda s: self.abandon_writing(participant)))
         except BaseException:
             if not read_only and not ours:
                 self.clear_writing(participant)
@@ -520,6 +587,7 @@ class Bank:
                 else:
                     p.unlink(missing_ok=True)
                 removed.append(str(p))
+            self.forget_seen(participant)
             if self.exists():
                 listed = []
 

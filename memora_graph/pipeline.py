@@ -132,16 +132,25 @@ def auto_jobs(n_participants: int) -> int:
     return max(1, min(os.cpu_count() or 1, 4, n_participants // 2))
 
 
-BANK_BYTES_PER_SEGMENT = 60_000  # database bytes per 10 s segment, bundled build with consolidation (measured: ~51 kB)
-PEAK_FACTOR = 2.0  # while a participant loads: its staged videos, the database, write-ahead log and shadow pages
+# Database size of a built participant, measured on the bundled build with consolidation:
+# P09 160 segments 20.2 MB, P37 278 -> 26.9 MB, P04 1187 -> 36.3 MB: Kùzu allocates ~18-20 MB up
+# front, then ~15-20 kB per 10 s segment. While a participant loads, its staged videos, write-ahead
+# log and shadow pages come on top (P04 peaked at 49.4 MB, 1.36x its final size).
+NEW_DATABASE_BYTES = 20_000_000
+BYTES_PER_SEGMENT = 20_000
+PEAK_FACTOR = 1.4
 
 
 def space_needed(plan: dict[str, list[str]], durations: dict[str, float], built: dict[str, set] | None = None) -> float:
-    """Bytes a build is expected to add, from the 10 s segments of the videos not built yet."""
+    """Bytes a build is expected to need, from the 10 s segments of the videos not built yet
+    (and a new database for each participant not in `built`)."""
     built = built or {}
-    segments = sum(max(1, math.ceil(durations.get(v, 0.0) / 10.0))
-                   for p, videos in plan.items() for v in videos if v not in built.get(p, set()))
-    return segments * BANK_BYTES_PER_SEGMENT * PEAK_FACTOR
+    total = 0.0
+    for p, videos in plan.items():
+        segments = sum(max(1, math.ceil(durations.get(v, 0.0) / 10.0)) for v in videos if v not in built.get(p, set()))
+        if segments:
+            total += segments * BYTES_PER_SEGMENT + (NEW_DATABASE_BYTES if p not in built else 0)
+    return total * PEAK_FACTOR
 
 
 def check_space(bank: Bank, needed: float) -> None:
@@ -279,18 +288,21 @@ def build_bank(
                 results.append(_build_one(bank, p, df, durations, classes, embedder, governor,
                                           on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, **opts))
             out.model_seconds = model_seconds
-    except Exception as exc:
-        done = {r.build.participant for r in results}
-        _undo(bank, created, new - done, {p: a for p, a in aside.items() if p not in done})
-        for p in set(aside) & done:
-            shutil.rmtree(aside[p], ignore_errors=True)
+    except BaseException as exc:
+        for p in found:
+            bank.abandon_writing(p)  # an unfinished write of this process: checked like any other from now on
+        if not isinstance(exc, Exception):
+            raise  # an interrupt: like a kill, what is staged stays for a resume
+        recorded = set(bank.manifest()["participants"]) if bank.exists() else set()
+        # new participants the failure left unrecorded are removed; recorded ones stay, marked
+        # unfinished, for a resume (their videos are in the graph)
+        _undo(bank, created, new - recorded, {p: a for p, a in aside.items() if p not in recorded})
+        _purge_trash(bank, {r.build.participant for r in results})
         if isinstance(exc, DiskFullError) or (isinstance(exc, (OSError, StoreError)) and disk_full(exc, bank.path)):
             raise DiskFullError(f"{bank.path}: no space left on device (needed about {needed / 1e6:.0f} MB for this "
                                 f"build). Free some space and re-run it; finished participants are kept.") from exc
         raise
-    for a in aside.values():
-        shutil.rmtree(a, ignore_errors=True)
-    _drop_empty(bank.path / ".trash")
+    _purge_trash(bank, set(found))
     for r in results:
         out.add(r)
     out.wall_seconds = time.perf_counter() - t_start
@@ -350,6 +362,16 @@ def _undo(bank: Bank, created: bool, new: set[str], aside: dict[str, Path]) -> N
             empty = False
         if empty and not any(bank.path.glob("P*.kuzu")):
             shutil.rmtree(bank.path, ignore_errors=True)
+
+
+def _purge_trash(bank: Bank, participants: set[str]) -> None:
+    """Remove the previous databases of rebuilds that are now complete."""
+    trash = bank.path / ".trash"
+    if trash.is_dir():
+        for d in sorted(trash.iterdir()):
+            if d.name.split("-", 1)[0] in participants:
+                shutil.rmtree(d, ignore_errors=True)
+    _drop_empty(trash)
 
 
 def _drop_empty(folder: Path) -> None:
@@ -605,7 +627,9 @@ def build_from_video(
     except Exception as exc:
         # nothing half-written: what this run staged is gone (see _build_videos), a participant or
         # a bank this run created is removed
-        _undo(bank, created, {participant} if new else set(), {})
+        bank.abandon_writing(participant)
+        recorded = bank.exists() and participant in bank.manifest()["participants"]
+        _undo(bank, created, {participant} if new and not recorded else set(), {})
         if isinstance(exc, (OSError, StoreError)) and not isinstance(exc, DiskFullError) and disk_full(exc, bank.path):
             raise DiskFullError(disk_full_message(bank.path)) from exc
         raise

@@ -90,14 +90,17 @@ class Store:
     """One Kùzu database (one participant's memory), opened read-only unless asked otherwise."""
 
     def __init__(self, path: str | Path, read_only: bool = True, bulk: bool = False,
-                 on_close: Callable[[Store], None] | None = None):
+                 on_close: Callable[[Store], None] | None = None, on_fail: Callable[[Store], None] | None = None,
+                 buffer_pool_bytes: int = 0):
         """`bulk=True` (builds) defers checkpoints to `close()`: a commit then only appends to
         the write-ahead log, which is still replayed after a crash, so nothing committed is lost.
         `on_close(store)` runs after a clean close (the bank records a written database's
-        integrity there); it does not run when the close failed."""
+        integrity there); it does not run when the close failed: `on_fail(store)` does.
+        `buffer_pool_bytes` caps Kùzu's page cache (0: Kùzu's default, most of the memory)."""
         self.path = Path(path)
         self.read_only = read_only
         self.on_close = on_close
+        self.on_fail = on_fail
         self._broken: StoreError | None = None
         if read_only and not self.path.exists():
             raise StoreError(f"{self.path}: no database here. Build it first with `memora build`.")
@@ -106,7 +109,8 @@ class Store:
             raise StoreError(f"{self.path}: empty file, not a database (a build that never started?). Delete it and rebuild.")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=not bulk)
+            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=not bulk,
+                                     buffer_pool_size=buffer_pool_bytes)
             self._conn = kuzu.Connection(self._db)
         except RuntimeError as exc:
             raise translate_error(exc, self.path) from exc
@@ -116,16 +120,26 @@ class Store:
 
     # -- lifecycle ---------------------------------------------------------------------
     def close(self) -> None:
-        if self._broken is not None:
-            return  # abandoned after a full disk: nothing may touch these handles again
+        if self._broken is not None:  # abandoned after a full disk: nothing may touch these handles again
+            self._failed()
+            return
         if getattr(self, "_conn", None) is not None:
-            if not self.read_only:
-                self._execute("CHECKPOINT")
-            self._conn.close()
-            self._db.close()
+            try:
+                if not self.read_only:
+                    self._execute("CHECKPOINT")
+                self._conn.close()
+                self._db.close()
+            except BaseException:
+                self._failed()
+                raise
             self._conn = None
             if self.on_close is not None:
                 self.on_close(self)
+
+    def _failed(self) -> None:
+        hook, self.on_fail = self.on_fail, None
+        if hook is not None:
+            hook(self)
 
     def _abandon(self, exc: BaseException) -> DiskFullError:
         """After a write failed for lack of space, Kùzu 0.11.3 spins at 100% CPU in its rollback

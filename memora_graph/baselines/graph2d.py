@@ -13,7 +13,7 @@ results per category, activities with their neighbouring turns as `_context`),
 
 from __future__ import annotations
 
-import pickle
+import json
 from collections import defaultdict
 from itertools import combinations
 from pathlib import Path
@@ -27,7 +27,7 @@ from memora_graph.baselines.common import (
 )
 from memora_graph.baselines.common import top_k as top_k_rows
 
-VERSION = "graph2d-1"
+VERSION = "graph2d-2"  # 2: cached as node-link JSON (earlier caches were pickles and are never read)
 SEEDS = 12
 PER_CATEGORY = 3
 OBJECT_FALLBACK_COSINE = 0.3
@@ -105,18 +105,17 @@ class Graph2DMemory:
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)
         base = cache_dir(bank) / f"graph2d-{participant}-{key}"
-        pkl, npy = base.with_suffix(".pkl"), base.with_suffix(".npy")
-        if pkl.exists() and npy.exists():
-            with pkl.open("rb") as fh:
-                graph, nodes = pickle.load(fh)
-            return cls(participant, mode, graph, nodes, np.load(npy))
+        cached, npy = base.with_suffix(".json"), base.with_suffix(".npy")
+        if cached.exists() and npy.exists():  # JSON and a plain array: a cache file cannot run code
+            data = json.loads(cached.read_text())
+            graph = nx.node_link_graph(data["graph"], edges="edges")
+            return cls(participant, mode, graph, data["nodes"], np.load(npy, allow_pickle=False))
         graph = build_graph(load_records(bank, participant), mode)
         nodes = sorted(graph.nodes)
         store = store or EmbeddingStore(bank)
         vectors = store.encode([graph.nodes[n]["text"] for n in nodes])
         store.save()
-        with pkl.open("wb") as fh:
-            pickle.dump((graph, nodes), fh)
+        cached.write_text(json.dumps({"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes}))
         np.save(npy, vectors)
         return cls(participant, mode, graph, nodes, vectors)
 

@@ -17,7 +17,6 @@ import json
 import time
 import uuid
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 
 import numpy as np
 import polars as pl

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -104,6 +105,8 @@ class ParticipantBuilder:
         self.staging = Staging(bank.path / ".staging" / participant)
         entities, places, next_ord, self._op_seq, self.in_db = [], [], 0, 0, set()
         bank.check_before_build(participant)
+        if bank.exists() and participant in bank.manifest().get("writing", {}):
+            bank.mark_writing(participant, "build")  # resuming an unfinished write: this build finishes it
         if self.db.exists():
             with Store(self.db, read_only=True) as store:
                 self.in_db = set(store.run("videos", participant=participant)["video"].to_list())
@@ -300,7 +303,11 @@ class ParticipantBuilder:
                           if loc in self.db_places and pp.turn_count != self.db_places[loc]]
         place_vecs = self.embedder.encode([pp.text() for pp in new_places + changed_places])
         self.bank.mark_writing(p, "build")  # until the bank records the database's integrity again
-        self.store = Store(self.db, read_only=False, bulk=True)
+        try:
+            self.store = Store(self.db, read_only=False, bulk=True)
+        except BaseException:
+            self.bank.clear_writing(p)  # nothing was written
+            raise
         self.store.apply_schema()
         with self.store.transaction():
             s = self.store
@@ -431,8 +438,10 @@ def build_participant(bank: Bank, participant: str, actions: pl.DataFrame, durat
             fingerprints = annotation_fingerprints(actions.filter(pl.col("video_id").is_in(sorted(builder.done))))
             bank.record_participant(participant, sorted(builder.done), out.counts, annotations=fingerprints)
             out.timings.graph += time.perf_counter() - t0
-        except Exception:
-            builder.discard()
+        except BaseException:
+            if not isinstance(sys.exc_info()[1], KeyboardInterrupt):
+                builder.discard()  # a failure; an interrupt keeps what was staged, to resume
+            bank.abandon_writing(participant)
             raise
         finally:
             builder.close()

@@ -21,7 +21,7 @@ from pathlib import Path
 from memora_graph.errors import BankError
 
 SIDE_SUFFIXES = (".wal", ".shadow")  # Kùzu's write-ahead log and the shadow pages of a checkpoint
-PROBE_TIMEOUT_S = 300
+PROBE_TIMEOUT_S = 120
 
 _HASHED: dict[tuple, str] = {}  # (path, size, mtime_ns, ctime_ns, inode) -> sha256, for this process
 
@@ -56,7 +56,8 @@ def probe(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict:
     try:
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired:
-        raise BankError(f"{db}: opening it did not finish in {timeout:.0f} s (damaged?); it was not opened here") from None
+        raise BankError(f"{db}: Kùzu did not finish opening it in {timeout:.0f} s, in a child process (stopped; a "
+                        "damaged file can make it spin); it was not opened here") from None
     sides = ", ".join(p.name for p in side_files(db))
     with_sides = f" with {sides}" if sides else ""
     if res.returncode < 0:

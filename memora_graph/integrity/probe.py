@@ -14,7 +14,7 @@ def main(argv: list[str]) -> int:
 
     db, participant = argv
     try:
-        with Store(db, read_only=True) as store:
+        with Store(db, read_only=True, buffer_pool_bytes=256 << 20) as store:  # a damaged file cannot take the memory
             tables = store.table_counts(participant)
             counts = store.rows("store_counts", participant=participant)[0] if "Video" in tables else {}
     except MemoraError as exc:

@@ -64,3 +64,19 @@ def test_swapped_files_name_the_owner(bank):
     CORPUS["swapped_files"](bank)
     r = memora("query", bank, QUERY, "--participant", "P09")
     assert r.returncode == 1 and "holds the database recorded for P37" in r.stdout + r.stderr
+
+
+def test_an_edit_after_a_checked_open_is_still_caught(bank):
+    """Readers skip re-hashing a file whose inode, size, mtime and ctime are those it last
+    hashed to its record with; an edit changes ctime even when mtime is put back."""
+    import os
+
+    assert memora("query", bank, QUERY, "--participant", "P09").returncode == 0
+    seen = json.loads((bank / ".verified.json").read_text())
+    assert seen["P09"]["sha256"] == json.loads((bank / "manifest.json").read_text())["participants"]["P09"]["integrity"]["sha256"]
+    db = bank / "P09.kuzu"
+    st = db.stat()
+    CORPUS["narration_edit"](bank)
+    os.utime(db, ns=(st.st_atime_ns, st.st_mtime_ns))  # mtime as it was
+    r = memora("query", bank, QUERY, "--participant", "P09")
+    assert r.returncode == 1 and "does not match the sha256" in r.stdout + r.stderr

@@ -233,3 +233,67 @@ def test_a_rw_open_that_cannot_lock_leaves_no_mark(bank):
 def test_unknown_participant_id_is_refused(bank):
     with pytest.raises(BankError, match="must look like P01"):
         Bank(bank).forget("../etc")
+
+
+def test_the_graph2d_cache_is_json_and_reloads_the_same_graph(bank, embedder):
+    import networkx as nx
+
+    from memora_graph.baselines.graph2d import Graph2DMemory
+
+    built = Graph2DMemory.load(bank, "P09")
+    files = sorted(p.name for p in (bank / ".cache").glob("graph2d-P09-*"))
+    assert [f.rsplit(".", 1)[1] for f in files] == ["json", "npy"]
+    cached = Graph2DMemory.load(bank, "P09")  # from the cache
+    assert cached.nodes == built.nodes and (cached.vectors == built.vectors).all()
+    assert nx.utils.graphs_equal(cached.graph, built.graph)
+    assert cached.search("wash the pan") == built.search("wash the pan")
+
+
+def test_accept_records_a_bank_built_before_integrity_records(bank):
+    from support.corrupt import not_recorded
+
+    not_recorded(bank)
+    assert memora("query", bank, "MATCH (v:Video) RETURN count(*) AS n", "--participant", "P09").returncode == 1
+    r = memora("verify", bank, "--accept", "P09", "--json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert Bank(bank).manifest()["participants"]["P09"]["integrity"]["tables"]["Video"] == 4
+    assert memora("query", bank, "MATCH (v:Video) RETURN count(*) AS n", "--participant", "P09").returncode == 0
+
+
+def _write_then_die(db, cypher: str) -> None:
+    """A writer that commits and dies before any checkpoint: the commit is only in the WAL."""
+    import subprocess
+    import sys
+
+    code = ("import os, sys, kuzu; db = kuzu.Database(sys.argv[1], auto_checkpoint=False); "
+            "kuzu.Connection(db).execute(sys.argv[2]); os._exit(0)")
+    subprocess.run([sys.executable, "-c", code, str(db), cypher], check=True)
+
+
+def _mark(bank, op: str) -> None:
+    data = json.loads((bank / "manifest.json").read_text())
+    data["writing"] = {"P09": {"op": op, "pid": 2 ** 22 + 7, "since": "2025-01-01T00:00:00+00:00"}}
+    (bank / "manifest.json").write_text(json.dumps(data))
+
+
+def test_an_unfinished_write_is_refused_until_accepted(bank):
+    _write_then_die(bank / "P09.kuzu", "CREATE (:Participant {id: 'X99', participant: 'P09'})")
+    _mark(bank, "write")
+    q = ["query", bank, "MATCH (p:Participant) RETURN p.id AS id ORDER BY id", "--participant", "P09", "--json"]
+    r = memora(*q)
+    assert r.returncode == 1 and "did not finish" in r.stdout + r.stderr and "--accept P09" in r.stdout + r.stderr
+    a = memora("verify", bank, "--accept", "P09")
+    assert a.returncode == 0, a.stdout + a.stderr
+    assert not (bank / "P09.kuzu.wal").exists()
+    r = memora(*q)
+    assert r.returncode == 0 and [x["id"] for x in json.loads(r.stdout)] == ["P09", "X99"]  # the committed write kept
+
+
+def test_a_build_refuses_to_replay_a_log_that_crashes_kuzu(bank):
+    from support.corrupt import foreign_wal
+
+    foreign_wal(bank)
+    _mark(bank, "build")  # an interrupted build: a log there could be its own, so it is tried in a child
+    with pytest.raises(BankError, match=r"P09\.kuzu: Kùzu crashed \(signal \d+\) opening it with P09\.kuzu\.wal"):
+        build_bank(bank, ["P09"])
+    assert (bank / "P09.kuzu.wal").exists()  # reported, not replayed or removed
