@@ -266,15 +266,17 @@ def build_bank(
     created = not bank.exists()
     before = set(bank.manifest()["participants"]) if not created else set()
     new = {p for p in found if p not in before and not bank.db_path(p).exists()}
-    aside = {p: _set_aside(bank, p) for p in targets if p in before or bank.db_path(p).exists()}
-    for p, ids in sorted(targets.items()):
-        if on_notice:
-            on_notice(f"rebuilding {p} from its first video ({', '.join(ids)}): memory formation is sequential, "
-                      f"so a video is rebuilt with the participant that owns it")
+    aside: dict[str, Path] = {}
     out.jobs = max(1, min(jobs or auto_jobs(len(found)), len(found)))
     opts = dict(mode=mode, stop_after=stop_after, episodic=episodic, fts=fts)
     results: list[_Built] = []
     try:
+        for p, ids in sorted(targets.items()):
+            if p in before or bank.db_path(p).exists():
+                aside[p] = _set_aside(bank, p)
+            if on_notice:
+                on_notice(f"rebuilding {p} from its first video ({', '.join(ids)}): memory formation is sequential, "
+                          f"so a video is rebuilt with the participant that owns it")
         if out.jobs > 1 or isolate:
             results = _build_parallel(bank, found, df, durations, classes, embed_model, out.jobs, on_video, opts,
                                       results)

@@ -25,11 +25,11 @@ from memora_graph.embed import CachedEmbedder
 from memora_graph.errors import DiskFullError
 from memora_graph.form.editor import DeterministicPolicy, EditPolicy, EntityEditor, EntityState, RawPolicy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
+from memora_graph.form.staging import StagedVideo, Staging
 from memora_graph.llm.backends import CallLog, CallRecord, ModelReplyError
 from memora_graph.perceive.annotations import ClassTables
 from memora_graph.perceive.narration import perceive_video
 from memora_graph.records import LayeredSegment
-from memora_graph.form.staging import StagedVideo, Staging
 from memora_graph.store import Store, disk_full, disk_full_message
 
 MODES = ("edited", "raw")
@@ -105,7 +105,8 @@ class ParticipantBuilder:
         self.staging = Staging(bank.path / ".staging" / participant)
         entities, places, next_ord, self._op_seq, self.in_db = [], [], 0, 0, set()
         bank.check_before_build(participant)
-        if bank.exists() and participant in bank.manifest().get("writing", {}):
+        self._resuming = bank.exists() and participant in bank.manifest().get("writing", {})
+        if self._resuming:
             bank.mark_writing(participant, "build")  # resuming an unfinished write: this build finishes it
         if self.db.exists():
             with Store(self.db, read_only=True) as store:
@@ -306,7 +307,10 @@ class ParticipantBuilder:
         try:
             self.store = Store(self.db, read_only=False, bulk=True)
         except BaseException:
-            self.bank.clear_writing(p)  # nothing was written
+            if self._resuming:
+                self.bank.abandon_writing(p)  # still the earlier write's unfinished state
+            else:
+                self.bank.clear_writing(p)  # nothing was written
             raise
         self.store.apply_schema()
         with self.store.transaction():
