@@ -400,9 +400,10 @@ class Bank:
                 log.warning(line)
 
     @contextmanager
-    def participant_lock(self, participant: str) -> Iterator[None]:
+    def participant_lock(self, participant: str, wait_s: float = 10.0) -> Iterator[None]:
         """Exclusive, across processes, for building or forgetting one participant: a byte-range
-        lock on BANK/.build.lock (one byte per participant number), held for the whole build."""
+        lock on BANK/.build.lock (one byte per participant number), held for the whole build.
+        Waits up to `wait_s` (the worker of a build that was just killed dies a moment after it)."""
         self.db_path(participant)
         try:
             import fcntl
@@ -415,11 +416,16 @@ class Bank:
         if key not in _LOCK_FDS:  # POSIX record locks belong to the process: keep one descriptor open
             _LOCK_FDS[key] = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         fd, n = _LOCK_FDS[key], int(participant[1:])
-        try:
-            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB, 1, n)
-        except OSError:
-            raise BankError(f"{self.path}: {participant} is being built (or forgotten) by another process; "
-                            "wait for it to finish, then retry") from None
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB, 1, n)
+                break
+            except OSError:
+                if time.monotonic() >= deadline:
+                    raise BankError(f"{self.path}: {participant} is being built (or forgotten) by another process; "
+                                    "wait for it to finish, then retry") from None
+                time.sleep(0.1)
         try:
             yield
         finally:

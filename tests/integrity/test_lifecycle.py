@@ -90,7 +90,7 @@ def test_a_damaged_staged_video_is_built_again_with_those_after_it(small_bank, e
 
 def test_forget_removes_every_trace_of_one_person(bank):
     cache = bank / ".cache"
-    cache.mkdir()
+    cache.mkdir(exist_ok=True)
     for name in ("graph2d-P09-1a2b.json", "graph2d-P09-1a2b.npy", "graph2d-P37-9f9f.json", "embeddings-MiniLM.npz"):
         (cache / name).write_bytes(b"x")
     (bank / ".staging" / "P09" / "0000_P09_103").mkdir(parents=True)
@@ -113,7 +113,7 @@ def test_forget_removes_every_trace_of_one_person(bank):
 def test_forget_waits_for_no_build(bank):
     b = Bank(bank)
     with b.participant_lock("P09"):
-        r = memora("forget", bank, "--participant", "P09")
+        r = memora("forget", bank, "--participant", "P09")  # waits 10 s for the lock, then says why not
     assert r.returncode == 1 and "being built (or forgotten) by another process" in r.stdout + r.stderr
     assert (bank / "P09.kuzu").exists()
 
