@@ -79,10 +79,13 @@ def main():
 @click.option("--jobs", type=click.IntRange(min=1), default=None,
               help="Participants built side by side, one worker process each (default: one per core, at most 4, "
                    "and at least two participants per worker).")
+@click.option("--rebuild", "rebuild", metavar="VIDEO", multiple=True,
+              help="Rebuild the participant that owns this video (or a participant id) from scratch, e.g. after "
+                   "its annotations changed (memory formation is sequential). Repeatable or comma-separated.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
-          quiet):
+          rebuild, quiet):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -95,6 +98,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/raw --mode raw --participants P01
       memora build banks/episodic --episodic          # MEMORA-Episodic: no routines / preferences
       memora build banks/epic --fts                   # also the full-text indexes (recipes fts, kuzu)
+      memora build banks/epic --rebuild P01_102       # rebuild P01 (e.g. its annotations changed)
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
           --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
@@ -104,7 +108,11 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     video_opts = dict(participant=participant, video_id=video_id, base_url=base_url, perception_model=perception_model,
                       editor_model=editor_model, editor_base_url=editor_base_url, audio=audio,
                       consolidation=consolidation, consolidation_model=consolidation_model)
+    rebuild = [r.strip() for x in rebuild for r in x.split(",") if r.strip()]
     if video:
+        if rebuild:
+            raise click.UsageError("--rebuild applies to annotation builds; to rebuild a participant from video, "
+                                   "`memora forget BANK --participant P` and build it again with all its videos")
         if annotations or mode != "edited" or participants != "all" or jobs:
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
                                    "and --jobs")
@@ -134,7 +142,8 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
 
     with progress:
         result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
-                            episodic=episodic, fts=fts, jobs=jobs)
+                            episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None, isolate=True,
+                            on_notice=lambda text: click.echo(text, err=True))
     rows = []
     for r in result.participants:
         shares = decision_shares(r.decisions)
@@ -456,6 +465,15 @@ def _register_optional_groups() -> None:
 
 
 _register_optional_groups()
+
+
+def _register_integrity() -> None:
+    from memora_graph.integrity.cli import register
+
+    register(main)  # verify, forget, and --no-verify on every command that opens a bank (last: it sees them all)
+
+
+_register_integrity()
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -34,3 +34,8 @@ class QueryRefused(QueryError):
 
 class QueryTimeout(StoreError):
     """An ad-hoc query ran past its time limit and was stopped; nothing it did was kept."""
+
+
+class DiskFullError(StoreError):
+    """A write ran out of disk space. The database was not checkpointed and its Kùzu handles were
+    abandoned unclosed (closing them after a failed write makes Kùzu 0.11.3 spin in its rollback)."""

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import math
 import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -11,9 +14,10 @@ from pathlib import Path
 from memora_graph.bank import Bank, check_writable
 from memora_graph.consolidate import finish_participant
 from memora_graph.embed import ThreadGovernor, adaptive_threads, get_embedder
-from memora_graph.errors import DataError
+from memora_graph.errors import BankError, DataError, DiskFullError, StoreError
 from memora_graph.form.build import ParticipantBuild, Timings, build_participant
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info
+from memora_graph.store import disk_full, disk_full_message, free_bytes
 
 
 @dataclass
@@ -128,6 +132,68 @@ def auto_jobs(n_participants: int) -> int:
     return max(1, min(os.cpu_count() or 1, 4, n_participants // 2))
 
 
+# Database size of a built participant, measured on the bundled build with consolidation:
+# P09 160 segments 20.2 MB, P37 278 -> 26.9 MB, P04 1187 -> 36.3 MB: Kùzu allocates ~18-20 MB up
+# front, then ~15-20 kB per 10 s segment. While a participant loads, its staged videos, write-ahead
+# log and shadow pages come on top (P04 peaked at 49.4 MB, 1.36x its final size).
+NEW_DATABASE_BYTES = 20_000_000
+BYTES_PER_SEGMENT = 20_000
+PEAK_FACTOR = 1.4
+
+
+def space_needed(plan: dict[str, list[str]], durations: dict[str, float], built: dict[str, set] | None = None) -> float:
+    """Bytes a build is expected to need, from the 10 s segments of the videos not built yet
+    (and a new database for each participant not in `built`)."""
+    built = built or {}
+    total = 0.0
+    for p, videos in plan.items():
+        segments = sum(max(1, math.ceil(durations.get(v, 0.0) / 10.0)) for v in videos if v not in built.get(p, set()))
+        if segments:
+            total += segments * BYTES_PER_SEGMENT + (NEW_DATABASE_BYTES if p not in built else 0)
+    return total * PEAK_FACTOR
+
+
+def check_space(bank: Bank, needed: float) -> None:
+    free = free_bytes(bank.path)
+    if free is not None and needed > free:
+        raise DiskFullError(f"{bank.path}: no space left on device for this build (needed about {needed / 1e6:.0f} MB, "
+                            f"{free / 1e6:.0f} MB free). Free some space, or build fewer participants at a time.")
+
+
+def changed_annotations(bank: Bank, df, participants: list[str]) -> dict[str, list[str]]:
+    """Built videos whose annotation rows differ from those they were built from, per participant."""
+    if not bank.exists():
+        return {}
+    from memora_graph.form.build import annotation_fingerprints
+
+    entries = bank.manifest()["participants"]
+    out = {}
+    for p in participants:
+        recorded = entries.get(p, {}).get("annotations", {})
+        if not recorded:
+            continue
+        now = annotation_fingerprints(df.filter(df["participant_id"] == p))
+        changed = sorted(v for v, fp in recorded.items() if v in now and now[v] != fp)
+        if changed:
+            out[p] = changed
+    return out
+
+
+def rebuild_targets(ids: list[str], df) -> dict[str, list[str]]:
+    """The participants to rebuild for `--rebuild` ids (videos, or participants), with the ids
+    that named each. Online memory formation is sequential, so a video is rebuilt with the whole
+    participant that owns it."""
+    owner = dict(df.select("video_id", "participant_id").unique().iter_rows())
+    known = set(df["participant_id"].unique().to_list())
+    out: dict[str, list[str]] = {}
+    for i in ids:
+        p = i if i in known else owner.get(i)
+        if p is None:
+            raise DataError(f"--rebuild {i}: no such video or participant in the annotations")
+        out.setdefault(p, []).append(i)
+    return out
+
+
 def build_bank(
     bank_path: str | Path,
     participants: list[str] | None = None,
@@ -140,16 +206,28 @@ def build_bank(
     episodic: bool = False,
     fts: bool = False,
     jobs: int | None = None,
+    rebuild: list[str] | None = None,
+    isolate: bool = False,
+    on_notice: Callable[[str], None] | None = None,
 ) -> BankBuild:
-    """Build (or resume) a bank. `participants=None` means every participant in the annotations.
-    After each participant, offline consolidation and enrichment write its inferred knowledge,
-    unless `episodic` (the MEMORA-Episodic condition) or a raw bank. `fts` also builds the
-    full-text indexes (only the 'fts' / 'kuzu' / 'hnsw' retrieval recipes read them).
+    """Build (or resume) a bank. `participants=None` means every participant in the annotations
+    (with `rebuild`, only the participants rebuilt). After each participant, offline
+    consolidation and enrichment write its inferred knowledge, unless `episodic` (the
+    MEMORA-Episodic condition) or a raw bank. `fts` also builds the full-text indexes (only the
+    'fts' / 'kuzu' / 'hnsw' retrieval recipes read them).
 
     `jobs` participants are built side by side in worker processes (each participant is its
-    own database; default `auto_jobs`). One job builds in this process, its torch threads chosen
-    per batch (ThreadGovernor); workers embed on one thread each, which on 2 cores beats two
-    threads spinning against each other."""
+    own database; default `auto_jobs`). One job builds in this process (or, with `isolate`, in
+    one worker process this one can stop: `memora build` does that), its torch threads chosen
+    per batch (ThreadGovernor); parallel workers embed on one thread each, which on 2 cores
+    beats two threads spinning against each other.
+
+    Before any work: a built video whose annotation rows changed since is an error naming
+    `rebuild` (ids of videos or participants; each rebuilds its whole participant, whose old
+    database is kept aside until the new one is complete); the free space must cover an
+    estimate from the videos to build. A failure (an exception, not a kill) removes the partial
+    files of participants new to the bank, and the bank itself if this build created it; a full
+    disk is reported as such. `on_notice(text)` hears what the build decided (rebuilds)."""
     t_start = time.perf_counter()
     if participants is not None and not list(participants):
         raise DataError("no participants given: name some (P01,P02), or pass None for every participant")
@@ -170,28 +248,144 @@ def build_bank(
         missing = sorted(set(participants) - set(found))
         if missing:
             raise DataError(f"{annotations or 'bundled annotations'}: no actions for participant(s) {', '.join(missing)}")
+    targets = rebuild_targets(rebuild, df) if rebuild else {}
+    if targets and not participants:
+        found = sorted(targets)
+        df = df.filter(df["participant_id"].is_in(found))
+    bank = Bank(bank_path)
+    changed = {p: v for p, v in changed_annotations(bank, df, found).items() if p not in targets}
+    if changed:
+        lines = "; ".join(f"{p}: {', '.join(v)}" for p, v in sorted(changed.items()))
+        first = next(iter(sorted(changed.values())))[0]
+        raise DataError(f"{annotations or 'bundled annotations'}: the annotations of built video(s) changed since they "
+                        f"were built ({lines}); the bank still holds the old ones. Rebuild with them: `memora build "
+                        f"{bank.path} --rebuild {first}` (rebuilds the participant that owns the video).")
+    plan = {p: sorted(df.filter(df["participant_id"] == p)["video_id"].unique().to_list()) for p in found}
+    built = {p: set(e.get("videos", [])) for p, e in bank.manifest()["participants"].items() if p not in targets} \
+        if bank.exists() else {}
+    needed = space_needed(plan, durations, built)
+    check_space(bank, needed)
     out.load_seconds = time.perf_counter() - t0
     if on_plan:
-        on_plan({p: sorted(df.filter(df["participant_id"] == p)["video_id"].unique().to_list()) for p in found})
+        on_plan(plan)
+    created = not bank.exists()
+    before = set(bank.manifest()["participants"]) if not created else set()
+    new = {p for p in found if p not in before and not bank.db_path(p).exists()}
+    aside: dict[str, Path] = {}
     out.jobs = max(1, min(jobs or auto_jobs(len(found)), len(found)))
     opts = dict(mode=mode, stop_after=stop_after, episodic=episodic, fts=fts)
-    if out.jobs > 1:
-        results = _build_parallel(Bank(bank_path), found, df, durations, classes, embed_model, out.jobs, on_video, opts)
-    else:
-        t0 = time.perf_counter()
-        embedder = get_embedder(embed_model)
-        model_seconds = time.perf_counter() - t0
-        bank = Bank(bank_path)
-        bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
-        governor = ThreadGovernor()  # torch threads per batch: all cores unless other processes are busy
-        results = [_build_one(bank, p, df, durations, classes, embedder, governor,
-                              on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, **opts)
-                   for p in found]
-        out.model_seconds = model_seconds
+    results: list[_Built] = []
+    try:
+        for p, ids in sorted(targets.items()):
+            if p in before or bank.db_path(p).exists():
+                aside[p] = _set_aside(bank, p)
+            if on_notice:
+                on_notice(f"rebuilding {p} from its first video ({', '.join(ids)}): memory formation is sequential, "
+                          f"so a video is rebuilt with the participant that owns it")
+        if out.jobs > 1 or isolate:
+            results = _build_parallel(bank, found, df, durations, classes, embed_model, out.jobs, on_video, opts,
+                                      results)
+        else:
+            t0 = time.perf_counter()
+            embedder = get_embedder(embed_model)
+            model_seconds = time.perf_counter() - t0
+            bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
+            governor = ThreadGovernor()  # torch threads per batch: all cores unless other processes are busy
+            for p in found:
+                results.append(_build_one(bank, p, df, durations, classes, embedder, governor,
+                                          on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, **opts))
+            out.model_seconds = model_seconds
+    except BaseException as exc:
+        for p in found:
+            bank.abandon_writing(p)  # an unfinished write of this process: checked like any other from now on
+        if not isinstance(exc, Exception):
+            raise  # an interrupt: like a kill, what is staged stays for a resume
+        recorded = set(bank.manifest()["participants"]) if bank.exists() else set()
+        # new participants the failure left unrecorded are removed; recorded ones stay, marked
+        # unfinished, for a resume (their videos are in the graph)
+        _undo(bank, created, new - recorded, {p: a for p, a in aside.items() if p not in recorded})
+        _purge_trash(bank, {r.build.participant for r in results})
+        if isinstance(exc, DiskFullError) or (isinstance(exc, (OSError, StoreError)) and disk_full(exc, bank.path)):
+            raise DiskFullError(f"{bank.path}: no space left on device (needed about {needed / 1e6:.0f} MB for this "
+                                f"build). Free some space and re-run it; finished participants are kept.") from exc
+        raise
+    _purge_trash(bank, set(found))
     for r in results:
         out.add(r)
     out.wall_seconds = time.perf_counter() - t_start
     return out
+
+
+def _set_aside(bank: Bank, participant: str) -> Path:
+    """Move a participant's database and staged videos to BANK/.trash/<participant>-<time>/ and
+    drop its manifest entry (kept there as entry.json), for a rebuild."""
+    trash = bank.path / ".trash" / f"{participant}-{int(time.time() * 1000)}"
+    trash.mkdir(parents=True)
+    with bank.participant_lock(participant):
+        for f in sorted(bank.path.glob(f"{participant}.kuzu*")):
+            os.replace(f, trash / f.name)
+        staging = bank.path / ".staging" / participant
+        if staging.exists():
+            os.replace(staging, trash / "staging")
+        entry = {}
+
+        def change(data: dict) -> None:
+            entry.update(data["participants"].pop(participant, {}))
+            mark = data.get("writing", {}).pop(participant, None)
+            if mark is not None and not data["writing"]:
+                data.pop("writing")
+
+        if bank.exists():
+            bank.update_manifest(change)
+        (trash / "entry.json").write_text(json.dumps(entry, sort_keys=True))
+    return trash
+
+
+def _undo(bank: Bank, created: bool, new: set[str], aside: dict[str, Path]) -> None:
+    """After a failed build: remove what it left of participants new to the bank, put rebuilt
+    participants' old databases back, and remove the bank if this build created it and nothing
+    of it remains."""
+    for p in sorted(new):
+        try:
+            bank.forget(p, shared_caches=False)
+        except BankError:
+            pass
+    for p, trash in sorted(aside.items()):
+        for f in sorted(bank.path.glob(f"{p}.kuzu*")):
+            f.unlink()
+        for f in sorted(trash.glob(f"{p}.kuzu*")):
+            os.replace(f, bank.path / f.name)
+        if (trash / "staging").exists():
+            os.replace(trash / "staging", bank.path / ".staging" / p)
+        entry = json.loads((trash / "entry.json").read_text() or "{}")
+        if entry and bank.exists():
+            bank.update_manifest(lambda data, p=p, entry=entry: data["participants"].__setitem__(p, entry))
+        shutil.rmtree(trash, ignore_errors=True)
+    _drop_empty(bank.path / ".trash")
+    if created and bank.path.is_dir():
+        try:
+            empty = not bank.exists() or not bank.manifest()["participants"]
+        except BankError:
+            empty = False
+        if empty and not any(bank.path.glob("P*.kuzu")):
+            shutil.rmtree(bank.path, ignore_errors=True)
+
+
+def _purge_trash(bank: Bank, participants: set[str]) -> None:
+    """Remove the previous databases of rebuilds that are now complete."""
+    trash = bank.path / ".trash"
+    if trash.is_dir():
+        for d in sorted(trash.iterdir()):
+            if d.name.split("-", 1)[0] in participants:
+                shutil.rmtree(d, ignore_errors=True)
+    _drop_empty(trash)
+
+
+def _drop_empty(folder: Path) -> None:
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
 
 
 # -- worker processes --------------------------------------------------------------------------------
@@ -199,9 +393,10 @@ def build_bank(
 _WORKER: dict = {}
 
 
-def _worker_init(embed_model: str | None, events) -> None:
+def _worker_init(embed_model: str | None, events, solo: bool = False) -> None:
     """Runs once in each worker process: die with the parent (a killed build must not leave
-    workers writing), one thread for torch and BLAS, then load the embedding model."""
+    workers writing), one thread for torch and BLAS (unless it is the only worker), then load
+    the embedding model."""
     try:
         import ctypes
         import signal
@@ -209,18 +404,21 @@ def _worker_init(embed_model: str | None, events) -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG (Linux)
     except (OSError, AttributeError):
         pass
-    try:
-        from threadpoolctl import threadpool_limits
+    if not solo:
+        try:
+            from threadpoolctl import threadpool_limits
 
-        threadpool_limits(limits=1)
-    except ImportError:
-        pass
+            threadpool_limits(limits=1)
+        except ImportError:
+            pass
     _WORKER["events"] = events
+    _WORKER["solo"] = solo
     t0 = time.perf_counter()
     try:
         import torch
 
-        torch.set_num_threads(1)
+        if not solo:
+            torch.set_num_threads(1)
         _WORKER["embedder"] = get_embedder(embed_model)
     except Exception as exc:  # noqa: BLE001 - raised again, as itself, by the first task
         _WORKER["error"] = exc
@@ -236,14 +434,18 @@ def _worker_model() -> str:
 def _worker_build(bank_path: str, p: str, actions, durations: dict, classes, opts: dict) -> _Built:
     _worker_model()
     events = _WORKER["events"]
-    r = _build_one(Bank(bank_path), p, actions, durations, classes, _WORKER["embedder"], ThreadGovernor(max_threads=1),
+    governor = ThreadGovernor() if _WORKER.get("solo") else ThreadGovernor(max_threads=1)
+    r = _build_one(Bank(bank_path), p, actions, durations, classes, _WORKER["embedder"], governor,
                    on_video=lambda v, n: events.put((p, v, n)), **opts)
     r.model_seconds = _WORKER.pop("model_seconds", 0.0)  # reported by a worker's first participant
     return r
 
 
 def _build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, embed_model: str | None, jobs: int,
-                    on_video, opts: dict) -> list[_Built]:
+                    on_video, opts: dict, results: list[_Built] | None = None) -> list[_Built]:
+    """Build participants in `jobs` worker processes; `results` receives each finished one as
+    it arrives. When one fails, the others are stopped at once (killed: a worker stuck in a
+    Kùzu call cannot be asked) and the failure is raised."""
     import multiprocessing
     import queue
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -262,9 +464,11 @@ def _build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, 
 
     sizes = df.group_by("participant_id").len().iter_rows()
     order = [p for p, _ in sorted(sizes, key=lambda r: (-r[1], r[0]))]  # largest first: the last to finish is small
-    results: dict[str, _Built] = {}
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init,
-                             initargs=(embed_model, events)) as pool:
+    finished: dict[str, _Built] = {}
+    results = results if results is not None else []
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init,
+                               initargs=(embed_model, events, jobs == 1))
+    try:
         # every worker starts and loads its model at once; the model loads (or says why it
         # cannot) before the bank is touched
         probes = [pool.submit(_worker_model) for _ in range(jobs)]
@@ -277,18 +481,26 @@ def _build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, 
             futures[pool.submit(_worker_build, str(bank.path), p, actions,
                                 {v: d for v, d in durations.items() if v in videos}, classes, opts)] = p
         pending = set(futures)
-        try:
-            while pending:
-                done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                drain()
-                for f in done:
-                    results[futures[f]] = f.result()
-        except BaseException:
-            for f in pending:
-                f.cancel()
-            raise
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            drain()
+            for f in sorted(done, key=lambda f: futures[f]):
+                exc = f.exception()
+                if exc is None:
+                    finished[futures[f]] = f.result()
+                    results.append(finished[futures[f]])
+            for f in done:
+                if f.exception() is not None:
+                    raise f.exception()
         drain()
-    return [results[p] for p in found]
+    except BaseException:
+        # ProcessPoolExecutor has no public way to stop a running task: kill its processes
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            proc.kill()
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return [finished[p] for p in found]
 
 
 # -- video ----------------------------------------------------------------------------------------
@@ -310,6 +522,7 @@ class VideoBuild:
     finish_seconds: float = 0.0  # the bulk load into the graph
     inferred_seconds: float = 0.0  # offline consolidation and enrichment after the build (and --fts indexes)
     wall_seconds: float = 0.0
+    loaded: bool = False  # staged videos were loaded into the graph (this run's or an interrupted one's)
 
     @property
     def segments(self) -> int:
@@ -368,12 +581,10 @@ def build_from_video(
     """
     import dataclasses
 
-    from memora_graph.form.build import ParticipantBuilder
     from memora_graph.form.llm_editor import LLMEditorPolicy
     from memora_graph.llm import CallLog
-    from memora_graph.perceive.video import DecodeOptions, list_videos, probe_video, segment_video
+    from memora_graph.perceive.video import DecodeOptions, list_videos, probe_video
     from memora_graph.perceive.vlm import VLMPerception
-    from memora_graph.embed import torch_threads
 
     t_start = time.perf_counter()
     bank = Bank(check_writable(bank_path))
@@ -409,7 +620,41 @@ def build_from_video(
     t0 = time.perf_counter()
     embedder = get_embedder(embed_model)
     out.load_seconds = time.perf_counter() - t0
+    created = not bank.exists()
     bank.init(mode="edited", embed_model=embedder.name, consolidated=False)
+    new = participant not in bank.manifest()["participants"] and not bank.db_path(participant).exists()
+    try:
+        with bank.participant_lock(participant):
+            _build_videos(bank, participant, embedder, policy, log, perceiver, infos, opts, out, on_video, on_segment)
+        t0 = time.perf_counter()
+        entry = bank.manifest().get("participants", {}).get(participant, {})
+        if out.loaded or "inferred" not in entry or bank.writing_here(participant):  # a resume with nothing new: done
+            finish_participant(bank, participant, embedder, episodic=episodic, fts=fts, processors=processors)
+        out.inferred_seconds = time.perf_counter() - t0
+    except Exception as exc:
+        # nothing half-written: what this run staged is gone (see _build_videos), a participant or
+        # a bank this run created is removed
+        bank.abandon_writing(participant)
+        recorded = bank.exists() and participant in bank.manifest()["participants"]
+        _undo(bank, created, {participant} if new and not recorded else set(), {})
+        if isinstance(exc, (OSError, StoreError)) and not isinstance(exc, DiskFullError) and disk_full(exc, bank.path):
+            raise DiskFullError(disk_full_message(bank.path)) from exc
+        raise
+    out.calls = list(log.records)
+    out.model_seconds = sum(r.latency_s for r in log.records)
+    out.wall_seconds = time.perf_counter() - t_start
+    return out
+
+
+def _build_videos(bank: Bank, participant: str, embedder, policy, log, perceiver, infos, opts, out: VideoBuild,
+                  on_video, on_segment) -> None:
+    """Perceive, edit and stage each video, then load them all. A video that fails (a decode
+    error halfway through, a model server that goes away) removes what this run staged, so the
+    database and staging are as they were; it is reported naming the file."""
+    from memora_graph.form.build import ParticipantBuilder
+    from memora_graph.perceive.video import segment_video
+    from memora_graph.embed import torch_threads
+
     builder = ParticipantBuilder(bank, participant, embedder, policy=policy, call_log=log)
     try:
         with torch_threads(1):  # small embedding batches: one torch thread is faster on 2 cores
@@ -437,23 +682,18 @@ def build_from_video(
                     "editor_failed": dropped, "decode_s": round(out.decode_seconds - decode_before, 3),
                     "seconds": round(time.perf_counter() - t_video, 3),
                 })
+            out.loaded = bool(builder.staged)
             t0 = time.perf_counter()
             builder.finish()
             out.finish_seconds = time.perf_counter() - t0
             out.counts = builder.counts()
             out.decisions = builder.decisions()
             bank.record_participant(participant, sorted(builder.done), out.counts)
+    except Exception:
+        builder.discard()
+        raise
     finally:
         builder.close()
-    t0 = time.perf_counter()
-    entry = bank.manifest().get("participants", {}).get(participant, {})
-    if any(not v.get("skipped") for v in out.videos) or "inferred" not in entry:  # a resume with nothing new: done
-        finish_participant(bank, participant, embedder, episodic=episodic, fts=fts, processors=processors)
-    out.inferred_seconds = time.perf_counter() - t0
-    out.calls = list(log.records)
-    out.model_seconds = sum(r.latency_s for r in log.records)
-    out.wall_seconds = time.perf_counter() - t_start
-    return out
 
 
 def _timed(clips, out: VideoBuild):

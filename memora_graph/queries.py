@@ -6,9 +6,12 @@ Each file holds one query with a header:
     // description: An object's state history in time order.
     // params: participant, object
     // mode: read                       (read | write)
+    // scope: participant               (participant | database)
 
 At load time the declared params must equal the $tokens of the body, and a query that touches
-participant data must take $participant.
+participant data must take $participant. A `scope: database` query reads or writes the
+database itself (catalog, schema records, row counts of every table), not one participant's
+records through their tables.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ PARTICIPANT_TABLES = (
 )
 _TOKEN = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 _LABEL = re.compile(r":\s*(" + "|".join(PARTICIPANT_TABLES) + r")\b")
-_HEADER = re.compile(r"^//\s*(name|description|params|mode|example)\s*:\s*(.*)$")
+_HEADER = re.compile(r"^//\s*(name|description|params|mode|example|scope)\s*:\s*(.*)$")
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,7 @@ class NamedQuery:
     cypher: str
     path: Path
     example: str = ""
+    scope: str = "participant"
 
     @property
     def writes(self) -> bool:
@@ -76,12 +80,16 @@ def parse_query(path: Path) -> NamedQuery:
             + (f"; undeclared: {', '.join(missing)}" if missing else "")
             + (f"; declared but unused: {', '.join(extra)}" if extra else "")
         )
-    if _LABEL.search(cypher) and "participant" not in declared:
-        raise QueryError(f"{path}: reads participant data but does not take $participant")
+    scope = header.get("scope", "participant")
+    if scope not in ("participant", "database"):
+        raise QueryError(f"{path}: scope must be participant or database, not {scope!r}")
+    if _LABEL.search(cypher) and (scope == "database" or "participant" not in declared):
+        raise QueryError(f"{path}: reads participant data but does not take $participant"
+                         + (" (a scope: database query must not name participant tables)" if scope == "database" else ""))
     mode = header.get("mode", "read")
     if mode not in ("read", "write"):
         raise QueryError(f"{path}: mode must be read or write, not {mode!r}")
-    return NamedQuery(name, header.get("description", ""), declared, mode, cypher, path, header.get("example", ""))
+    return NamedQuery(name, header.get("description", ""), declared, mode, cypher, path, header.get("example", ""), scope)
 
 
 @lru_cache(maxsize=4)

@@ -6,9 +6,12 @@ process, not a database, read-only, syntax error), always naming the database pa
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import hashlib
+import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
@@ -16,16 +19,46 @@ from pathlib import Path
 import kuzu
 import polars as pl
 
-from memora_graph.errors import QueryTimeout, StoreError
+from memora_graph import schema
+from memora_graph.errors import DiskFullError, QueryTimeout, StoreError
 from memora_graph.paths import SCHEMA_DIR
 from memora_graph.queries import NamedQuery, bind, get_query
 
-_MIGRATIONS = (
-    "CREATE NODE TABLE IF NOT EXISTS SchemaMigration(id STRING PRIMARY KEY, checksum STRING, applied_at TIMESTAMP)"
-)
-_IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _INDEX_DDL = re.compile(r"CREATE_(?:FTS|VECTOR)_INDEX\(\s*'(\w+)'\s*,\s*'(\w+)'")
 INDEX_DIR = SCHEMA_DIR / "indexes"
+
+
+FULL_BYTES = 1 << 20  # below this much free space a failed write is taken for a full disk
+
+
+def free_bytes(path: Path) -> int | None:
+    """Bytes the filesystem holding `path` can still take (as root: reserved blocks included)."""
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        st = os.statvfs(p)
+    except OSError:
+        return None
+    return st.f_bfree * st.f_frsize if os.geteuid() == 0 else st.f_bavail * st.f_frsize
+
+
+def disk_full(exc: BaseException, path: Path) -> bool:
+    """Whether a failed write failed for lack of space: the OS said so, or (Kùzu often reports
+    only "Invalid transaction type to rollback") the filesystem has next to nothing left."""
+    if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+        return True
+    if "no space left on device" in str(exc).lower():
+        return True
+    free = free_bytes(path)
+    return free is not None and free < FULL_BYTES
+
+
+def disk_full_message(path: Path, needed_mb: float | None = None) -> str:
+    free = free_bytes(path)
+    need = f" (needed about {needed_mb:.0f} MB" + (f", {free / 1e6:.0f} MB free" if free is not None else "") + ")" \
+        if needed_mb else (f" ({free / 1e6:.1f} MB free)" if free is not None else "")
+    return f"{path}: no space left on device{need}. Free some space and re-run the command."
 
 
 def translate_error(exc: Exception, path: Path, cypher: str | None = None) -> StoreError:
@@ -53,14 +86,25 @@ def translate_error(exc: Exception, path: Path, cypher: str | None = None) -> St
     return StoreError(f"{path}: {msg}")
 
 
+_ABANDONED: list = []  # Kùzu handles of databases whose write ran out of space; never destroyed
+
+
 class Store:
     """One Kùzu database (one participant's memory), opened read-only unless asked otherwise."""
 
-    def __init__(self, path: str | Path, read_only: bool = True, bulk: bool = False):
+    def __init__(self, path: str | Path, read_only: bool = True, bulk: bool = False,
+                 on_close: Callable[[Store], None] | None = None, on_fail: Callable[[Store], None] | None = None,
+                 buffer_pool_bytes: int = 0):
         """`bulk=True` (builds) defers checkpoints to `close()`: a commit then only appends to
-        the write-ahead log, which is still replayed after a crash, so nothing committed is lost."""
+        the write-ahead log, which is still replayed after a crash, so nothing committed is lost.
+        `on_close(store)` runs after a clean close (the bank records a written database's
+        integrity there); it does not run when the close failed: `on_fail(store)` does.
+        `buffer_pool_bytes` caps Kùzu's page cache (0: Kùzu's default, most of the memory)."""
         self.path = Path(path)
         self.read_only = read_only
+        self.on_close = on_close
+        self.on_fail = on_fail
+        self._broken: StoreError | None = None
         if read_only and not self.path.exists():
             raise StoreError(f"{self.path}: no database here. Build it first with `memora build`.")
         if self.path.exists() and self.path.is_file() and self.path.stat().st_size == 0:
@@ -68,21 +112,52 @@ class Store:
             raise StoreError(f"{self.path}: empty file, not a database (a build that never started?). Delete it and rebuild.")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=not bulk)
+            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=not bulk,
+                                     buffer_pool_size=buffer_pool_bytes)
             self._conn = kuzu.Connection(self._db)
         except RuntimeError as exc:
             raise translate_error(exc, self.path) from exc
         self._in_tx = False
         self._prepared: dict[str, object] = {}
+        self._catalog: dict[str, str] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
     def close(self) -> None:
+        if self._broken is not None:  # abandoned after a full disk: nothing may touch these handles again
+            self._failed()
+            return
         if getattr(self, "_conn", None) is not None:
-            if not self.read_only:
-                self._execute("CHECKPOINT")
-            self._conn.close()
-            self._db.close()
+            try:
+                if not self.read_only:
+                    self._execute("CHECKPOINT")
+                self._conn.close()
+                self._db.close()
+            except BaseException:
+                self._failed()
+                raise
             self._conn = None
+            if self.on_close is not None:
+                self.on_close(self)
+
+    def _failed(self) -> None:
+        hook, self.on_fail = self.on_fail, None
+        if hook is not None:
+            hook(self)
+
+    def _abandon(self, exc: BaseException) -> DiskFullError:
+        """After a write failed for lack of space, Kùzu 0.11.3 spins at 100% CPU in its rollback
+        as soon as the connection or database is closed or garbage-collected. The handles are
+        kept alive for the rest of the process (an extra reference Python never releases, so not
+        even interpreter shutdown destroys them); the OS closes the file at exit, and the write
+        was never committed and checkpointed, so the database keeps its last checkpoint."""
+        err = DiskFullError(disk_full_message(self.path))
+        self._broken = err
+        for obj in (getattr(self, "_conn", None), getattr(self, "_db", None)):
+            if obj is not None:
+                _ABANDONED.append(obj)
+                ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+        self._conn = None
+        return err
 
     def __enter__(self) -> Store:
         return self
@@ -92,9 +167,13 @@ class Store:
 
     # -- running Cypher ----------------------------------------------------------------
     def _execute(self, cypher: str, params: dict | None = None):
+        if self._broken is not None:
+            raise self._broken
         try:
             return self._conn.execute(cypher, params or {})
         except RuntimeError as exc:
+            if not self.read_only and disk_full(exc, self.path):
+                raise self._abandon(exc) from exc
             raise translate_error(exc, self.path, cypher) from exc
         except (TypeError, ValueError, OverflowError) as exc:  # a parameter value Kùzu cannot convert
             raise StoreError(f"{self.path}: Kùzu cannot bind these parameters ({exc})") from exc
@@ -146,6 +225,8 @@ class Store:
         if q.writes:
             raise StoreError(f"query '{q.name}' writes; fetch() is for reads")
         bound = bind(q, params)
+        if self._broken is not None:
+            raise self._broken
         prepared = self._prepared.get(q.name)
         try:
             if prepared is None:
@@ -178,21 +259,35 @@ class Store:
         self._execute("COMMIT")
 
     def tables(self) -> dict[str, str]:
-        df = self._frame(self._execute("CALL show_tables() RETURN name, type"))
-        return dict(df.iter_rows())
+        """Table name -> NODE / REL, from the database's catalog."""
+        return dict(self.run("_tables").iter_rows())
+
+    def table_counts(self, participant: str) -> dict[str, dict[str, int]]:
+        """Per table of the catalog: its rows, and (node tables) the rows of another participant."""
+        got = {r["table_name"]: (int(r["rows"]), int(r["other_participant"])) for r in self.rows("_table_counts", participant=participant)}
+        return {t: {"rows": got.get(t, (0, 0))[0], "other_participant": got.get(t, (0, 0))[1]} for t in sorted(self.tables())}
 
     def copy(self, table: str, frame: pl.DataFrame, from_table: str | None = None, to_table: str | None = None) -> int:
-        """Bulk load a polars frame into a table (COPY FROM), the fast path for builds."""
+        """Bulk load a polars frame into a table (COPY FROM), the fast path for builds.
+
+        The statement is one of those generated once from schema/*.cypher for this table (and,
+        for a rel table with several FROM / TO pairs, this pair), checked against the database's
+        catalog; the frame is bound as a parameter and conformed to the schema's columns and
+        types (Kùzu maps columns by position). No name given here is formatted into Cypher."""
         if frame.is_empty():
             return 0
-        names = [table] + [t for t in (from_table, to_table) if t]
-        known = self.tables()
-        for n in names:
-            if not _IDENT.match(n) or n not in known:
-                raise StoreError(f"{self.path}: no table named {n!r}")
-        options = f" (from='{from_table}', to='{to_table}')" if from_table and to_table else ""
-        # The table name is validated against the catalog above; Kùzu reads `frame` by name.
-        self._execute(f"COPY {table} FROM frame{options}")
+        try:
+            statement = schema.table(table).copy_statements()[(from_table, to_table)]
+        except KeyError:
+            pairs = ", ".join(f"{a}->{b}" for a, b in schema.table(table).pairs)
+            raise StoreError(f"{self.path}: COPY {table} needs one of its FROM / TO pairs ({pairs}), "
+                             f"not {from_table}->{to_table}") from None
+        if self._catalog is None:
+            self._catalog = self.tables()
+        if table not in self._catalog:
+            raise StoreError(f"{self.path}: the schema has table {table!r} but this database does not "
+                             "(schema not applied?)")
+        self._execute(statement, {"frame": schema.conform(table, frame)})
         return frame.height
 
     # -- schema ------------------------------------------------------------------------
@@ -201,8 +296,8 @@ class Store:
         files = sorted(folder.glob("*.cypher"))
         if not files:
             raise StoreError(f"{folder}: no schema files found")
-        self._execute(_MIGRATIONS)
-        done = dict(self._frame(self._execute("MATCH (m:SchemaMigration) RETURN m.id, m.checksum")).iter_rows())
+        self.run("_schema_bootstrap")
+        done = {r["file"]: r["checksum"] for r in self.rows("_schema_applied")}
         applied = []
         for f in files:
             text = f.read_text()
@@ -214,18 +309,16 @@ class Store:
             statements = [s.strip() for s in _strip_comments(text).split(";") if s.strip()]
             with self.transaction():
                 for s in statements:
-                    self._execute(s)
-                self._execute(
-                    "CREATE (m:SchemaMigration {id: $id, checksum: $c, applied_at: $t})",
-                    {"id": f.name, "c": checksum, "t": datetime.now(timezone.utc).replace(tzinfo=None)},
-                )
+                    self._execute(s)  # the schema file's own DDL, applied as written
+                self.run("_schema_record", id=f.name, checksum=checksum,
+                         applied_at=datetime.now(timezone.utc).replace(tzinfo=None).isoformat(sep=" "))
             applied.append(f.name)
+        self._catalog = None
         return applied
 
     def indexes(self) -> dict[str, str]:
         """Index name -> table, for the FTS / vector indexes this database has."""
-        df = self._frame(self._execute("CALL SHOW_INDEXES() RETURN index_name, table_name"))
-        return dict(df.iter_rows())
+        return dict(self.run("_indexes").iter_rows())
 
     def ensure_indexes(self, fts: bool = True, hnsw: bool = False, folder: Path = INDEX_DIR) -> list[str]:
         """Create the missing indexes of the kinds asked for; returns those created.
@@ -245,28 +338,19 @@ class Store:
         return created
 
     def migrations(self) -> list[str]:
-        return self._frame(self._execute("MATCH (m:SchemaMigration) RETURN m.id ORDER BY m.id"))["m.id"].to_list()
+        return [r["file"] for r in self.rows("_schema_applied")]
 
     def migration_checksums(self) -> dict[str, str]:
         """Schema file -> checksum of what was applied (an export carries them, an import compares)."""
-        return dict(self._execute("MATCH (m:SchemaMigration) RETURN m.id, m.checksum ORDER BY m.id").get_as_pl().iter_rows())
+        return {r["file"]: r["checksum"] for r in self.rows("_schema_applied")}
 
     def catalog(self) -> dict[str, dict]:
-        """The participant tables as the database defines them: name -> {"kind": "NODE" | "REL",
-        "columns": [(name, Kùzu type), ...] in table order, "pairs": [(from, to), ...] for a REL}.
-        SchemaMigration, which holds no participant data, is left out."""
-        out = {}
-        for name, kind in sorted(self.tables().items()):
-            if name == "SchemaMigration" or not _IDENT.match(name):
-                continue
-            # table_info / show_connection take a literal, not a parameter; the name comes from the catalog
-            info = self._execute(f"CALL table_info('{name}') RETURN name, type").get_as_pl()
-            entry = {"kind": kind, "columns": list(info.iter_rows()), "pairs": []}
-            if kind == "REL":
-                conn = self._execute(f"CALL show_connection('{name}') RETURN *").get_as_pl()
-                entry["pairs"] = [tuple(r[:2]) for r in conn.iter_rows()]
-            out[name] = entry
-        return out
+        """The participant tables this database has, as the schema files define them: name ->
+        {"kind": "NODE" | "REL", "columns": [(name, type), ...] in table order, "pairs": [(from, to), ...]
+        for a REL}. SchemaMigration, which holds no participant data, is left out."""
+        have = self.tables()
+        return {t.name: {"kind": t.kind, "columns": [(c.name, c.type) for c in t.columns], "pairs": list(t.pairs)}
+                for t in schema.schema_tables().values() if t.name in have and t.name != "SchemaMigration"}
 
 
 INDEX_KINDS = ("fts", "hnsw")

@@ -29,3 +29,13 @@ def small_bank(tmp_path_factory, embedder):
     path = tmp_path_factory.mktemp("bank") / "small"
     result = build_bank(path, ["P09", "P37"])
     return path, result
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked `slow` run only when asked for (`-m slow`)."""
+    if "slow" in (config.getoption("markexpr") or ""):
+        return
+    skip = pytest.mark.skip(reason="slow: run with `-m slow`")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)

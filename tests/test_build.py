@@ -50,8 +50,9 @@ def test_rebuild_adds_nothing(small_bank, tmp_path):
 
 
 def _staged(bank):
-    d = bank / ".staging" / "P07"
-    return sorted(d.glob("*.pkl")) if d.is_dir() else []
+    from memora_graph.form.staging import Staging
+
+    return Staging(bank / ".staging" / "P07").entries()
 
 
 def test_resume_after_kill_matches_a_clean_build(tmp_path):

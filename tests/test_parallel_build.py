@@ -39,8 +39,9 @@ def test_parallel_build_matches_the_serial_one(small_bank, tmp_path):
 
 
 def _staged(bank, p):
-    d = bank / ".staging" / p
-    return sorted(d.glob("*.pkl")) if d.is_dir() else []
+    from memora_graph.form.staging import Staging
+
+    return Staging(bank / ".staging" / p).entries()
 
 
 def test_killed_parallel_build_leaves_no_worker_and_resumes(tmp_path):
@@ -55,10 +56,10 @@ def test_killed_parallel_build_leaves_no_worker_and_resumes(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     time.sleep(2)
-    for p in ("P07", "P37"):  # a worker still running would hold its database's lock
+    for p in ("P07", "P37"):  # a worker still running would hold its database's lock (read-only opens too)
         db = Bank(bank).db_path(p)
         if db.exists():
-            Store(db, read_only=False).close()
+            Store(db).close()
     resumed = build_bank(bank, ["P07", "P37"], jobs=1)
     assert resumed.participants[0].videos_skipped >= 2
     with Bank(bank).open("P07") as s:

@@ -35,6 +35,8 @@ def _dummy(param: str, cypher: str = ""):
         return ["nothing"]
     if param == "vector":
         return [0.0] * 384
+    if param == "applied_at":
+        return "2025-01-01 00:00:00"
     return "x"
 
 
@@ -76,8 +78,15 @@ def test_loader_rejects_undeclared_and_unscoped_queries(tmp_path):
 
 def test_every_participant_query_takes_participant():
     for q in load_queries().values():
-        if q.name != "_schema_applied":
+        if q.scope != "database":
             assert "participant" in q.params, q.name
+
+
+def test_database_scope_queries_cannot_name_participant_tables(tmp_path):
+    bad = tmp_path / "bad.cypher"
+    bad.write_text("// scope: database\nMATCH (e:Entity) RETURN count(e)\n")
+    with pytest.raises(QueryError, match="scope: database"):
+        parse_query(bad)
 
 
 def test_store_error_messages(tmp_path):

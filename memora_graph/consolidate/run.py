@@ -17,11 +17,11 @@ import json
 import time
 import uuid
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 
 import numpy as np
 import polars as pl
 
+from memora_graph import schema
 from memora_graph.bank import Bank
 from memora_graph.consolidate.memory import ParticipantMemory, load_memory
 from memora_graph.consolidate.processors import Processors, StepReport, get_processors
@@ -30,12 +30,9 @@ from memora_graph.consolidate.rules import stable_id
 from memora_graph.errors import ConsolidationError
 from memora_graph.llm.backends import CallRecord
 from memora_graph.embed import encode_passages
+from memora_graph.form.build import model_call_frame
 from memora_graph.store import Store
 
-ROUTINE_COLUMNS = ("id", "participant", "goal", "activity_type", "canonical_steps", "key_objects", "supporting_episodes",
-                   "source_videos", "count", "confidence", "retrieval_text")
-PREFERENCE_COLUMNS = ("id", "participant", "subtype", "statement", "keywords", "objects", "context", "supporting_episodes",
-                      "source_videos", "count", "confidence", "retrieval_text")
 
 
 @dataclass
@@ -213,14 +210,10 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
     return c.out
 
 
-def _frame(rows: list[dict], columns: tuple[str, ...], extra: tuple[str, ...], vecs: np.ndarray, dim: int) -> pl.DataFrame:
-    schema = {c: (pl.List(pl.String) if c in ("canonical_steps", "key_objects", "supporting_episodes", "source_videos",
-                                               "keywords", "objects") else
-                  pl.Int64 if c == "count" else pl.Float64 if c == "confidence" else pl.String)
-              for c in (*columns, *extra)}
-    df = pl.DataFrame([{c: r[c] for c in schema} for r in rows], schema=schema)
+def _frame(table: str, rows: list[dict], vecs: np.ndarray, dim: int) -> pl.DataFrame:
+    """Routine / Preference rows with their embeddings, columns and types from the schema."""
     emb = pl.Series("emb", np.asarray(vecs, dtype=np.float32).reshape(len(rows), dim), dtype=pl.Array(pl.Float32, dim))
-    return df.select(list(columns)).with_columns(emb).with_columns(df.select(list(extra)))
+    return schema.frame(table, rows).with_columns(emb)
 
 
 def _embed(store: Store, participant: str, texts: list[str], embedder) -> np.ndarray:
@@ -234,27 +227,18 @@ def _embed(store: Store, participant: str, texts: list[str], embedder) -> np.nda
     return np.asarray([fresh[t] if t in fresh else known[t] for t in texts], dtype=np.float32)
 
 
-def _call_frame(participant: str, records: list[CallRecord]) -> pl.DataFrame:
-    """ModelCall rows of consolidation calls: they belong to a video (the per-video pass) or to
-    none (turn -1, no segment). Ids carry a run id, so the calls of every run are kept."""
-    from memora_graph.form.build import MODEL_CALL_SCHEMA
-
-    run = uuid.uuid4().hex[:10]
-    return pl.DataFrame([{
-        "id": f"{participant}:inferred:{run}:call{i:04d}", "participant": participant, "video": r.tags.get("video", ""),
-        "turn": -1, "segment": "", "role": r.role, "backend": r.backend, "model": r.model or "",
-        "prompt_hash": r.prompt_hash, "prompt_version": r.tags.get("prompt", ""), "tokens_in": r.tokens_in,
-        "tokens_out": r.tokens_out, "latency_s": r.latency_s, "retries": r.retries, "repairs": r.repairs,
-        "ok": r.ok, "error": r.error or "",
-        "started_at": datetime.fromisoformat(r.started_at).astimezone(timezone.utc).replace(tzinfo=None),
-    } for i, r in enumerate(records)], schema=MODEL_CALL_SCHEMA)
+def _call_frame(participant: str, records: list[CallRecord]) -> pl.DataFrame | None:
+    """ModelCall rows of consolidation calls (turn -1, no segment). Ids carry a run id, so the
+    calls of every run are kept."""
+    return model_call_frame(participant, records, f"{participant}:inferred:{uuid.uuid4().hex[:10]}")
 
 
 def write_calls(store: Store, participant: str, records: list[CallRecord]) -> None:
     """Record model calls on their own (a run that wrote no inferred knowledge still cost them)."""
-    if records:
+    frame = _call_frame(participant, records)
+    if frame is not None:
         with store.transaction():
-            store.copy("ModelCall", _call_frame(participant, records))
+            store.copy("ModelCall", frame)
 
 
 def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None:
@@ -264,10 +248,8 @@ def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None
     texts = [r["retrieval_text"] for r in knowledge.routines] + [r["retrieval_text"] for r in knowledge.preferences]
     vecs = _embed(store, p, texts, embedder)
     nr = len(knowledge.routines)
-    routines = _frame(knowledge.routines, ROUTINE_COLUMNS, ("source", "processor", "detail"), vecs[:nr], embedder.dim) \
-        if knowledge.routines else None
-    prefs = _frame(knowledge.preferences, PREFERENCE_COLUMNS, ("source", "processor", "evidence_summary", "detail"),
-                   vecs[nr:], embedder.dim) if knowledge.preferences else None
+    routines = _frame("Routine", knowledge.routines, vecs[:nr], embedder.dim) if knowledge.routines else None
+    prefs = _frame("Preference", knowledge.preferences, vecs[nr:], embedder.dim) if knowledge.preferences else None
     routine_ids = {r["id"] for r in knowledge.routines}
     sup = sorted(set(knowledge.supported_by))
     sup_r = pl.DataFrame({"from": [a for a, _ in sup if a in routine_ids], "to": [b for a, b in sup if a in routine_ids]})
@@ -286,8 +268,9 @@ def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None
         store.copy("SUPPORTED_BY", sup_p, from_table="Preference", to_table="Segment")
         store.copy("USES", uses)
         store.copy("ABOUT", about)
-        if knowledge.calls:
-            store.copy("ModelCall", _call_frame(p, knowledge.calls))
+        calls = _call_frame(p, knowledge.calls)
+        if calls is not None:
+            store.copy("ModelCall", calls)
 
 
 def consolidate_participant(store: Store, participant: str, embedder, processors: str | Processors = "deterministic") -> InferredKnowledge:
@@ -343,7 +326,9 @@ def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = 
     name = processors if isinstance(processors, str) else processors.name
     emb0 = getattr(embedder, "seconds", 0.0)
     t0 = time.perf_counter()
-    store = Store(bank.db_path(participant), read_only=False)
+    building = bank.writing_here(participant)  # the last step of this process's build: it records the integrity
+    # checked first (unless this process is building it); records its integrity again on close
+    store = bank.open(participant, read_only=False)
     spent: dict[str, float] = {}
     try:
         store.apply_schema()
@@ -379,6 +364,8 @@ def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = 
         data["condition"] = "memora_full" if data["consolidated"] else (
             "memora_episodic" if not any(flags) else "mixed")
         bank.write_manifest(data)
+    if building:
+        bank.record_integrity(participant)  # the build is complete
     if timings is not None:
         timings.update(spent, checkpoint=t4 - t3, manifest=time.perf_counter() - t4)
     return knowledge

@@ -7,9 +7,9 @@ videos already there, reloading the registry from the graph so nothing is duplic
 
 from __future__ import annotations
 
+import hashlib
 import json
-import os
-import pickle
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,15 +19,18 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from memora_graph import schema
 from memora_graph.bank import Bank
 from memora_graph.embed import CachedEmbedder
+from memora_graph.errors import DiskFullError
 from memora_graph.form.editor import DeterministicPolicy, EditPolicy, EntityEditor, EntityState, RawPolicy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
+from memora_graph.form.staging import StagedVideo, Staging
 from memora_graph.llm.backends import CallLog, CallRecord, ModelReplyError
 from memora_graph.perceive.annotations import ClassTables
 from memora_graph.perceive.narration import perceive_video
 from memora_graph.records import LayeredSegment
-from memora_graph.store import Store
+from memora_graph.store import Store, disk_full, disk_full_message
 
 MODES = ("edited", "raw")
 
@@ -70,20 +73,24 @@ def _emb_series(vectors: list[np.ndarray], dim: int) -> pl.Series:
 
 
 def _entity_row(e: EntityState) -> dict:
-    return {k: getattr(e, k) for k in (
-        "id", "participant", "object_id", "kind", "name", "category", "color", "material", "size", "is_fixture",
-        "status", "merged_into", "state", "location", "held_by", "first_seen", "first_video", "first_turn",
-        "last_seen", "last_video", "last_turn", "n_observations")}
+    """An Entity row (schema columns, without the embedding) from the editor's record."""
+    return {k: getattr(e, k) for k in schema.columns("Entity", emb=False)}
+
+
+def _place_row(pp: PlaceState) -> dict:
+    return {k: getattr(pp, k) for k in schema.columns("Place", emb=False)}
 
 
 class ParticipantBuilder:
-    """Owns one participant's database, editor and environment memory for the length of a build.
+    """One participant's editor and environment memory for the length of a build.
 
-    Each finished video is checkpointed to `BANK/.staging/<participant>/` (its records plus a
-    snapshot of the registry), written atomically; `finish()` loads every staged video into
-    Kùzu in one transaction. Kùzu's commit cost grows with the size of the relationship tables,
-    so one bulk load per participant is far faster than one transaction per video, while a
-    killed build still loses at most the video in progress.
+    The database is only read until `finish()`: the registry is loaded from it (read-only), and
+    each finished video is staged in `BANK/.staging/<participant>/` (its rows plus the registry
+    after it; see `form/staging.py`). `finish()` opens the database for writing and loads every
+    staged video in one transaction. Kùzu's commit cost grows with the size of the relationship
+    tables, so one bulk load per participant is far faster than one transaction per video, a
+    killed build still loses at most the video in progress, and a build that fails before
+    `finish()` has not touched the database.
     """
 
     def __init__(self, bank: Bank, participant: str, embedder: CachedEmbedder, mode: str = "edited",
@@ -93,67 +100,88 @@ class ParticipantBuilder:
             raise ValueError(f"mode must be one of {MODES}")
         self.bank, self.participant, self.embedder, self.mode = bank, participant, embedder, mode
         self.call_log = call_log
-        self.store = Store(bank.db_path(participant), read_only=False, bulk=True)
-        self.store.apply_schema()
-        self.staging = bank.path / ".staging" / participant
-        self.in_db = set(self.store.run("videos", participant=participant)["video"].to_list())
-        entities = [self._entity_from_row(r) for r in self.store.rows("_registry_entities", participant=participant)]
-        places = [PlaceState(**r) for r in self.store.rows("_registry_places", participant=participant)]
+        self.store: Store | None = None
+        self.db = bank.db_path(participant)
+        self.staging = Staging(bank.path / ".staging" / participant)
+        entities, places, next_ord, self._op_seq, self.in_db = [], [], 0, 0, set()
+        bank.check_before_build(participant)
+        self._resuming = bank.exists() and participant in bank.manifest().get("writing", {})
+        if self._resuming:
+            bank.mark_writing(participant, "build")  # resuming an unfinished write: this build finishes it
+        if self.db.exists():
+            with Store(self.db, read_only=True) as store:
+                self.in_db = set(store.run("videos", participant=participant)["video"].to_list())
+                entities = [self._entity_from_row(r["entity"]) for r in store.fetch("_registry_entities", participant=participant)]
+                places = [PlaceState(**_pick(r["place"], schema.columns("Place", emb=False)))
+                          for r in store.fetch("_registry_places", participant=participant)]
+                next_ord = int(store.run("_max_state_ord", participant=participant)["max_ord"][0] or 0)
+                self._op_seq = int(store.run("_edit_op_count", participant=participant)["n"][0] or 0)
         self.db_entities = {e.id: (e.status, e.location) for e in entities}
         self.db_entity_rows = {e.id: _entity_row(e) for e in entities}
         self.db_places = {p.location_id: p.turn_count for p in places}
-        next_ord = int(self.store.run("_max_state_ord", participant=participant)["max_ord"][0] or 0)
         self.editor = EntityEditor(participant, policy or (RawPolicy() if mode == "raw" else DeterministicPolicy()),
                                    embed=self._embed_one, prompt_budget=prompt_budget, entities=entities, next_ord=next_ord)
         self.places = PlaceMemory(participant, places)
-        self._op_seq = int(self.store.run("_edit_op_count", participant=participant)["n"][0] or 0)
-        self.staged: list[Path] = []
+        self.staged: list[StagedVideo] = []
+        self.staged_now: list[StagedVideo] = []  # staged by this run (removed by `discard`)
+        self.rebuilt: list[tuple[Path, str]] = []  # staged videos that failed their check
         self._restore_staged()
-        self.done = self.in_db | {f.name.split("_", 1)[1].removesuffix(".pkl") for f in self.staged}
+        self.done = self.in_db | {st.video for st in self.staged}
 
     @staticmethod
     def _entity_from_row(r: dict) -> EntityState:
-        emb = r.pop("emb")
-        e = EntityState(**{k: (v if v is not None else "") for k, v in r.items()})
-        e.emb = np.asarray(emb, dtype=np.float32) if emb is not None else None
+        e = EntityState(**{k: (r[k] if r[k] is not None else "") for k in schema.columns("Entity", emb=False)})
+        e.emb = np.asarray(r["emb"], dtype=np.float32) if r.get("emb") is not None else None
         return e
 
     def _embed_one(self, text: str) -> np.ndarray:
         return self.embedder.encode([text])[0]
 
     def close(self) -> None:
-        self.store.close()
+        if self.store is not None:
+            self.store.close()
+            self.store = None
+
+    def discard(self) -> None:
+        """Forget the videos this run staged (a failed build leaves the bank as it found it)."""
+        self.staging.clear(self.staged_now)
+        self.staged = [st for st in self.staged if st not in self.staged_now]
+        self.staged_now = []
 
     # -- checkpoints -------------------------------------------------------------------
     def _restore_staged(self) -> None:
-        if not self.staging.is_dir():
+        self.staged, self.rebuilt = self.staging.load(skip=self.in_db)
+        if not self.staged:
             return
-        for f in sorted(self.staging.glob("*.pkl")):
-            video = f.name.split("_", 1)[1].removesuffix(".pkl")
-            if video in self.in_db:  # loaded by an earlier run that died before cleaning up
-                f.unlink()
-            else:
-                self.staged.append(f)
-        for f in self.staging.glob("*.tmp"):
-            f.unlink()  # a checkpoint that was being written when the build died
-        if self.staged:
-            with open(self.staged[-1], "rb") as fh:
-                snap = pickle.load(fh)["snapshot"]
-            self.editor.entities = snap["entities"]
-            self.editor._ord, self.editor._raw_seq = snap["ord"], snap["raw_seq"]
-            self.places.places = snap["places"]
-            self._op_seq = snap["op_seq"]
+        ents, places, counters = self.staged[-1].snapshot()
+        emb = ents["emb"].to_numpy() if ents.height else np.zeros((0, self.embedder.dim), np.float32)
+        entities = {}
+        for row, vec, has in zip(ents.drop("emb", "has_emb").iter_rows(named=True), emb, ents["has_emb"]):
+            e = EntityState(**row)
+            e.emb = np.asarray(vec, dtype=np.float32) if has else None
+            entities[e.id] = e
+        self.editor.entities = entities
+        self.editor._ord, self.editor._raw_seq = counters["ord"], counters["raw_seq"]
+        self.places.places = {r["location_id"]: PlaceState(**r) for r in places.iter_rows(named=True)}
+        self._op_seq = counters["op_seq"]
 
     def _stage(self, video_id: str, frames: dict) -> None:
-        self.staging.mkdir(parents=True, exist_ok=True)
-        path = self.staging / f"{len(self.staged) + len(self.in_db):04d}_{video_id}.pkl"
-        snapshot = {"entities": self.editor.entities, "places": self.places.places, "ord": self.editor._ord,
-                    "raw_seq": self.editor._raw_seq, "op_seq": self._op_seq}
-        tmp = path.with_suffix(".tmp")
-        with open(tmp, "wb") as fh:
-            pickle.dump({"frames": frames, "snapshot": snapshot}, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
-        self.staged.append(path)
+        ents = list(self.editor.entities.values())
+        dim = self.embedder.dim
+        entity_frame = schema.frame("Entity", [_entity_row(e) for e in ents]).with_columns(
+            _emb_series([e.emb if e.emb is not None else np.zeros(dim, np.float32) for e in ents], dim),
+            pl.Series("has_emb", [e.emb is not None for e in ents], dtype=pl.Boolean))
+        place_frame = schema.frame("Place", [_place_row(pp) for pp in self.places.places.values()])
+        counters = {"ord": self.editor._ord, "raw_seq": self.editor._raw_seq, "op_seq": self._op_seq}
+        try:
+            st = self.staging.write(len(self.staged) + len(self.in_db), video_id, frames, entity_frame, place_frame,
+                                    counters)
+        except OSError as exc:
+            if disk_full(exc, self.staging.root):
+                raise DiskFullError(disk_full_message(self.staging.root)) from exc
+            raise
+        self.staged.append(st)
+        self.staged_now.append(st)
 
     # ---------------------------------------------------------------------------------
     def build_video(self, video_id: str, actions: list[dict], duration: float, classes: ClassTables) -> tuple[Timings, int]:
@@ -204,7 +232,8 @@ class ParticipantBuilder:
         if n_turns is not None:
             frames["Video"] = frames["Video"].with_columns(pl.lit(n_turns, dtype=pl.Int64).alias("n_turns"))
         if self.call_log is not None:
-            frames["ModelCall"] = model_call_frame(self.participant, video_id, self.call_log.records)
+            frames["ModelCall"] = model_call_frame(self.participant, self.call_log.records, f"{self.participant}:{video_id}",
+                                                   video_id=video_id)
         self._stage(video_id, frames)
         t.graph = time.perf_counter() - t0
         self.done.add(video_id)
@@ -262,10 +291,7 @@ class ParticipantBuilder:
         if not self.staged:
             return 0.0
         t0 = time.perf_counter()
-        staged = []
-        for f in self.staged:
-            with open(f, "rb") as fh:
-                staged.append(pickle.load(fh)["frames"])
+        staged = [st.frames() for st in self.staged]
         p, dim = self.participant, self.embedder.dim
         ents = self.editor.entities
         new_ents = [ents[i] for i in sorted(ents) if i not in self.db_entities]
@@ -277,6 +303,16 @@ class ParticipantBuilder:
         changed_places = [pp for loc, pp in sorted(self.places.places.items())
                           if loc in self.db_places and pp.turn_count != self.db_places[loc]]
         place_vecs = self.embedder.encode([pp.text() for pp in new_places + changed_places])
+        self.bank.mark_writing(p, "build")  # until the bank records the database's integrity again
+        try:
+            self.store = Store(self.db, read_only=False, bulk=True)
+        except BaseException:
+            if self._resuming:
+                self.bank.abandon_writing(p)  # still the earlier write's unfinished state
+            else:
+                self.bank.clear_writing(p)  # nothing was written
+            raise
+        self.store.apply_schema()
         with self.store.transaction():
             s = self.store
             if not s.run("_participant_exists", participant=p)["n"][0]:
@@ -284,10 +320,10 @@ class ParticipantBuilder:
             for table in NODE_ORDER:
                 frames = [st[table] for st in staged if st.get(table) is not None]
                 if table == "Place" and new_places:
-                    s.copy("Place", pl.DataFrame([_place_row(pp) for pp in new_places]).with_columns(
+                    s.copy("Place", schema.frame("Place", [_place_row(pp) for pp in new_places]).with_columns(
                         _emb_series(list(place_vecs[: len(new_places)]), dim)))
                 elif table == "Entity" and new_ents:
-                    s.copy("Entity", pl.DataFrame([_entity_row(e) for e in new_ents], schema=ENTITY_SCHEMA).with_columns(
+                    s.copy("Entity", schema.frame("Entity", [_entity_row(e) for e in new_ents]).with_columns(
                         _emb_series([e.emb if e.emb is not None else np.zeros(dim) for e in new_ents], dim)))
                 elif frames:
                     s.copy(table, pl.concat(frames, how="vertical_relaxed"))
@@ -306,59 +342,67 @@ class ParticipantBuilder:
                 frames = [st[table] for st in staged if st.get(table) is not None]
                 if frames:
                     s.copy(table, pl.concat(frames, how="vertical_relaxed"))
-        for f in self.staged:
-            f.unlink()
+        self.store.close()  # checkpoint: the staged videos are in the database file now
+        self.store = None
+        self.staging.clear(self.staged)
         self.in_db |= self.done
-        self.staged = []
+        self.staged, self.staged_now = [], []
         return time.perf_counter() - t0
 
+    def _read(self, name: str) -> list[dict]:
+        if self.store is not None:
+            return self.store.rows(name, participant=self.participant)
+        if not self.db.exists():
+            return []
+        with Store(self.db, read_only=True) as store:
+            return store.rows(name, participant=self.participant)
+
     def counts(self) -> dict:
-        return {k: int(v or 0) for k, v in self.store.run("store_counts", participant=self.participant).to_dicts()[0].items()}
+        rows = self._read("store_counts")
+        return {k: int(v or 0) for k, v in rows[0].items()} if rows else {}
 
     def decisions(self) -> dict:
-        return {r["op"]: r["n"] for r in self.store.rows("decision_mix", participant=self.participant)}
+        return {r["op"]: r["n"] for r in self._read("decision_mix")}
 
 
 NODE_ORDER = ("Video", "Segment", "Place", "Entity", "StateEvent", "EditOp", "ModelCall")
 REL_ORDER = ("HAS_VIDEO", "HAS_SEGMENT", "NEXT", "IN_PLACE", "SPATIAL", "HAS_STATE", "OBSERVED_IN", "AT",
              "EDITED", "MERGED_INTO")
-ENTITY_SCHEMA = {
-    "id": pl.String, "participant": pl.String, "object_id": pl.String, "kind": pl.String, "name": pl.String,
-    "category": pl.String, "color": pl.String, "material": pl.String, "size": pl.String, "is_fixture": pl.Boolean,
-    "status": pl.String, "merged_into": pl.String, "state": pl.String, "location": pl.String, "held_by": pl.String,
-    "first_seen": pl.Float64, "first_video": pl.String, "first_turn": pl.Int64, "last_seen": pl.Float64,
-    "last_video": pl.String, "last_turn": pl.Int64, "n_observations": pl.Int64,
-}
-
-
-def model_call_frame(participant: str, video_id: str, records: list[CallRecord]) -> pl.DataFrame | None:
-    """The ModelCall rows of one video: every call tagged with it, failed ones included."""
-    mine = [r for r in records if r.tags.get("video") == video_id and r.tags.get("participant", participant) == participant]
+def model_call_frame(participant: str, records: list[CallRecord], id_prefix: str,
+                     video_id: str | None = None) -> pl.DataFrame | None:
+    """ModelCall rows: every call (failed ones included) of `participant`, or only those tagged
+    with `video_id`. Ids are `<id_prefix>:callNNNNN`. Calls that belong to no segment (the
+    consolidation passes) have turn -1 and no segment. The one place these rows are made."""
+    mine = [r for r in records if r.tags.get("participant", participant) == participant
+            and (video_id is None or r.tags.get("video") == video_id)]
     if not mine:
         return None
-    return pl.DataFrame([{
-        "id": f"{participant}:{video_id}:call{i:05d}", "participant": participant, "video": video_id,
-        "turn": int(r.tags["turn"]) if r.tags.get("turn", "").lstrip("-").isdigit() else -1,
+    return schema.frame("ModelCall", [{
+        "id": f"{id_prefix}:call{i:05d}", "participant": participant, "video": r.tags.get("video", ""),
+        "turn": int(r.tags["turn"]) if str(r.tags.get("turn", "")).lstrip("-").isdigit() else -1,
         "segment": r.tags.get("segment", ""), "role": r.role, "backend": r.backend, "model": r.model or "",
         "prompt_hash": r.prompt_hash, "prompt_version": r.tags.get("prompt", ""), "tokens_in": r.tokens_in,
         "tokens_out": r.tokens_out, "latency_s": r.latency_s, "retries": r.retries, "repairs": r.repairs,
         "ok": r.ok, "error": r.error or "",
         "started_at": datetime.fromisoformat(r.started_at).astimezone(timezone.utc).replace(tzinfo=None),
-    } for i, r in enumerate(mine)], schema=MODEL_CALL_SCHEMA)
+    } for i, r in enumerate(mine)])
 
 
-MODEL_CALL_SCHEMA = {
-    "id": pl.String, "participant": pl.String, "video": pl.String, "turn": pl.Int64, "segment": pl.String,
-    "role": pl.String, "backend": pl.String, "model": pl.String, "prompt_hash": pl.String,
-    "prompt_version": pl.String, "tokens_in": pl.Int64, "tokens_out": pl.Int64, "latency_s": pl.Float64,
-    "retries": pl.Int64, "repairs": pl.Int64, "ok": pl.Boolean, "error": pl.String, "started_at": pl.Datetime("us"),
-}
+def _pick(row: dict, keys: list[str]) -> dict:
+    return {k: row[k] for k in keys}
 
 
-def _place_row(pp: PlaceState) -> dict:
-    return {"id": pp.id, "participant": pp.participant, "location_id": pp.location_id, "name": pp.name,
-            "zones": pp.zones, "features": pp.features, "first_seen": pp.first_seen, "first_video": pp.first_video,
-            "last_seen": pp.last_seen, "last_video": pp.last_video, "turn_count": pp.turn_count}
+def annotation_fingerprints(actions: pl.DataFrame) -> dict[str, str]:
+    """Per video, a sha256 of the annotation rows it is built from (every column but the line
+    number, rows in narration order), so a later build can tell that a built video's
+    annotations changed."""
+    cols = [c for c in actions.columns if c != "row"]
+    out = {}
+    for video in sorted(actions["video_id"].unique().to_list()):
+        rows = actions.filter(pl.col("video_id") == video).select(cols).sort("narration_id", "start_s")
+        blob = json.dumps(rows.to_dicts(), sort_keys=True, default=str).encode()
+        out[video] = hashlib.sha256(blob).hexdigest()[:20]
+    return out
 
 
 def build_participant(bank: Bank, participant: str, actions: pl.DataFrame, durations: dict[str, float],
@@ -366,33 +410,43 @@ def build_participant(bank: Bank, participant: str, actions: pl.DataFrame, durat
                       policy: EditPolicy | None = None, on_video: Callable[[str, int], None] | None = None,
                       stop_after: int | None = None) -> ParticipantBuild:
     """Build (or resume) one participant. `on_video(video_id, n_segments)` reports progress;
-    `stop_after` builds at most that many videos (used to simulate an interrupted build)."""
+    `stop_after` builds at most that many videos (used to simulate an interrupted build).
+    A build that fails with an exception removes what it staged (a killed one keeps it, to
+    resume); the database is only written by the final bulk load."""
     out = ParticipantBuild(participant)
-    builder = ParticipantBuilder(bank, participant, embedder, mode=mode, policy=policy)
-    try:
-        by_video: dict[str, list[dict]] = {}
-        for row in actions.filter(pl.col("participant_id") == participant).iter_rows(named=True):
-            by_video.setdefault(row["video_id"], []).append(row)
-        for video_id in sorted(by_video):
-            if video_id in builder.done:
-                out.videos_skipped += 1
+    actions = actions.filter(pl.col("participant_id") == participant)
+    with bank.participant_lock(participant):
+        builder = ParticipantBuilder(bank, participant, embedder, mode=mode, policy=policy)
+        try:
+            by_video: dict[str, list[dict]] = {}
+            for row in actions.iter_rows(named=True):
+                by_video.setdefault(row["video_id"], []).append(row)
+            for video_id in sorted(by_video):
+                if video_id in builder.done:
+                    out.videos_skipped += 1
+                    if on_video:
+                        on_video(video_id, 0)
+                    continue
+                if stop_after is not None and out.videos_built >= stop_after:
+                    break
+                timings, n = builder.build_video(video_id, by_video[video_id], durations.get(video_id, 0.0), classes)
+                out.timings.add(timings)
+                out.videos_built += 1
+                out.segments += n
                 if on_video:
-                    on_video(video_id, 0)
-                continue
-            if stop_after is not None and out.videos_built >= stop_after:
-                break
-            timings, n = builder.build_video(video_id, by_video[video_id], durations.get(video_id, 0.0), classes)
-            out.timings.add(timings)
-            out.videos_built += 1
-            out.segments += n
-            if on_video:
-                on_video(video_id, n)
-        t0 = time.perf_counter()
-        builder.finish()
-        out.counts = builder.counts()
-        out.decisions = builder.decisions()
-        bank.record_participant(participant, sorted(builder.done), out.counts)
-        out.timings.graph += time.perf_counter() - t0
-    finally:
-        builder.close()
+                    on_video(video_id, n)
+            t0 = time.perf_counter()
+            builder.finish()
+            out.counts = builder.counts()
+            out.decisions = builder.decisions()
+            fingerprints = annotation_fingerprints(actions.filter(pl.col("video_id").is_in(sorted(builder.done))))
+            bank.record_participant(participant, sorted(builder.done), out.counts, annotations=fingerprints)
+            out.timings.graph += time.perf_counter() - t0
+        except BaseException:
+            if not isinstance(sys.exc_info()[1], KeyboardInterrupt):
+                builder.discard()  # a failure; an interrupt keeps what was staged, to resume
+            bank.abandon_writing(participant)
+            raise
+        finally:
+            builder.close()
     return out

@@ -345,7 +345,7 @@ VERB_ALIASES = {"set": "put"}
 
 _VERB_EXTRA = {
     "set aside": "put", "set down": "put", "set back": "put", "put away": "put",
-    "place": "put", "set down": "put", "sets down": "put", "store": "put", "stash": "put", "leave": "put",
+    "place": "put", "sets down": "put", "store": "put", "stash": "put", "leave": "put",
     "rinse": "wash", "clean": "wash", "lather": "wash", "soap": "wash", "grab": "take", "retrieve": "take",
     "collect": "take", "fetch": "take", "get": "take", "pick up": "take", "pick": "take", "stir": "mix",
     "whisk": "mix", "combine": "mix", "chop": "cut", "slice": "cut", "dice": "cut", "trim": "cut", "split": "divide",

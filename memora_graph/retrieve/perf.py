@@ -307,7 +307,9 @@ class _IndexedCopy:
         if self._tmp is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="memora-perf-")
             dst = Path(self._tmp.name)
-            shutil.copy(self.bank.manifest_path, dst / self.bank.manifest_path.name)
+            data = self.bank.manifest()
+            data["participants"] = {p: e for p, e in data["participants"].items() if p in self.pids}
+            Bank(dst).write_manifest(data)  # the copy lists what it holds
             for p in self.pids:
                 src = self.bank.db_path(p)
                 for f in (src, src.with_name(src.name + ".wal")):
@@ -320,7 +322,7 @@ class _IndexedCopy:
                 continue
             t0 = time.perf_counter()
             for p in self.pids:
-                with Store(dst / self.bank.db_path(p).name, read_only=False) as s:
+                with Bank(dst).open(p, read_only=False) as s:  # records the copy's new integrity on close
                     s.ensure_indexes(fts=kind == "fts", hnsw=kind == "hnsw")
             self._copy_has |= set(index_names(kind))
             self.echo(f"built {kind.upper()} indexes on a copy of {len(self.pids)} participants in "

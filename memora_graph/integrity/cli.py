@@ -1,0 +1,224 @@
+"""`memora verify`, `memora forget`, and `--no-verify` on every command that opens a bank."""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import click
+import polars as pl
+
+from memora_graph.output import output_options, render
+
+SKIP_NO_VERIFY = {"verify", "forget"}
+
+
+@click.command("verify")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.option("--participant", "participants", multiple=True, help="Only this participant (repeatable; default: all).")
+@click.option("--accept", "accept_", metavar="PARTICIPANT", multiple=True,
+              help="Record this participant's database as it is now (a bank built before integrity records, or a "
+                   "write that did not finish), after checking in a child process that it opens. Repeatable.")
+@output_options
+def verify_cmd(bank, participants, accept_, fmt):
+    """Check a bank deeply: per participant, the database's sha256 and size against the record of
+    its last write, rows per table against the manifest, rows of other participants, write-ahead
+    log or shadow files, unfinished writes or builds, staged videos; and files that belong to no
+    participant. Exit status 1 if anything is wrong.
+
+    Every command that opens a bank checks the hash first (and refuses a damaged database, a
+    foreign log, an interrupted write); `--no-verify` on those commands bypasses that knowingly.
+
+    \b
+    Examples:
+      memora verify banks/epic
+      memora verify banks/epic --participant P01 --json
+      memora verify banks/old --accept P01          # record a pre-integrity bank's P01 as it is
+    """
+    from memora_graph.integrity.verify import accept, verify_bank
+
+    for p in accept_:
+        rec = accept(bank, p)
+        click.echo(f"{p}: recorded sha256 {rec['sha256'][:16]}..., {rec['bytes']} bytes, "
+                   f"{sum(rec['tables'].values())} rows in {len(rec['tables'])} tables")
+    report = verify_bank(bank, list(participants) or None)
+    df = report.frame()
+    if fmt == "table":
+        click.echo(render(df.drop("problems") if "problems" in df.columns else df))
+        for r in report.rows:
+            for line in r["problems"]:
+                click.echo(f"{r['participant']}: {line}")
+        for line in report.bank:
+            click.echo(f"bank: {line}")
+        click.echo("ok: every participant matches its record" if report.ok else "problems found (see above)")
+    else:
+        click.echo(render(df, fmt))
+    if not report.ok:
+        raise SystemExit(1)
+
+
+@click.command("forget")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.option("--participant", required=True, help="Whose memory to remove (P01).")
+@click.option("--dry-run", is_flag=True, help="Only list what would be removed.")
+def forget_cmd(bank, participant, dry_run):
+    """Remove every trace of one person from a bank: their database (with its write-ahead log and
+    shadow files, and so its indexes), staged videos of an unfinished build, rebuild leftovers,
+    their baseline caches under BANK/.cache/ (and the embedding cache all participants share,
+    which holds vectors of their texts; it is rebuilt on demand), and their manifest entry.
+    Prints what it removed. Run records written elsewhere (`memora bench run --out DIR`) are not
+    in the bank: delete those yourself.
+
+    \b
+    Examples:
+      memora forget banks/epic --participant P05 --dry-run
+      memora forget banks/epic --participant P05
+    """
+    from memora_graph.bank import Bank
+
+    b = Bank(bank)
+    if dry_run:
+        found = b.traces(participant)
+        for p in found:
+            click.echo(f"would remove {p}")
+        listed = b.exists() and participant in b.manifest()["participants"]
+        if listed:
+            click.echo(f"would remove {b.manifest_path}: entry {participant}")
+        if not found and not listed:
+            click.echo(f"nothing of {participant} in {bank}")
+        return
+    for line in b.forget(participant):
+        click.echo(f"removed {line}")
+
+
+@click.command("verify")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.option("--participant", required=True, help="Whose database to open (P04).")
+@click.option("--repeat", default=5, show_default=True, help="Runs of each measurement (medians are printed).")
+@click.option("--query", "text", default="bowl", show_default=True, help="What the one-shot command searches for.")
+def perf_verify_cmd(bank, participant, repeat, text):
+    """What checking a database before opening it costs, against a one-shot command.
+
+    In this process: sha256 of the file (hashed afresh each run), and opening + closing the
+    participant with and without the checks. Then `memora tool BANK search_objects QUERY
+    --participant P` as a new process, with and without --no-verify (model load included, as a
+    user runs it). Prints medians and the checks' share of the one-shot command.
+
+    \b
+    Example:
+      memora perf verify banks/epic --participant P04
+    """
+    import statistics
+    import subprocess
+    import sys
+    import time
+
+    from memora_graph.bank import Bank
+    from memora_graph.integrity import files
+
+    b = Bank(bank)
+    db = b.db_path(participant)
+
+    def timed(fn) -> float:
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
+
+    def fresh_hash():
+        files._HASHED.clear()
+        files.file_sha256(db)
+
+    def open_first():  # as the first open after a write: the file is hashed
+        files._HASHED.clear()
+        b.forget_seen(participant)
+        b.open(participant).close()
+
+    def open_again():  # unchanged since a checked open: BANK/.verified.json spares the hash
+        files._HASHED.clear()
+        b.open(participant).close()
+
+    first, again, plain = "open + close, checked (hashed)", "open + close, checked (unchanged: cached)", \
+        "open + close, --no-verify"
+    runs = {"sha256 of the database file": [timed(fresh_hash) for _ in range(repeat)], first: [], again: [], plain: []}
+    for _ in range(repeat):
+        runs[first].append(timed(open_first))
+        runs[again].append(timed(open_again))
+        runs[plain].append(timed(lambda: b.open(participant, verify=False).close()))
+    cmd = [sys.executable, "-m", "memora_graph.cli", "tool", str(bank), "search_objects", text, "--participant",
+           participant, "--json"]
+    runs["one-shot `memora tool ... search_objects`"] = []
+    runs["one-shot, --no-verify"] = []
+    for _ in range(repeat):
+        for key, extra in (("one-shot `memora tool ... search_objects`", []), ("one-shot, --no-verify", ["--no-verify"])):
+            t0 = time.perf_counter()
+            subprocess.run(cmd + extra, capture_output=True, check=True)
+            runs[key].append(time.perf_counter() - t0)
+    med = {k: statistics.median(v) for k, v in runs.items()}
+    size = db.stat().st_size
+    click.echo(render(pl.DataFrame([{"measure": k, "median_s": round(v, 4), "runs": len(runs[k])}
+                                    for k, v in med.items()])))
+    one_shot = med["one-shot `memora tool ... search_objects`"]
+    click.echo(f"{participant}.kuzu: {size / 1e6:.1f} MB; sha256 at {size / 1e6 / med['sha256 of the database file']:.0f} MB/s")
+    for label, key in (("hashing", first), ("unchanged file", again)):
+        added = med[key] - med[plain]
+        click.echo(f"the checks add {added * 1000:.0f} ms to an open ({label}): {100 * added / one_shot:.1f}% of the "
+                   f"one-shot command ({one_shot:.2f} s; with --no-verify {med['one-shot, --no-verify']:.2f} s)")
+    load = os.getloadavg()
+    click.echo(f"machine: load average {load[0]:.2f} (1 min), {load[1]:.2f} (5 min), {os.cpu_count()} CPUs")
+
+
+class _StderrHandler(logging.Handler):
+    """Bank notices (interrupted builds, unlisted databases) as `warning: ...` on stderr, looked
+    up at emit time (click's test runner swaps the stream)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        click.echo(f"warning: {record.getMessage()}", err=True)
+
+
+def _no_verify_option() -> click.Option:
+    def callback(ctx: click.Context, param, value: bool) -> None:
+        from memora_graph.bank import NO_VERIFY_ENV
+
+        if not value:
+            return
+        before = os.environ.get(NO_VERIFY_ENV)
+        os.environ[NO_VERIFY_ENV] = "1"  # worker processes inherit it
+
+        def restore() -> None:
+            if before is None:
+                os.environ.pop(NO_VERIFY_ENV, None)
+            else:
+                os.environ[NO_VERIFY_ENV] = before
+
+        ctx.call_on_close(restore)
+
+    return click.Option(["--no-verify"], is_flag=True, expose_value=False, callback=callback, is_eager=True,
+                        help="Open the bank without checking each database against its recorded sha256 (and without "
+                             "refusing interrupted writes or foreign logs). Knowingly: a damaged file can return wrong "
+                             "results or crash. `memora verify BANK` tells what is wrong.")
+
+
+def _add_no_verify(command: click.Command) -> None:
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            _add_no_verify(sub)
+        return
+    if command.name in SKIP_NO_VERIFY or any(p.name == "no_verify" or "--no-verify" in getattr(p, "opts", [])
+                                             for p in command.params):
+        return
+    if any(isinstance(p, click.Argument) and p.name == "bank" for p in command.params):
+        command.params.append(_no_verify_option())
+
+
+def register(main: click.Group) -> None:
+    """Add `verify` and `forget`, and `--no-verify` to every command taking a BANK argument
+    (call after every other command is registered)."""
+    main.add_command(verify_cmd, "verify")
+    main.add_command(forget_cmd, "forget")
+    if isinstance(main.commands.get("perf"), click.Group):
+        main.commands["perf"].add_command(perf_verify_cmd, "verify")
+    _add_no_verify(main)
+    log = logging.getLogger("memora_graph.integrity")
+    if not any(isinstance(h, _StderrHandler) for h in log.handlers):
+        log.addHandler(_StderrHandler())
+        log.propagate = False

@@ -1,0 +1,183 @@
+"""`memora verify`: a deep report on a bank, and accepting a database as it is now.
+
+Per participant: is its database listed in the manifest and present, do its size and sha256
+match the record of its last write, do its rows per table match (and hold no other
+participant's rows), is there a write-ahead log or shadow file next to it, did a write or a
+build not finish (staged videos, a write mark), are its staged videos intact. For the bank:
+files that are none of these. A database whose hash does not match is only ever opened in a
+child process (Kùzu can crash on a damaged file), so verify itself cannot crash.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import polars as pl
+
+from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, _alive
+from memora_graph.errors import BankError
+from memora_graph.form.staging import Staging
+from memora_graph.integrity.files import file_sha256, probe, side_files
+from memora_graph.store import Store
+
+_DB = re.compile(r"^(P\d{2})\.kuzu(\.wal|\.shadow)?$")
+KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash"}
+PROBE_TIMEOUT_S = 60
+
+
+@dataclass
+class Report:
+    rows: list[dict] = field(default_factory=list)  # one per participant
+    bank: list[str] = field(default_factory=list)  # problems of the bank as a whole
+
+    @property
+    def ok(self) -> bool:
+        return not self.bank and all(r["status"] == "ok" for r in self.rows)
+
+    def frame(self) -> pl.DataFrame:
+        return pl.DataFrame(self.rows) if self.rows else pl.DataFrame()
+
+
+def verify_bank(path: str | Path, participants: list[str] | None = None) -> Report:
+    bank = Bank(path)
+    data = bank.manifest()
+    marks = data.get("writing", {})
+    on_disk = {m.group(1) for f in bank.path.iterdir() if (m := _DB.match(f.name))}
+    staging_root = bank.path / ".staging"
+    staged = {d.name for d in staging_root.iterdir() if d.is_dir()} if staging_root.is_dir() else set()
+    everyone = sorted(set(data["participants"]) | on_disk | set(marks) | {p for p in staged if re.match(r"^P\d{2}$", p)})
+    report = Report()
+    for p in participants or everyone:
+        report.rows.append(_participant(bank, data, p))
+    if not participants:
+        for f in sorted(bank.path.iterdir()):
+            if f.name not in KNOWN and not _DB.match(f.name) and not f.name.startswith(VERIFIED + "."):
+                report.bank.append(f"{f}: not a file of a memora bank (foreign)")
+        if staging_root.is_dir():
+            for d in sorted(staging_root.iterdir()):
+                if not (d.is_dir() and re.match(r"^P\d{2}$", d.name)):
+                    report.bank.append(f"{d}: not a participant's staging folder (foreign; never opened)")
+        trash = bank.path / ".trash"
+        if trash.is_dir():
+            for d in sorted(trash.iterdir()):
+                report.bank.append(f"{d}: the previous database of an interrupted rebuild (removed when the rebuild "
+                                   f"completes: `memora build {bank.path} --participants {d.name.split('-')[0]}`)")
+    return report
+
+
+def _participant(bank: Bank, data: dict, p: str) -> dict:
+    db = bank.db_path(p)
+    entry = data["participants"].get(p)
+    integ = (entry or {}).get("integrity") or {}
+    mark = data.get("writing", {}).get(p)
+    sides = side_files(db)
+    problems: list[str] = []
+    row = {"participant": p, "file": db.name, "listed": entry is not None, "hash": "-", "tables": "-",
+           "other_participant_rows": None, "wal": "present" if any(s.suffix == ".wal" for s in sides) else "none",
+           "shadow": "present" if any(s.suffix == ".shadow" for s in sides) else "none", "write": "-", "staging": "-"}
+    if mark:
+        alive = _alive(mark.get("pid"))
+        row["write"] = f"{'running' if alive else 'interrupted'} {mark.get('op', 'write')} ({mark.get('since', '?')})"
+        problems.append(bank.interrupted_message(p, mark))
+    if entry is None and db.exists() and not mark:
+        problems.append(f"{db}: not listed in {MANIFEST} (entry removed, or file copied in); readers do not see it")
+    if entry is not None and not db.exists():
+        row["hash"] = "missing"
+        problems.append(f"{db}: missing, but {MANIFEST} lists {p}")
+    if sides and not mark:
+        problems.append(f"{', '.join(s.name for s in sides)}: next to a database that was closed cleanly: does not "
+                        "belong to it (never replayed; move it away)")
+    counts = None
+    if db.is_file():
+        st = db.stat()
+        if not integ:
+            row["hash"] = "not recorded"
+            if entry is not None and not mark:
+                problems.append(f"{db}: no hash recorded (built before integrity records); "
+                                f"`memora verify {bank.path} --accept {p}` records it as it is now")
+        elif st.st_size != integ.get("bytes"):
+            row["hash"] = f"size {st.st_size} != {integ.get('bytes')}"
+        elif file_sha256(db, st) != integ.get("sha256"):
+            row["hash"] = "differs"
+        else:
+            row["hash"] = "ok"
+        if integ and row["hash"] != "ok" and not mark:
+            owner = [q for q, e in data["participants"].items()
+                     if q != p and (e.get("integrity") or {}).get("sha256") == file_sha256(db, st)]
+            row["hash"] += f" (is {owner[0]}'s database)" if owner else ""
+            problems.append(f"{db}: {row['hash']}: damaged, edited or replaced since its last write")
+        try:
+            if row["hash"] == "ok" and not sides:
+                with Store(db, read_only=True) as store:  # the bytes are those recorded: safe to open here
+                    counts = {"tables": store.table_counts(p),
+                              "counts": store.rows("store_counts", participant=p)[0]}
+            elif not integ or mark:  # nothing to vouch for it: opened in a child process only
+                counts = probe(db, p, timeout=PROBE_TIMEOUT_S)
+            else:  # known to differ from its record: Kùzu can crash or spin on it, and its rows are moot
+                row["tables"] = "not opened (differs from its record)"
+        except BankError as exc:
+            row["tables"] = "cannot be opened"
+            problems.append(str(exc))
+    if counts is not None:
+        tables = counts["tables"]
+        row["other_participant_rows"] = sum(v["other_participant"] for v in tables.values())
+        if row["other_participant_rows"]:
+            problems.append(f"{db}: holds {row['other_participant_rows']} row(s) of another participant")
+        recorded = integ.get("tables")
+        if recorded:
+            diff = [f"{t}: manifest {recorded.get(t)} != database {tables.get(t, {}).get('rows')}"
+                    for t in sorted(set(recorded) | set(tables)) if recorded.get(t) != tables.get(t, {}).get("rows")]
+            row["tables"] = "ok" if not diff else "; ".join(diff)
+            if diff:
+                problems.append(f"{db}: rows per table differ from {MANIFEST}: {'; '.join(diff)}")
+        else:
+            row["tables"] = f"{len(tables)} tables (none recorded)"
+        expected = (entry or {}).get("counts", {})
+        got = {k: int(v or 0) for k, v in counts["counts"].items()}
+        off = [f"{k} manifest {expected[k]} != database {got.get(k)}" for k in sorted(expected)
+               if k in got and expected[k] != got[k]]
+        if off and entry is not None and not mark:
+            problems.append(f"{db}: counts differ from {MANIFEST}: {'; '.join(off)}")
+    staging = Staging(bank.path / ".staging" / p)
+    entries, foreign = staging.entries(), staging.foreign()
+    if entries or foreign:
+        bad = [(e.name, why) for e in entries if (why := Staging.check(e))]
+        row["staging"] = f"{len(entries)} video(s)" + (f", {len(bad)} damaged" if bad else "") + \
+            (f", {len(foreign)} foreign file(s)" if foreign else "")
+        if entries and not mark:
+            problems.append(f"{staging.root}: a build of {p} was interrupted with {len(entries)} video(s) staged; "
+                            f"`memora build {bank.path} --participants {p}` resumes it")
+        for name, why in bad:
+            problems.append(f"{staging.root / name}: {why} (a build will build it again)")
+        for f in foreign:
+            problems.append(f"{f}: not a staged video (never opened by a build; remove it)")
+    row["status"] = "ok" if not problems else "problem"
+    row["problems"] = problems
+    return row
+
+
+def accept(path: str | Path, participant: str) -> dict:
+    """Record a listed participant's database as it is now: for a bank built before integrity
+    records, or after a write (`memora query --write`, consolidation) that did not finish. Its
+    log is first replayed in a child process (a crash there refuses it), then here, and the
+    integrity recorded. Not for interrupted builds: `memora build` resumes those."""
+    bank = Bank(path)
+    data = bank.manifest()
+    db = bank.db_path(participant)
+    if participant not in data["participants"]:
+        raise BankError(bank._not_listed(participant, data))
+    mark = data.get("writing", {}).get(participant)
+    if mark and _alive(mark.get("pid")):
+        raise BankError(bank.interrupted_message(participant, mark))
+    if mark and mark.get("op") == "build":
+        raise BankError(f"{db}: its build was interrupted; resume it with `memora build {bank.path} --participants "
+                        f"{participant}` rather than accepting half of it")
+    if not db.is_file():
+        raise BankError(f"{db}: missing; nothing to accept")
+    probe(db, participant, timeout=PROBE_TIMEOUT_S)
+    bank.mark_writing(participant, "accept")
+    with Store(db, read_only=False):  # replays the log, and checkpoints it into the file on close
+        pass
+    return bank.record_integrity(participant)
