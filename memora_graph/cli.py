@@ -444,6 +444,8 @@ _register_perf_video()
 
 
 def _register_optional_groups() -> None:
+    from memora_graph.agent.cli import ask_cmd
+    from memora_graph.bench.cli import bench_group
     from memora_graph.consolidate.cli import consolidate_cmd
     from memora_graph.explore.cli import explore_cmd
     from memora_graph.retrieve.cli import perf_tools_cmd, tool_cmd, tools_cmd
@@ -457,10 +459,7 @@ def _register_optional_groups() -> None:
     main.add_command(tool_cmd, "tool")
     perf.add_command(perf_tools_cmd, "tools")
     perf.add_command(perf_encoders_cmd, "encoders")
-    try:
-        from memora_graph.bench.cli import bench_group
-    except ImportError:
-        return
+    main.add_command(ask_cmd, "ask")
     main.add_command(bench_group, "bench")
 
 

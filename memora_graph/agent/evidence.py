@@ -153,7 +153,8 @@ def _preference_events(p: PreferenceRecord, lex: Lexicon) -> list[Event]:
             return [Event("", -1.0, trig[0][0], trig[0][1], ids, weight, "habit", tuple(nxt[:1]), text=p.preference)]
     if p.subtype == "storage" and p.object and p.preferred_location:
         nouns = lex.noun_classes(p.object.replace("_", " ")) + lex.noun_classes(p.preferred_location)
-        return [Event("", -1.0, "put", tuple(dict.fromkeys(nouns)), ids, weight, "storage", text=p.preference)]
+        verb = None if p.context == "during_use" else "put"  # "usually uses X at Y" is where it is used, not kept
+        return [Event("", -1.0, verb, tuple(dict.fromkeys(nouns)), ids, weight, "storage", text=p.preference)]
     if p.subtype == "workflow" and p.use:
         verb, _, where = p.use.partition(" @ ")
         nouns = [n for o in p.objects for n in lex.noun_classes(o)] + lex.noun_classes(where)

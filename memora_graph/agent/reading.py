@@ -270,15 +270,22 @@ def context_windows(intent: Intent, events: list[Event], lex: Lexicon) -> list[t
         for e in seq:
             if subject and not (subject & set(e.nouns)):
                 continue
+            if intent.relation == "where" and (lex.verb_category.get(e.verb or "") != "leave" or not e.nouns
+                                               or (subject and e.nouns[0] not in subject)):
+                continue  # where it is kept: where it was put (it, not something put into it)
             have: set[Item] = set()
             ids: list[str] = []
-            for f in seq[bisect_left(times, e.t - width):bisect_right(times, e.t + width)]:
+            span = 0.0 if intent.relation == "where" else width
+            for f in seq[bisect_left(times, e.t - span):bisect_right(times, e.t + span)]:
                 have |= _items_of(f)
                 ids += f.ids
             out.append((have, 1.0, tuple(dict.fromkeys(ids))))
     if not intent.videos:
         for e in events:
             if e.origin in ("storage", "tool", "routine", "habit") and (not subject or subject & set(e.nouns)):
+                if intent.relation == "where" and not (e.origin == "storage" and e.verb and e.nouns
+                                                       and (not subject or e.nouns[0] in subject)):
+                    continue
                 have = _items_of(e)
                 for verb, ns in e.follows:
                     have |= ({("v", verb)} if verb else set()) | {("n", n) for n in ns}
@@ -311,7 +318,8 @@ POWER = 2.0  # a window that matches the whole option counts more than two that 
 # Tuned on P01-P03 of the calibration cohort (P04 held out), for the highest accuracy over answerable
 # questions and E-correct controls together; a margin rule (best barely ahead) lost more answerable
 # items than it won controls, so only an exact tie counts as not separating the options.
-MIN_SUPPORT = 2.2  # the best option's support (classes + SEMANTIC x cosine) below this: too weak to answer
+MIN_SUPPORT = 2.2  # the best option's support (classes + SEMANTIC x cosine) below this: too weak to answer ...
+CLASS_SURE = 0.8  # ... unless its actions and objects alone are supported this well (short options read weakly)
 
 
 SEMANTIC = 3.0  # weight of the options' closeness in meaning to the evidence records, next to their classes
@@ -352,13 +360,14 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
             s *= max(0.0, 1.0 - neg)
         scores.append(s)
         support.append(ids)
+    classes = list(scores)
     if embed is not None and SEMANTIC:
         for i, sim in enumerate(_closeness(choices[:4], _context_texts(events, windows), embed)):
             if parsed[i][0] or sim:
                 scores[i] += SEMANTIC * sim
     order = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
     best, second = scores[order[0]], scores[order[1]] if len(order) > 1 else 0.0
-    if best < MIN_SUPPORT:
+    if best < MIN_SUPPORT and classes[order[0]] < CLASS_SURE:
         return Decision(OPTION_E, "the evidence is too weak to support any option", scores, support, intent, len(events))
     if best == second:
         return Decision(OPTION_E, "the evidence does not separate the options", scores, support, intent, len(events))

@@ -48,7 +48,7 @@ _LEAD = frozenset("""they he she it person participant usually typically often a
     mostly generally sometimes tend tends prefer prefers likes like goes go starts start begins begin keeps keep
     continues continue who that which i we you the a an""".split())
 _SPLIT = frozenset({",", ";", ".", ":", "then", "before", "after", "while", "afterwards", "afterward", "and", "or",
-                    "but", "followed", "until", "once", "when"})
+                    "but", "followed", "until", "once", "when", "without"})
 _PLACE_PREP = frozenset({"at", "in", "into", "on", "onto", "to", "from", "under", "inside", "near", "beside", "over",
                          "toward", "towards", "back", "across", "off", "out"})
 _TOOL_PREP = frozenset({"with", "using", "use", "via"})
@@ -255,7 +255,7 @@ class Lexicon:
                 prev.nouns += [n for n in c.nouns if n not in prev.nouns]
                 prev.words += c.words
                 continue
-            c.negated = c.negated or negate_next
+            c.negated = c.negated or negate_next or marker == "without"
             negate_next = False
             clauses.append((marker, c))
         ordered: list[Clause] = []

@@ -139,19 +139,21 @@ def test_a_responses_queries_are_embedded_in_one_batch_before_its_calls(small_ba
         toolset.close()
 
 
-def test_the_reader_asks_typed_tools_by_what_the_question_asks_and_checks_each_option_in_context(embedder):
+def test_the_reader_asks_typed_tools_round_by_round(embedder):
     from memora_graph.agent.loop import AgentState
     from memora_graph.retrieve import tool_schemas
 
     names = ["search", "search_objects", "search_activities", "get_routine_skill", "get_preferences"]
-    tools = tool_schemas(names)
     view = {"question_id": "q", "participant_id": "P01", "qa_type": "SHabit",
             "question": "After P01 empties the wok, what do they typically do next?",
             "choices": ["Wipes it", "Rinses it in the sink", "Sets it down", "Stores it", "not available"]}
     policy, state = OfflinePolicy(), AgentState("eam_qa", view)
-    first = policy.respond([], tools, forced=False, state=state).tool_calls
-    assert [c["function"]["name"] for c in first] == ["search", "get_preferences", "search"]
-    assert '"After P01 empties the wok, what do they typically do next: Wipes it"' in first[2]["function"]["arguments"]
+    first = policy.respond([], tool_schemas(names), forced=False, state=state).tool_calls
+    assert [c["function"]["name"] for c in first] == ["get_preferences", "search_activities"]
+    assert "empties the wok" in first[1]["function"]["arguments"]
+    state.iteration = 1
+    second = policy.respond([], tool_schemas(names), forced=False, state=state).tool_calls
+    assert [c["function"]["name"] for c in second] == ["search_activities", "search_objects"]
     # a condition without the typed tools asks the same things through its one search
-    flat = policy.respond([], tool_schemas(["search"]), forced=False, state=AgentState("eam_qa", view)).tool_calls
-    assert [c["function"]["name"] for c in flat] == ["search"] * 3
+    flat = policy.respond([], tool_schemas(["search"], "flat1d"), forced=False, state=AgentState("eam_qa", view))
+    assert [c["function"]["name"] for c in flat.tool_calls] == ["search"]

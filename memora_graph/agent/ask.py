@@ -1,0 +1,129 @@
+"""`memora ask`: one question to one person's memory, answered by the typed reader.
+
+    from memora_graph.agent.ask import ask
+    result = ask("banks/epic", "P03", "After P03 turns on the tap, what do they usually do next?")
+    result.answer, result.evidence
+
+The same lookups and reader as the `offline` answer policy (`agent.reading`): the tools are
+called directly, not through the agent loop. With choices it picks one (or "not in memory");
+without, it answers in words: the actions memory shows in the question's situation, most
+supported first, each with the records behind it.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from memora_graph.agent import lookups
+from memora_graph.agent.evidence import events_of
+from memora_graph.agent.reading import (
+    OPTION_E, Event, Intent, context_windows, habit_windows, parse_question, score,
+)
+from memora_graph.perceive.lexicon import Lexicon
+from memora_graph.retrieve.registry import get_family, tool_names, tool_set
+
+NOT_IN_MEMORY = "not in memory"
+WORDS = 3  # answers in words: at most this many actions
+
+
+@dataclass
+class AskResult:
+    question: str
+    participant: str
+    answer: str  # an option's letter and text, the answer in words, or "not in memory"
+    letter: str | None  # with choices: A-D, or E
+    kind: str  # the question's kind (habit, preference, routine, recall)
+    reason: str
+    scores: list[float] = field(default_factory=list)
+    evidence: list[dict] = field(default_factory=list)  # {id, text} of the records behind the answer
+    calls: list[dict] = field(default_factory=list)  # {tool, arguments}
+
+    @property
+    def in_memory(self) -> bool:
+        return self.answer != NOT_IN_MEMORY
+
+    def as_dict(self) -> dict:
+        return {"question": self.question, "participant": self.participant, "answer": self.answer,
+                "letter": self.letter, "in_memory": self.in_memory, "kind": self.kind, "reason": self.reason,
+                "scores": [round(s, 4) for s in self.scores], "evidence": self.evidence, "calls": self.calls}
+
+
+def _embedder():
+    from memora_graph.embed import get_embedder
+
+    e = get_embedder()
+    return lambda texts: e.encode(texts, kind="query")
+
+
+def _cite(ids: list[str], events: list[Event], limit: int = 8) -> list[dict]:
+    text = {}
+    for e in events:
+        for i in e.ids:
+            if e.text and i not in text:
+                text[i] = e.text
+    return [{"id": i, "text": text.get(i, "")} for i in list(dict.fromkeys(ids))[:limit]]
+
+
+def answer_in_words(intent: Intent, events: list[Event], lex: Lexicon) -> tuple[list[str], list[str]]:
+    """The actions memory shows in the question's situation, most supported first (what followed
+    the trigger, for a habit; the actions around the subject otherwise), with their evidence ids."""
+    windows = (habit_windows if intent.kind == "habit" else context_windows)(intent, events, lex)
+    trigger = intent.trigger
+    counts: Counter[tuple[str, str]] = Counter()
+    ids: dict[tuple[str, str], list[str]] = {}
+    for have, weight, wid in windows:
+        verbs = sorted(v for k, v in have if k == "v")
+        nouns = sorted(n for k, n in have if k == "n")
+        for v in verbs:
+            if trigger is not None and intent.kind == "habit" and v == trigger.verb:
+                continue
+            for n in nouns or [""]:
+                counts[(v, n)] += weight
+                ids.setdefault((v, n), []).extend(wid)
+    best = [k for k, _ in counts.most_common(WORDS)]
+    words = [f"{v} {n.split(':')[0] if ':' not in n else ' '.join(reversed(n.split(':')))}".strip().replace("_", " ")
+             for v, n in best]
+    return words, [i for k in best for i in ids[k][:3]]
+
+
+def ask(bank: str | Path, participant: str, question: str, choices: list[str] | None = None,
+        memory: str = "memora", embed=None) -> AskResult:
+    """Answer `question` from `participant`'s memory in `bank` (see the module docstring).
+    `memory` picks the representation the tools read (memora, flat1d, graph2d)."""
+    lex = Lexicon.load()
+    intent = parse_question(question, lex)
+    family = get_family(memory)
+    names = tool_names(memory, advertised_only=False)
+    store = family.open(Path(bank), participant)
+    tools = tool_set(memory, names, participant, store)
+    calls, results = [], []
+    try:
+        for round_ in lookups.plan(intent, names):
+            tools.prefetch(round_)
+            for name, args in round_:
+                calls.append({"tool": name, "arguments": args})
+                results.append(tools.call(name, args))
+    finally:
+        tools.close()
+    events = [e for r in results for e in events_of(r, lex)]
+    if choices:
+        opts = list(choices[:4])
+        d = score(question, opts + [""] * (4 - len(opts)), events, lex, embed=embed or _embedder())
+        if d.letter == OPTION_E:
+            return AskResult(question, participant, NOT_IN_MEMORY, OPTION_E, intent.kind, d.reason, d.scores,
+                             _cite([i for s in d.support for i in s], events), calls)
+        i = "ABCD".index(d.letter)
+        return AskResult(question, participant, f"{d.letter}) {opts[i]}", d.letter, intent.kind, d.reason, d.scores,
+                         _cite(d.support[i], events), calls)
+    subject = set(intent.subject_nouns)
+    if subject and not any(subject & set(e.nouns) for e in events):
+        return AskResult(question, participant, NOT_IN_MEMORY, None, intent.kind, "no record of the subject",
+                         calls=calls)
+    words, ids = answer_in_words(intent, events, lex)
+    if not words:
+        return AskResult(question, participant, NOT_IN_MEMORY, None, intent.kind,
+                         "no record of the situation asked about", calls=calls)
+    return AskResult(question, participant, "; ".join(words), None, intent.kind, "supported", [],
+                     _cite(ids, events), calls)

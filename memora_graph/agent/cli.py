@@ -1,0 +1,54 @@
+"""`memora ask`: parse, call `agent.ask`, render."""
+
+from __future__ import annotations
+
+import json
+
+import click
+import polars as pl
+
+from memora_graph.output import output_options, render
+
+
+@click.command("ask")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.argument("question")
+@click.option("--participant", required=True, help="Whose memory to ask (P01).")
+@click.option("--choice", "choices", multiple=True, metavar="TEXT",
+              help="An answer option (up to four; repeat). With choices the answer is one of them or "
+                   "'not in memory'; without, an answer in words.")
+@click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
+              help="The memory the lookups read: memora, or a baseline's representation (flat1d, graph2d).")
+@output_options
+def ask_cmd(bank, question, participant, choices, family, fmt):
+    """Ask one person's memory a question, answered by the typed reader (deterministic, no model).
+
+    The reader parses the question into what it asks (a habit, a preference or method, a routine,
+    or what happened in a named video) and its actions and objects, makes the typed lookups that
+    needs, and answers with the records behind the answer, or says "not in memory".
+
+    \b
+    Examples:
+      memora ask banks/epic "After P03 turns on the tap, what do they usually do next?" --participant P03
+      memora ask banks/epic "When P01 picks up a cup, what does that usually lead to?" --participant P01 \\
+          --choice "drink water from the cup" --choice "rinse the cup" --choice "put it in the cupboard"
+      memora ask banks/epic "In video P01_108, what did P01 do with the purse?" --participant P01 --json
+    """
+    from memora_graph.agent.ask import ask
+
+    if len(choices) > 4:
+        raise click.BadParameter("at most four choices (A-D); the reader adds 'not in memory' itself",
+                                 param_hint="'--choice'")
+    result = ask(bank, participant, question, list(choices) or None, memory=family)
+    if fmt == "json":
+        click.echo(json.dumps(result.as_dict(), indent=2, ensure_ascii=False))
+        return
+    if fmt == "table":
+        click.echo(f"{result.answer}\n({result.kind} question; {result.reason})")
+        if result.evidence:
+            click.echo(render(pl.DataFrame(result.evidence), fmt))
+        return
+    rows = [{"answer": result.answer, "letter": result.letter or "", "in_memory": result.in_memory,
+             "kind": result.kind, "reason": result.reason,
+             "evidence": "; ".join(e["id"] for e in result.evidence)}]
+    click.echo(render(pl.DataFrame(rows), fmt))
