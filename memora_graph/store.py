@@ -191,8 +191,10 @@ class Store:
             table = result.get_as_arrow(chunk_size=-1)
         except RuntimeError as exc:  # a statement that fails while its rows are fetched
             raise translate_error(exc, self.path) from exc
-        try:
-            table.validate(full=True)
+        try:  # the text columns: a full validate of every column trips over Kùzu's large nested
+            for column in table.columns:  # list offsets (a whole node table as structs), which are fine
+                if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
+                    column.validate(full=True)
         except pa.ArrowInvalid as exc:
             raise self._damaged(exc) from exc
         return pl.from_arrow(table)

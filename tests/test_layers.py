@@ -14,7 +14,8 @@ PACKAGE = Path(memora_graph.__file__).parent
 ORDER = ("base", "perceive", "form", "consolidate", "retrieve", "agent", "bench", "cli")
 # first match wins: a module path (dotted, without the package name) -> its layer
 RULES = (
-    ("cli", lambda m: m == "cli" or m.endswith(".cli") or m.startswith(("perf_", "testing"))),
+    # commands, benchmarks, test helpers, and the bank report that reads every layer's files (verify)
+    ("cli", lambda m: m == "cli" or m.endswith(".cli") or m.startswith(("perf_", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
     ("consolidate", lambda m: m.startswith("consolidate") or m == "pipeline"),

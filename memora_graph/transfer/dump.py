@@ -26,6 +26,7 @@ from memora_graph.errors import DataError
 FORMAT_KEY = "memora_export"
 FORMAT_VERSION = 1
 PARQUET_META = "export.json"
+BANK_LOCAL = ("integrity",)  # manifest fields about this bank's file, recorded anew by an import
 
 _SCALARS = {
     "STRING": pl.String, "INT64": pl.Int64, "INT32": pl.Int32, "INT16": pl.Int16, "INT8": pl.Int8,
@@ -96,7 +97,8 @@ class ParticipantDump:
 
 
 def dump_participant(bank: Bank, participant: str) -> ParticipantDump:
-    """Read every table of one participant's database (checked against the manifest first)."""
+    """Read every table of one participant's database (checked against the manifest first). The
+    manifest entry travels without what belongs to this bank's copy of the file (its hash)."""
     data = bank.manifest()
     with bank.open(participant) as store:
         catalog = store.catalog()
@@ -104,7 +106,7 @@ def dump_participant(bank: Bank, participant: str) -> ParticipantDump:
         nodes = store.run("_export_nodes", participant=participant)
         rels = store.run("_export_rels", participant=participant)
     dump = ParticipantDump(participant, {"mode": data["mode"], "embed_model": data["embed_model"]},
-                           data["participants"][participant], migrations,
+                           {k: v for k, v in data["participants"][participant].items() if k not in BANK_LOCAL}, migrations,
                            exported_at=datetime.now(timezone.utc).isoformat(timespec="seconds"))
     nodes = nodes.unnest("node") if nodes.height else nodes
     for name, info in catalog.items():

@@ -132,7 +132,9 @@ def import_participant(bank_path: str | Path, source: str | Path) -> ImportResul
             os.replace(f, bank.path / f.name)
             moved = True
         extra = {k: dump.manifest[k] for k in ("consolidated", "inferred") if k in dump.manifest}
-        bank.record_participant(p, list(dump.manifest.get("videos") or []), counts, extra={**extra, "indexes": indexes})
+        bank.record_participant(p, list(dump.manifest.get("videos") or []), counts,
+                                annotations=dump.manifest.get("annotations"), extra={**extra, "indexes": indexes})
+        bank.record_integrity(p)  # the imported file's hash: every later open checks it
     except BaseException:
         if moved:  # not recorded in the manifest: take it back out
             for f in bank.path.glob(f"{p}.kuzu*"):

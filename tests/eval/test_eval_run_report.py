@@ -28,7 +28,7 @@ def test_run_records_resume_and_determinism(small_bank, small_raw_bank, tiny_tas
     assert first.done == 5 * 4 and first.failed == 0
     run = load_run(tmp_path / "a")
     for rec in run["eam_qa"]["flat_1d_edited"]:
-        assert rec["predicted"] in "ABCDE" and rec["n_tool_calls"] == 5
+        assert rec["predicted"] in "ABCDE" and 1 <= rec["n_tool_calls"] <= 12
         assert set(rec["time"]) == {"model_s", "tools_s", "other_s", "total_s"}
         assert all(c["result_chars"] > 0 for c in rec["tool_calls"])
     plan = next(r for r in run["planning"]["graph_2d_edited"] if r["split"] == "replay")
