@@ -85,23 +85,17 @@ class LazyGroup(click.Group):
 
 # -- choices from the registries ---------------------------------------------------------------
 class RegistryChoice(click.Choice):
-    """A click choice whose names come from a registry, looked up when first needed (parsing a
-    value, or help), so that defining the option imports nothing. An unknown name is refused
+    """A click choice whose names come from a registry, looked up when needed (parsing a value,
+    or help), so that defining the option imports nothing. An unknown name is refused
     with the registered ones listed."""
 
     def __init__(self, names: Callable[[], Iterable[str]], what: str):
-        self._names, self._choices, self.what = names, None, what
+        self._names, self.what = names, what
         self.case_sensitive = True
 
     @property
     def choices(self) -> tuple[str, ...]:
-        if self._choices is None:
-            self._choices = tuple(self._names())
-        return self._choices
-
-    @choices.setter
-    def choices(self, value) -> None:
-        self._choices = tuple(value)
+        return tuple(self._names())  # asked each time: a name registered later is accepted too
 
     def get_invalid_choice_message(self, value, ctx) -> str:
         return f"no {self.what} {value!r}; registered: {', '.join(self.choices)}"

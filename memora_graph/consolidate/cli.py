@@ -52,6 +52,7 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     from memora_graph.bank import Bank
     from memora_graph.consolidate import get_processors
     from memora_graph.consolidate.bank import consolidate_bank, consolidation_targets
+    from memora_graph.retrieve.persist import persist_bank
 
     given = dict(zip(_MODEL_OPTIONS, (backend, base_url, model, enrichment_model, api_key)))
     if processor != "llm":
@@ -78,6 +79,7 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
         done = consolidate_bank(b, pids, procs, on_participant=lambda p: on_step(p, "consolidating"),
                                 on_done=lambda p: progress.advance(task))
         progress.update(task, description="done")
+    persist_bank(b.path, [r["participant"] for r in done.rows if r["status"] == "consolidated"])
     click.echo(render(pl.DataFrame(done.rows), fmt))
     if fmt == "table" and done.calls_line(bank):
         click.echo(done.calls_line(bank))

@@ -23,6 +23,8 @@ import json
 import logging
 import os
 import shutil
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +42,10 @@ log = logging.getLogger("memora_graph.integrity")
 
 class StaleStores(Exception):
     """The persisted files do not belong to the database as it is now (or are damaged)."""
+
+    @property
+    def damaged(self) -> bool:
+        return "damaged" in str(self) or "unreadable" in str(self)
 
 
 def store_dir(bank_path: str | Path, participant: str) -> Path:
@@ -76,7 +82,10 @@ class PersistedStores:
             raise StaleStores(f"{root}: computed from another version of {participant}.kuzu (stale)")
         if meta.get("participant") != participant or meta.get("embed_model") != embed_model:
             raise StaleStores(f"{root}: computed for another participant or embedding model")
-        return cls(root, meta)
+        stores = cls(root, meta)
+        for name in meta.get("files", {}):  # a few MB: hashing them all costs milliseconds
+            stores._path(name)
+        return stores
 
     def _path(self, name: str) -> Path:
         """A file of the stores, after checking its sha256 against meta.json (once per process)."""
@@ -142,25 +151,41 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
         if root.exists():
             old = root.with_name(f".{root.name}.{os.getpid()}.old")
-            root.rename(old)
+            try:
+                root.rename(old)
+            except FileNotFoundError:  # another process replaced them first
+                pass
             shutil.rmtree(old, ignore_errors=True)
-        tmp.rename(root)
+        try:
+            tmp.rename(root)
+        except OSError:
+            if not root.is_dir():
+                raise
+            shutil.rmtree(tmp, ignore_errors=True)  # another process wrote them meanwhile: theirs stand
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return root
 
 
-def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> list[Path]:
+@dataclass
+class Persisted:
+    written: list[Path] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
     """Write the persisted tool stores of each participant (all by default) whose files are
-    missing or stale; returns the directories written."""
+    missing or stale (after a build or `memora consolidate`); returns the directories written."""
     from memora_graph.bank import Bank
     from memora_graph.retrieve.view import MemoryView
 
+    t0 = time.perf_counter()
     bank = Bank(bank_path)
-    written = []
-    for p in participants or bank.participants():
+    out = Persisted()
+    for p in bank.participants() if participants is None else participants:
         with MemoryView.open(bank_path, p, persist=True) as view:
             if view.persisted_written is not None:
-                written.append(view.persisted_written)
-    return written
+                out.written.append(view.persisted_written)
+    out.seconds = time.perf_counter() - t0
+    return out

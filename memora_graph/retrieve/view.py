@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 TABLES = ("segment", "entity", "place", "routine", "preference")
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 log = logging.getLogger("memora_graph.integrity")
+TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
 
 
 class ToolError(MemoraError):
@@ -115,11 +116,14 @@ class MemoryView:
 
     @classmethod
     def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
-             persist: bool = True) -> MemoryView:
+             persist: bool | None = None) -> MemoryView:
         """Open a participant's memory read-only. With `persist` and an in-process recipe, the
         stores persisted next to the bank (memora_graph/retrieve/persist.py) are read when they
         match the database's recorded sha256, and Kùzu is opened only if a tool needs more; when
-        they are missing, stale or damaged they are computed from the database and written."""
+        they are missing, stale or damaged they are computed from the database and written.
+        `persist` defaults to on unless MEMORA_TOOL_STORES=0."""
+        if persist is None:
+            persist = os.environ.get(TOOL_STORES_ENV, "1") != "0"
         b = Bank(bank)
         cfg = _config(config)
         sha = None
@@ -132,8 +136,8 @@ class MemoryView:
                 try:
                     stores = PersistedStores.open(bank, participant, sha, embed_model)
                 except StaleStores as why:
-                    if "damaged" in str(why):
-                        log.warning(f"{why}; reading the database instead")
+                    if why.damaged:  # stale is expected after any write; damage is worth a word
+                        log.warning(f"{why}; reading the database instead (and writing them again)")
                 else:
                     return cls(None, participant, embedder, config, owns_store=True, persisted=stores,
                                open_store=lambda: b.open(participant, read_only=True))
