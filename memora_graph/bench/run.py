@@ -297,12 +297,8 @@ def run_bench(
 def _one_torch_thread():
     """Short MiniLM encodes are several times faster on one torch thread on small CPUs (they do
     not fight Kùzu and each other); scoped to the run."""
-    try:
-        from memora_graph.embed import torch_threads
-    except ImportError:
-        from contextlib import nullcontext
+    from memora_graph.embed import torch_threads  # a broken import is an error, not a silent no-op
 
-        return nullcontext()
     return torch_threads(1)
 
 

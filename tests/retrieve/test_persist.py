@@ -127,3 +127,16 @@ def test_forget_removes_them(bank):
     persist_bank(bank, [P])
     assert str(store_dir(bank, P)) in Bank(bank).forget(P)
     assert not store_dir(bank, P).exists()
+
+
+def test_verify_reports_damaged_stores(bank):
+    from memora_graph.integrity.verify import verify_bank
+
+    assert verify_bank(bank, [P]).rows[0]["tool_stores"].startswith("none")
+    persist_bank(bank, [P])
+    assert verify_bank(bank, [P]).ok and verify_bank(bank, [P]).rows[0]["tool_stores"] == "ok"
+    path = store_dir(bank, P) / "ids-entity.json"
+    path.write_text(path.read_text().replace(f'"{P}:', f'"{P}:x', 1))
+    report = verify_bank(bank, [P])
+    assert not report.ok and report.rows[0]["tool_stores"] == "damaged"
+    assert any("ids-entity.json: damaged" in line for line in report.rows[0]["problems"])
