@@ -44,7 +44,7 @@ COMMANDS = {
               "MEMORA-Bench: generate EAM-QA and Planning tasks from action annotations, and validate release "
               "folders (the bundled calibration cohort, a full release, or a generated suite)."),
     "consolidate": ("memora_graph.consolidate.cli:consolidate_cmd",
-                    'Re-run offline consolidation and enrichment on an existing bank.'),
+                    "Re-run offline consolidation and enrichment on an existing bank."),
     "explore": ("memora_graph.explore.cli:explore_cmd",
                 "Write an explorer page for one participant's memory: one HTML file, nothing fetched when opened."),
     "export": ("memora_graph.transfer.cli:export_cmd",
@@ -55,7 +55,7 @@ COMMANDS = {
                "caches under BANK/.cache/ (and the embedding cache all participants share, which holds vectors of "
                "their texts; it is rebuilt on demand), and their manifest entry."),
     "import": ("memora_graph.transfer.cli:import_cmd",
-               'Import a JSON or Parquet export (`memora export`) into BANK as a new participant.'),
+               "Import a JSON or Parquet export (`memora export`) into BANK as a new participant."),
     "tool": ("memora_graph.retrieve.cli:tool_cmd",
              "Call one retrieval tool on one participant's memory."),
     "tools": ("memora_graph.retrieve.cli:tools_cmd",
@@ -68,7 +68,7 @@ COMMANDS = {
 }
 PERF_COMMANDS = {
     "decode": ("memora_graph.perf_video:perf_decode",
-               'Decode and segment a 60 s synthetic video; print the multiple of real time (target >= 20x).'),
+               "Decode and segment a 60 s synthetic video; print the multiple of real time (target >= 20x)."),
     "encoders": ("memora_graph.retrieve.perf_encoders:perf_encoders_cmd",
                  "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
@@ -79,7 +79,7 @@ PERF_COMMANDS = {
               "Time every tool over a fixed query set: p50 / p95 per call (query embedding included), next to the "
               "exact numpy top-k floor, and recall@10 of every vector search against exact."),
     "verify": ("memora_graph.integrity.cli:perf_verify_cmd",
-               'What checking a database before opening it costs, against a one-shot command.'),
+               "What checking a database before opening it costs, against a one-shot command."),
     "video": ("memora_graph.perf_video:perf_video",
               "Build from a synthetic video against a scripted server on 127.0.0.1 and print the graph work per "
               "segment: everything except decoding and waiting for the model (target <= 50 ms)."),

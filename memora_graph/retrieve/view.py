@@ -16,10 +16,9 @@ import os
 from collections import Counter, defaultdict
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-
-from typing import TYPE_CHECKING
 
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError

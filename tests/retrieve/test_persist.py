@@ -140,3 +140,14 @@ def test_verify_reports_damaged_stores(bank):
     report = verify_bank(bank, [P])
     assert not report.ok and report.rows[0]["tool_stores"] == "damaged"
     assert any("ids-entity.json: damaged" in line for line in report.rows[0]["problems"])
+
+
+def test_perf_startup_prints_its_figures(bank):
+    r = CliRunner().invoke(main, ["perf", "startup", str(bank), "--participant", P, "--repeat", "1",
+                                  "--query", "knife"])
+    assert r.exit_code == 0, r.output
+    for label in ("memora --help", "(no persisted stores: Kùzu)", "(first call: computes and writes them)",
+                  "(persisted stores)"):
+        assert label in r.output
+    assert "heavy modules imported by `memora --help`: none" in r.output
+    assert store_dir(bank, P).is_dir()
