@@ -105,7 +105,8 @@ def _llm_options(given: dict, pairs: dict, on_step) -> dict:
         raise click.UsageError(f"--backend {backend} loads the model in-process: pass --model NAME")
     extra = [f"--{k.replace('_', '-')}" for k in ("base_url", "api_key") if given[k] and k not in fields]
     if extra:
-        raise click.UsageError(f"{', '.join(extra)} do not apply to --backend {backend}")
+        raise click.UsageError(f"{', '.join(extra)} {'does' if len(extra) == 1 else 'do'} not apply to "
+                               f"--backend {backend} (its options: {', '.join(fields)})")
     opts = {"backend": backend, "on_step": on_step, "model": given["model"],
             "enrichment_model": given["enrichment_model"]}
     opts.update({k: given[k] for k in ("base_url", "api_key") if given[k]})
