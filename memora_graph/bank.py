@@ -23,11 +23,15 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-import polars as pl
+from typing import TYPE_CHECKING
 
 from memora_graph.errors import BankError
 from memora_graph.integrity.files import file_sha256, side_files
-from memora_graph.store import Store
+
+if TYPE_CHECKING:  # imported where used: a one-shot command that reads persisted stores never loads Kùzu
+    import polars as pl
+
+    from memora_graph.store import Store
 
 MANIFEST = "manifest.json"
 FORMAT = 1
@@ -208,6 +212,8 @@ class Bank:
         database file and its rows per table (with the store counts), and clear the write mark.
         Call it once the database is closed (a clean close leaves no log or shadow file). Returns
         the integrity record. `Bank.open(..., read_only=False)` calls it when the store closes."""
+        from memora_graph.store import Store
+
         db = self.db_path(participant)
         sides = side_files(db)
         if sides:
@@ -512,6 +518,8 @@ class Bank:
         record before Kùzu opens it, then its record counts against the manifest. `verify=False`
         (`--no-verify`; default: on unless MEMORA_NO_VERIFY is set) skips every check knowingly.
         A read-write store records the database's integrity again when it closes."""
+        from memora_graph.store import Store
+
         data = self.manifest()
         verify = verify_default() if verify is None else verify
         if participant not in data["participants"] and not (not verify and self.db_path(participant).exists()):
@@ -543,6 +551,20 @@ class Bank:
                 raise
         return store
 
+    def checked_sha256(self, participant: str) -> str | None:
+        """Run the checks a read-only `open` runs before Kùzu touches the file (listed, no write
+        in progress, no foreign log, size and sha256 as recorded) without opening it, and return
+        the recorded sha256 the file matches: what files derived from the database are tied to.
+        None under --no-verify or while this process writes it (nothing to vouch for then)."""
+        data = self.manifest()
+        if not verify_default() or self.writing_here(participant, data):
+            return None
+        if participant not in data["participants"]:
+            raise BankError(self._not_listed(participant, data))
+        self._notify(data, skip=participant)
+        self.check(participant, data)
+        return data["participants"][participant]["integrity"]["sha256"]
+
     def writing_here(self, participant: str, data: dict | None = None) -> bool:
         """Whether this process holds the participant's write mark (it is building it)."""
         data = data or self.manifest()
@@ -565,6 +587,8 @@ class Bank:
 
     def run_each(self, name: str, participants: list[str] | None = None, **params) -> pl.DataFrame:
         """Run a named query over each participant's database and concatenate the frames."""
+        import polars as pl
+
         frames = []
         for p in participants or self.participants():
             with self.open(p) as store:

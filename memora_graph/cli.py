@@ -1,4 +1,8 @@
-"""The `memora` command line: parse, call the library, render. No logic lives here."""
+"""The `memora` command line: parse, call the library, render. No logic lives here.
+
+Commands of other modules are loaded on demand (`LazyGroup`): `memora --help` imports click and
+this module, nothing else; `memora tool ...` imports what a tool needs.
+"""
 
 from __future__ import annotations
 
@@ -6,20 +10,11 @@ import statistics
 import sys
 
 import click
-import polars as pl
 
-from memora_graph.errors import MemoraError
+from memora_graph.cli_options import (
+    BACKEND, EDITOR_POLICY, LazyGroup, participants_option, progress_bar, quiet_option,
+)
 from memora_graph.output import output_options, render
-
-
-class _Group(click.Group):
-    """Turns every MemoraError into `Error: ...` and exit code 1, never a traceback."""
-
-    def invoke(self, ctx):
-        try:
-            return super().invoke(ctx)
-        except MemoraError as exc:
-            raise click.ClickException(str(exc)) from exc
 
 
 def _params(pairs) -> dict:
@@ -28,13 +23,70 @@ def _params(pairs) -> dict:
     return parse_params(pairs)
 
 
+def _prepare(command: click.Command) -> None:
+    """Every loaded command that opens a bank gets `--no-verify` (memora_graph/integrity/cli.py)."""
+    from memora_graph.integrity.cli import add_no_verify
+
+    add_no_verify(command)
+
+
 param_option = click.option(
     "-p", "--param", "params", type=(str, str), multiple=True, metavar="NAME VALUE",
     help="Bind $NAME to VALUE (JSON if it parses, else a string). Repeatable.",
 )
 
+# name -> (where the command lives, its one-line help as `memora --help` lists it without importing it;
+# tests/test_cli_options.py checks it against the command's own)
+COMMANDS = {
+    "ask": ("memora_graph.agent.cli:ask_cmd",
+            "Ask one person's memory a question, answered by the typed reader (deterministic, no model)."),
+    "bench": ("memora_graph.bench.cli:bench_group",
+              "MEMORA-Bench: generate EAM-QA and Planning tasks from action annotations, and validate release "
+              "folders (the bundled calibration cohort, a full release, or a generated suite)."),
+    "consolidate": ("memora_graph.consolidate.cli:consolidate_cmd",
+                    "Re-run offline consolidation and enrichment on an existing bank."),
+    "explore": ("memora_graph.explore.cli:explore_cmd",
+                "Write an explorer page for one participant's memory: one HTML file, nothing fetched when opened."),
+    "export": ("memora_graph.transfer.cli:export_cmd",
+               "Export one participant's memory: every node and relationship, with its ids and properties."),
+    "forget": ("memora_graph.integrity.cli:forget_cmd",
+               "Remove every trace of one person from a bank: their database (with its write-ahead log and shadow "
+               "files, and so its indexes), staged videos of an unfinished build, rebuild leftovers, their baseline "
+               "caches under BANK/.cache/ (and the embedding cache all participants share, which holds vectors of "
+               "their texts; it is rebuilt on demand), and their manifest entry."),
+    "import": ("memora_graph.transfer.cli:import_cmd",
+               "Import a JSON or Parquet export (`memora export`) into BANK as a new participant."),
+    "tool": ("memora_graph.retrieve.cli:tool_cmd",
+             "Call one retrieval tool on one participant's memory."),
+    "tools": ("memora_graph.retrieve.cli:tools_cmd",
+              "List the retrieval tools with their arguments, the store each reads, and the memory representation "
+              "(family) they belong to: MEMORA's typed stores, or a baseline's."),
+    "verify": ("memora_graph.integrity.cli:verify_cmd",
+               "Check a bank deeply: per participant, the database's sha256 and size against the record of its last "
+               "write, rows per table against the manifest, rows of other participants, write-ahead log or shadow "
+               "files, unfinished writes or builds, staged videos; and files that belong to no participant."),
+}
+PERF_COMMANDS = {
+    "decode": ("memora_graph.perf_video:perf_decode",
+               "Decode and segment a 60 s synthetic video; print the multiple of real time (target >= 20x)."),
+    "encoders": ("memora_graph.retrieve.perf_encoders:perf_encoders_cmd",
+                 "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
+                 "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
+    "startup": ("memora_graph.perf_startup:perf_startup_cmd",
+                "How fast one-shot commands start: `memora --help` and a one-shot `memora tool` as new processes "
+                "(median wall and CPU seconds of several runs)."),
+    "tools": ("memora_graph.retrieve.cli:perf_tools_cmd",
+              "Time every tool over a fixed query set: p50 / p95 per call (query embedding included), next to the "
+              "exact numpy top-k floor, and recall@10 of every vector search against exact."),
+    "verify": ("memora_graph.integrity.cli:perf_verify_cmd",
+               "What checking a database before opening it costs, against a one-shot command."),
+    "video": ("memora_graph.perf_video:perf_video",
+              "Build from a synthetic video against a scripted server on 127.0.0.1 and print the graph work per "
+              "segment: everything except decoding and waiting for the model (target <= 50 ms)."),
+}
 
-@click.group(cls=_Group)
+
+@click.group(cls=LazyGroup, lazy=COMMANDS, on_load=_prepare)
 @click.version_option(package_name="memora-graph")
 def main():
     """memora: build, explore and evaluate embodied action memory graphs.
@@ -46,15 +98,18 @@ def main():
       memora run banks/epic object_history -p participant P01 -p object plate
       memora query banks/epic "MATCH (e:Entity) WHERE e.participant = 'P01' RETURN e.name LIMIT 5"
     """
+    from memora_graph.integrity.cli import show_bank_notices
+
+    show_bank_notices()
 
 
 @main.command()
 @click.argument("bank", type=click.Path(file_okay=False))
-@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
+@participants_option()
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False), help="EPIC-style CSV (default: the bundled subset).")
-@click.option("--mode", type=click.Choice(["edited", "raw"]), default="edited", show_default=True,
+@click.option("--mode", type=EDITOR_POLICY, default="edited", show_default=True,
               help="'raw' stores one record per observation, unedited (baselines, compression figure).")
-@click.option("--backend", type=click.Choice(["offline", "openai", "vllm"]), default="offline", show_default=True,
+@click.option("--backend", type=BACKEND, default="offline", show_default=True,
               help="Memory processors: 'offline' is the deterministic CPU policy (annotations only); 'openai' "
                    "any OpenAI-compatible server (vllm serve, llama.cpp); 'vllm' an in-process engine.")
 @click.option("--video", "video", type=click.Path(exists=True), help="Build from a video file, or every video in a directory.")
@@ -82,7 +137,7 @@ def main():
 @click.option("--rebuild", "rebuild", metavar="VIDEO", multiple=True,
               help="Rebuild the participant that owns this video (or a participant id) from scratch, e.g. after "
                    "its annotations changed (memory formation is sequential). Repeatable or comma-separated.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
           rebuild, quiet):
@@ -103,8 +158,6 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
           --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     video_opts = dict(participant=participant, video_id=video_id, base_url=base_url, perception_model=perception_model,
                       editor_model=editor_model, editor_base_url=editor_base_url, audio=audio,
                       consolidation=consolidation, consolidation_model=consolidation_model)
@@ -113,7 +166,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         if rebuild:
             raise click.UsageError("--rebuild applies to annotation builds; to rebuild a participant from video, "
                                    "`memora forget BANK --participant P` and build it again with all its videos")
-        if annotations or mode != "edited" or participants != "all" or jobs:
+        if annotations or mode != "edited" or participants is not None or jobs:
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
                                    "and --jobs")
         if not participant:
@@ -125,13 +178,11 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     if backend != "offline":
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
-    from memora_graph.bank import parse_participants
-    from memora_graph.stats import decision_shares
     from memora_graph.pipeline import build_bank
+    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.stats import build_summary
 
-    pids = parse_participants(participants)
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        disable=quiet, transient=False)
+    progress = progress_bar(quiet)
     task = {}
 
     def on_plan(plan):
@@ -141,39 +192,23 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         progress.update(task["id"], advance=1, description=f"{p} {video}")
 
     with progress:
-        result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
+        result = build_bank(bank, participants, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
                             episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None, isolate=True,
                             on_notice=lambda text: click.echo(text, err=True))
-    rows = []
-    for r in result.participants:
-        shares = decision_shares(r.decisions)
-        rows.append({
-            "participant": r.participant, "videos": r.counts.get("videos"), "built": r.videos_built,
-            "segments": r.counts.get("segments"), "entities": r.counts.get("entities"),
-            "state_events": r.counts.get("state_events"), "places": r.counts.get("places"),
-            "NOOP%": shares["NOOP"], "UPDATE%": shares["UPDATE"], "ADD%": shares["ADD"], "DELETE%": shares["DELETE"],
-            "compression": round(r.compression, 1), "routines": result.inferred.get(r.participant, {}).get("routines"),
-            "preferences": result.inferred.get(r.participant, {}).get("preferences"), "seconds": round(r.timings.total, 1),
-        })
-    click.echo(render(pl.DataFrame(rows)))
-    across = f" (seconds summed over {result.jobs} worker processes)" if result.jobs > 1 else ""
-    click.echo(f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s: "
-               f"embedding {result.embedding_seconds:.1f} s, model load {result.model_seconds:.1f} s, graph work "
-               f"{result.graph_seconds:.1f} s{across}; `memora perf build` splits it")
-    click.echo("inferred knowledge: none (MEMORA-Episodic)" if episodic or mode == "raw" else
-               f"inferred knowledge (consolidation + enrichment): {result.finish.get('consolidation', 0.0):.1f} s")
-    if fts:
-        click.echo(f"full-text indexes: {result.finish.get('indexes', 0.0):.1f} s")
+    stores = persist_bank(bank, [r.participant for r in result.participants])
+    frame, lines = build_summary(result, bank, episodic=episodic, mode=mode, fts=fts)
+    click.echo(render(frame))
+    for line in lines:
+        click.echo(line)
+    click.echo(f"tool stores (what one-shot tools map instead of querying Kùzu): {len(stores.written)} participants "
+               f"in {stores.seconds:.1f} s")
 
 
 def _build_video(bank, video, backend, embed_model, quiet, opts):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from memora_graph.stats import decision_shares
     from memora_graph.pipeline import build_from_video
+    from memora_graph.stats import video_build_summary
 
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        disable=quiet, transient=False)
+    progress = progress_bar(quiet)
     tasks = {}
 
     def on_video(video_id, n_clips):
@@ -185,30 +220,19 @@ def _build_video(bank, video, backend, embed_model, quiet, opts):
     with progress:
         res = build_from_video(bank, video, backend=backend, embed_model=embed_model, on_video=on_video,
                                on_segment=on_segment, **opts)
-    rows = [{"video": v["video"], "turns": v.get("turns", 0), "segments": v.get("segments", 0),
-             "failed_turns": len(v.get("perception_failed", [])) + len(v.get("editor_failed", [])),
-             "seconds": v.get("seconds", 0.0), "status": "already built" if v.get("skipped") else "built"}
-            for v in res.videos]
-    click.echo(render(pl.DataFrame(rows)))
-    c, shares = res.counts, decision_shares(res.decisions)
-    tokens = sum((r.tokens_in or 0) + (r.tokens_out or 0) for r in res.calls)
-    click.echo(f"bank {bank}, {res.participant}: {c.get('segments')} segments, {c.get('entities')} entities, "
-               f"{c.get('state_events')} state events, {c.get('places')} places; editor NOOP {shares['NOOP']}% "
-               f"UPDATE {shares['UPDATE']}% ADD {shares['ADD']}% DELETE {shares['DELETE']}%")
-    click.echo(f"{len(res.calls)} model calls ({sum(not r.ok for r in res.calls)} failed, {tokens} tokens) in "
-               f"{res.wall_seconds:.1f} s: waiting for the model {res.model_seconds:.1f} s, decoding "
-               f"{res.decode_seconds:.1f} s, graph work {res.graph_seconds:.1f} s, consolidation {res.inferred_seconds:.1f} s")
-    failed = sum(r["failed_turns"] for r in rows)
-    if failed:
-        click.echo(f"{failed} turn(s) were not written because the model's reply stayed invalid; "
-                   f"see `memora stats {bank} --calls failed`", err=True)
+    frame, lines, warnings = video_build_summary(res, bank)
+    click.echo(render(frame))
+    for line in lines:
+        click.echo(line)
+    for line in warnings:
+        click.echo(line, err=True)
 
 
 @main.command()
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--fts", is_flag=True, help="Full-text indexes: the 'fts' and 'kuzu' retrieval recipes (and 'hnsw').")
 @click.option("--hnsw", is_flag=True, help="HNSW vector indexes on segments and entities: the 'hnsw' recipe.")
-@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
+@participants_option()
 @output_options
 def index(bank, fts, hnsw, participants, fmt):
     """Add Kùzu's optional indexes to a built bank (a build makes none unless `--fts`).
@@ -222,12 +246,13 @@ def index(bank, fts, hnsw, participants, fmt):
       memora index banks/epic --fts
       memora index banks/epic --fts --hnsw --participants P01
     """
-    from memora_graph.bank import Bank, parse_participants
+    import polars as pl
+
+    from memora_graph.bank import Bank
 
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
-    pids = parse_participants(participants)
-    done = Bank(bank).build_indexes(pids, fts=fts, hnsw=hnsw)
+    done = Bank(bank).build_indexes(participants, fts=fts, hnsw=hnsw)
     rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),
              "seconds": round(r["seconds"], 1)} for p, r in done.items()]
     click.echo(render(pl.DataFrame(rows), fmt))
@@ -273,6 +298,8 @@ def list_queries(fmt):
     Example:
       memora queries
     """
+    import polars as pl
+
     from memora_graph.queries import load_queries
 
     rows = [{"name": q.name, "params": ", ".join(q.params), "description": q.description}
@@ -347,14 +374,14 @@ def stats(bank, participant, calls, fmt):
         click.echo(f"compression: median {statistics.median(ratios):.1f}x, min {min(ratios):.1f}x, max {max(ratios):.1f}x")
 
 
-@main.group()
+@main.group(cls=LazyGroup, lazy=PERF_COMMANDS, on_load=_prepare)
 def perf():
     """Benchmarks that print their figures (not timed tests)."""
 
 
 @perf.command("build")
 @click.option("--bank", "bank_dir", type=click.Path(file_okay=False), help="Where to build (default: a temporary directory).")
-@click.option("--participants", default="all", show_default=True)
+@participants_option()
 @click.option("--episodic", is_flag=True, help="Time the MEMORA-Episodic build (no consolidation).")
 @click.option("--fts", is_flag=True, help="Time the build with the full-text indexes (`memora build --fts`).")
 @click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: as `memora build`).")
@@ -370,10 +397,11 @@ def perf_build(bank_dir, participants, episodic, fts, jobs):
     import os
     import tempfile
 
-    from memora_graph.bank import parse_participants
+    import polars as pl
+
     from memora_graph.pipeline import build_bank
 
-    pids = parse_participants(participants)
+    pids = participants
     load_before = os.getloadavg()
     others = _OtherCPU()
     with tempfile.TemporaryDirectory() as tmp:
@@ -432,47 +460,6 @@ class _OtherCPU:
             return None
         return max((end[0] - self._start[0]) - (end[1] - self._start[1]), 0.0), end[2] - self._start[2]
 
-
-def _register_perf_video() -> None:
-    from memora_graph.perf_video import perf_decode, perf_video
-
-    perf.add_command(perf_decode)
-    perf.add_command(perf_video)
-
-
-_register_perf_video()
-
-
-def _register_optional_groups() -> None:
-    from memora_graph.agent.cli import ask_cmd
-    from memora_graph.bench.cli import bench_group
-    from memora_graph.consolidate.cli import consolidate_cmd
-    from memora_graph.explore.cli import explore_cmd
-    from memora_graph.retrieve.cli import perf_tools_cmd, tool_cmd, tools_cmd
-    from memora_graph.retrieve.perf_encoders import perf_encoders_cmd
-    from memora_graph.transfer.cli import export_cmd, import_cmd
-
-    main.add_command(consolidate_cmd, "consolidate")
-    for cmd in (explore_cmd, export_cmd, import_cmd):  # memora explore / export / import
-        main.add_command(cmd)
-    main.add_command(tools_cmd, "tools")
-    main.add_command(tool_cmd, "tool")
-    perf.add_command(perf_tools_cmd, "tools")
-    perf.add_command(perf_encoders_cmd, "encoders")
-    main.add_command(ask_cmd, "ask")
-    main.add_command(bench_group, "bench")
-
-
-_register_optional_groups()
-
-
-def _register_integrity() -> None:
-    from memora_graph.integrity.cli import register
-
-    register(main)  # verify, forget, and --no-verify on every command that opens a bank (last: it sees them all)
-
-
-_register_integrity()
 
 if __name__ == "__main__":
     sys.exit(main())

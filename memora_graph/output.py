@@ -5,8 +5,12 @@ from __future__ import annotations
 import functools
 import json
 
+from typing import TYPE_CHECKING
+
 import click
-import polars as pl
+
+if TYPE_CHECKING:
+    import polars as pl
 
 FORMATS = ("table", "csv", "json", "nl")
 
@@ -27,12 +31,16 @@ def output_options(f):
 
 
 def _jsonable(df: pl.DataFrame) -> list[dict]:
+    import polars as pl  # here, not at import time: `memora --help` loads this module
+
     drop = [c for c, t in df.schema.items() if isinstance(t, pl.Array)]  # embeddings: not for humans
     return df.drop(drop).to_dicts()
 
 
 def _flat(df: pl.DataFrame) -> pl.DataFrame:
     """CSV has no nested values: lists become '; '-joined text, structs JSON, embeddings are dropped."""
+    import polars as pl
+
     cols = []
     for c, t in df.schema.items():
         if isinstance(t, pl.Array):

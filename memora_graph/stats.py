@@ -75,3 +75,52 @@ def call_stats(bank_path: str | Path, participants: list[str] | None = None, by:
         if not df.is_empty():
             frames.append(df.select(pl.lit(p).alias("participant"), *df.columns))
     return pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame()
+
+
+# -- what a build reports (`memora build`) ------------------------------------------------------
+def build_summary(result, bank: str | Path, *, episodic: bool = False, mode: str = "edited",
+                  fts: bool = False) -> tuple[pl.DataFrame, list[str]]:
+    """One row per participant of an annotation build (`pipeline.BuildResult`), and the lines
+    that say where the time went."""
+    rows = []
+    for r in result.participants:
+        shares = decision_shares(r.decisions)
+        inferred = result.inferred.get(r.participant, {})
+        rows.append({
+            "participant": r.participant, "videos": r.counts.get("videos"), "built": r.videos_built,
+            "segments": r.counts.get("segments"), "entities": r.counts.get("entities"),
+            "state_events": r.counts.get("state_events"), "places": r.counts.get("places"),
+            "NOOP%": shares["NOOP"], "UPDATE%": shares["UPDATE"], "ADD%": shares["ADD"], "DELETE%": shares["DELETE"],
+            "compression": round(r.compression, 1), "routines": inferred.get("routines"),
+            "preferences": inferred.get("preferences"), "seconds": round(r.timings.total, 1),
+        })
+    across = f" (seconds summed over {result.jobs} worker processes)" if result.jobs > 1 else ""
+    lines = [f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s: "
+             f"embedding {result.embedding_seconds:.1f} s, model load {result.model_seconds:.1f} s, graph work "
+             f"{result.graph_seconds:.1f} s{across}; `memora perf build` splits it",
+             "inferred knowledge: none (MEMORA-Episodic)" if episodic or mode == "raw" else
+             f"inferred knowledge (consolidation + enrichment): {result.finish.get('consolidation', 0.0):.1f} s"]
+    if fts:
+        lines.append(f"full-text indexes: {result.finish.get('indexes', 0.0):.1f} s")
+    return pl.DataFrame(rows), lines
+
+
+def video_build_summary(res, bank: str | Path) -> tuple[pl.DataFrame, list[str], list[str]]:
+    """One row per video of a video build (`pipeline.VideoBuildResult`), the summary lines, and
+    warnings (turns not written because the model's reply stayed invalid)."""
+    rows = [{"video": v["video"], "turns": v.get("turns", 0), "segments": v.get("segments", 0),
+             "failed_turns": len(v.get("perception_failed", [])) + len(v.get("editor_failed", [])),
+             "seconds": v.get("seconds", 0.0), "status": "already built" if v.get("skipped") else "built"}
+            for v in res.videos]
+    c, shares = res.counts, decision_shares(res.decisions)
+    tokens = sum((r.tokens_in or 0) + (r.tokens_out or 0) for r in res.calls)
+    lines = [f"bank {bank}, {res.participant}: {c.get('segments')} segments, {c.get('entities')} entities, "
+             f"{c.get('state_events')} state events, {c.get('places')} places; editor NOOP {shares['NOOP']}% "
+             f"UPDATE {shares['UPDATE']}% ADD {shares['ADD']}% DELETE {shares['DELETE']}%",
+             f"{len(res.calls)} model calls ({sum(not r.ok for r in res.calls)} failed, {tokens} tokens) in "
+             f"{res.wall_seconds:.1f} s: waiting for the model {res.model_seconds:.1f} s, decoding "
+             f"{res.decode_seconds:.1f} s, graph work {res.graph_seconds:.1f} s, consolidation {res.inferred_seconds:.1f} s"]
+    failed = sum(r["failed_turns"] for r in rows)
+    warnings = [f"{failed} turn(s) were not written because the model's reply stayed invalid; "
+                f"see `memora stats {bank} --calls failed`"] if failed else []
+    return pl.DataFrame(rows), lines, warnings

@@ -15,7 +15,8 @@ ORDER = ("base", "perceive", "form", "consolidate", "retrieve", "agent", "bench"
 # first match wins: a module path (dotted, without the package name) -> its layer
 RULES = (
     # commands, benchmarks, test helpers, and the bank report that reads every layer's files (verify)
-    ("cli", lambda m: m == "cli" or m.endswith(".cli") or m.startswith(("perf_", "testing", "integrity.verify"))),
+    ("cli", lambda m: m == "cli" or m.endswith(".cli")
+     or m.startswith(("cli_", "perf_", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
     ("consolidate", lambda m: m.startswith("consolidate") or m == "pipeline"),

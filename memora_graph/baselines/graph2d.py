@@ -19,7 +19,8 @@ from collections import defaultdict
 from itertools import combinations
 from pathlib import Path
 
-import networkx as nx
+from typing import TYPE_CHECKING
+
 import numpy as np
 from pydantic import Field
 
@@ -32,6 +33,9 @@ from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Model, Record, ToolErrorResult, ToolResult
 
+if TYPE_CHECKING:  # networkx is imported where a graph is built or loaded: `memora tool` never pays for it
+    import networkx as nx
+
 VERSION = "graph2d-2"  # 2: the graph is cached as node-link JSON (data, never code), not a pickle
 SEEDS = 12
 PER_CATEGORY = 3
@@ -40,6 +44,8 @@ CATEGORIES = {"activity": "activities", "object": "objects", "place": "environme
 
 
 def build_graph(records: dict[str, list[dict]], mode: str) -> nx.Graph:
+    import networkx as nx
+
     g = nx.Graph()
     seg_id: dict[tuple[str, int], str] = {}
     by_video: dict[str, list[dict]] = defaultdict(list)
@@ -186,6 +192,8 @@ class Graph2DMemory:
 
     @classmethod
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Graph2DMemory:
+        import networkx as nx
+
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)

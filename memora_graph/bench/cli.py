@@ -8,6 +8,9 @@ from pathlib import Path
 
 import click
 
+from memora_graph.cli_options import (
+    ANSWER_POLICY, CONDITIONS, backend_option_pairs, backend_options, participants_option, progress_bar, quiet_option,
+)
 from memora_graph.errors import MemoraError
 
 bench_group = click.Group(
@@ -17,24 +20,17 @@ bench_group = click.Group(
 )
 
 
-def _participants(value: str | None) -> list[str] | None:
-    if not value or value.strip().lower() == "all":
-        return None
-    return [p.strip().upper() for p in value.split(",") if p.strip()]
-
-
 @bench_group.command("generate")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Folder to write the release layout into (created if missing; files are overwritten).")
-@click.option("--participants", default="all", show_default=True,
-              help="Comma-separated participant ids (P01,P02) or 'all'.")
+@participants_option()
 @click.option("--seed", default=42, show_default=True, type=int, help="Seed for every random choice.")
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="EPIC-style annotation CSV (default: the bundled extension subset).")
 @click.option("--no-dedup", is_flag=True, help="Skip the embedding near-duplicate check (exact dedup still applies).")
 @click.option("--bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A memory bank whose object registry grounds Replay nouns (enriched_narration, matched_object).")
-def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | None, no_dedup: bool,
+def generate_cmd(out: Path, participants: list[str] | None, seed: int, annotations: Path | None, no_dedup: bool,
                  bank: Path | None) -> None:
     """Generate EAM-QA questions and Planning Replay/Generalize tasks from annotations.
 
@@ -63,8 +59,8 @@ def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | No
         if bank is not None:
             from memora_graph.bank import Bank
 
-            registries = Bank(bank).object_registries(_participants(participants))
-        suite, report = generate_suite(frame, _participants(participants), seed=seed, registries=registries,
+            registries = Bank(bank).object_registries(participants)
+        suite, report = generate_suite(frame, participants, seed=seed, registries=registries,
                                        embedder=None if no_dedup else "default")
         t0 = time.perf_counter()
         write_generated(suite, report, out)
@@ -78,10 +74,9 @@ def generate_cmd(out: Path, participants: str, seed: int, annotations: Path | No
 
 @bench_group.command("validate")
 @click.argument("directory", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--participants", default="all", show_default=True,
-              help="Comma-separated participant ids (P01,P02) or 'all'.")
+@participants_option()
 @click.option("--json", "as_json", is_flag=True, help="Print the counts and problems as JSON.")
-def validate_cmd(directory: Path, participants: str, as_json: bool) -> None:
+def validate_cmd(directory: Path, participants: list[str] | None, as_json: bool) -> None:
     """Check every task file of a release folder and print counts per participant and type.
 
     Every item is validated (a malformed one is reported with its file, index, id and field),
@@ -98,7 +93,7 @@ def validate_cmd(directory: Path, participants: str, as_json: bool) -> None:
     from memora_graph.bench.validate import render_table, validate_suite
 
     try:
-        report = validate_suite(directory, _participants(participants))
+        report = validate_suite(directory, participants)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     if as_json:
@@ -109,28 +104,14 @@ def validate_cmd(directory: Path, participants: str, as_json: bool) -> None:
         raise click.ClickException(f"{len(report.problems)} problem(s) in {directory}")
 
 
-def _backend_options(base_url, model, api_key, temperature, timeout_s, options) -> dict:
-    out: dict = {}
-    for key, value in (("base_url", base_url), ("model", model), ("api_key", api_key),
-                       ("temperature", temperature), ("timeout_s", timeout_s)):
-        if value is not None:
-            out[key] = value
-    for key, value in options:
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 @bench_group.command("run")
 @click.argument("bank", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Run directory (created; an existing run is resumed: finished items are skipped).")
-@click.option("--conditions", default="all", show_default=True,
+@click.option("--conditions", type=CONDITIONS, default="all", show_default=True,
               help="Comma-separated conditions (no_memory, flat_1d_raw, flat_1d_edited, graph_2d_raw, "
                    "graph_2d_edited, memora_episodic, memora_full) or 'all'.")
-@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
+@participants_option()
 @click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="MEMORA-Bench release folder (default: the bundled calibration cohort P01-P04).")
 @click.option("--raw-bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
@@ -138,20 +119,19 @@ def _backend_options(base_url, model, api_key, temperature, timeout_s, options) 
 @click.option("--episodic-bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A bank built with `memora build DIR --episodic` (needed by memora_episodic).")
 @click.option("--kinds", default="eam_qa,replay,generalize", show_default=True, help="Task kinds to run.")
-@click.option("--backend", default="offline", show_default=True,
-              help="Answer backend: offline (deterministic policy, not an LLM), openai, vllm.")
+@click.option("--backend", type=ANSWER_POLICY, default="offline", show_default=True,
+              help="Answer policy: offline (the deterministic reader, not an LLM), or a model backend (openai, vllm).")
 @click.option("--base-url", default=None, help="openai backend: server URL, e.g. http://127.0.0.1:8000/v1.")
 @click.option("--model", default=None, help="Model name (openai / vllm backends).")
 @click.option("--api-key", default=None, help="openai backend: API key (default: $OPENAI_API_KEY).")
 @click.option("--temperature", type=float, default=None, help="Sampling temperature (model backends; default 0.6).")
 @click.option("--timeout-s", type=float, default=None, help="openai backend: request timeout in seconds.")
-@click.option("-o", "--option", "options", type=(str, str), multiple=True, metavar="NAME VALUE",
-              help="Any other backend option (JSON if it parses). Repeatable.")
+@backend_option_pairs
 @click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
 @click.option("--workers", type=int, default=None,
               help="Processes to run conditions in (default: 2 under offline on a 2+ core machine, 1 for model "
                    "backends). Results do not depend on it.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
 def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
             temperature, timeout_s, options, limit, workers, quiet):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
@@ -166,13 +146,11 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
           --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
       memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from memora_graph.bench.run import run_bench
 
-    opts = _backend_options(base_url, model, api_key, temperature, timeout_s, options)
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        disable=quiet, transient=True)
+    opts = backend_options(options, base_url=base_url, model=model, api_key=api_key, temperature=temperature,
+                           timeout_s=timeout_s)
+    progress = progress_bar(quiet, transient=True)
     state: dict = {}
 
     def on_plan(n):
@@ -183,7 +161,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
 
     try:
         with progress:
-            summary = run_bench(bank, out, conditions=conditions, participants=_participants(participants),
+            summary = run_bench(bank, out, conditions=conditions, participants=participants,
                                 tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
                                 on_item=on_item, on_plan=on_plan, workers=workers)

@@ -32,7 +32,8 @@ from typing import Any, Callable
 
 import polars as pl
 
-from memora_graph.agent.loop import ModelPolicy, run_agent
+from memora_graph.agent.loop import run_agent
+from memora_graph.agent.policies import is_model_policy
 from memora_graph.agent.prompts import PROMPT_VERSION
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
@@ -207,15 +208,14 @@ def _run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any
 
 
 def make_policy(backend: str, options: dict[str, Any], out: Path):
-    if backend == "offline":
-        from memora_graph.agent.offline import OfflinePolicy
-
-        return OfflinePolicy()
-    from memora_graph.llm import CallLog, get_backend
+    """The answer policy registered as `backend` (memora_graph/agent/policies.py); a model's calls
+    go to OUT/model_calls.jsonl, at the evaluation's default temperature unless one is given."""
+    from memora_graph.agent.policies import make_answer_policy
 
     opts = dict(options)
-    opts.setdefault("temperature", DEFAULT_TEMPERATURE)
-    return ModelPolicy(get_backend(backend, call_log=CallLog(out / "model_calls.jsonl"), **opts))
+    if is_model_policy(backend):
+        opts.setdefault("temperature", DEFAULT_TEMPERATURE)
+    return make_answer_policy(backend, opts, Path(out) / "model_calls.jsonl")
 
 
 def run_bench(
@@ -259,7 +259,7 @@ def run_bench(
                     episodic=Path(episodic_bank) if episodic_bank else None)
     workers = resolve_workers(workers, backend, len(conds))
     # under parallel offline workers each process loads its own reader; the parent needs none
-    policy = None if workers > 1 and backend == "offline" else make_policy(backend, backend_options or {}, out)
+    policy = None if workers > 1 and not is_model_policy(backend) else make_policy(backend, backend_options or {}, out)
     _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit,
                     workers)
     plan: list[tuple[str, str, Any]] = []
@@ -297,12 +297,8 @@ def run_bench(
 def _one_torch_thread():
     """Short MiniLM encodes are several times faster on one torch thread on small CPUs (they do
     not fight Kùzu and each other); scoped to the run."""
-    try:
-        from memora_graph.embed import torch_threads
-    except ImportError:
-        from contextlib import nullcontext
+    from memora_graph.embed import torch_threads  # a broken import is an error, not a silent no-op
 
-        return nullcontext()
     return torch_threads(1)
 
 
@@ -321,7 +317,7 @@ def resolve_workers(workers: int | None, backend: str, n_conditions: int) -> int
     """Worker processes for a run: given, or by default one per core up to 2 under `offline` (the
     reader is CPU-bound) and 1 for model backends (the server sets the pace)."""
     if workers is None:
-        workers = min(2, os.cpu_count() or 1) if backend == "offline" else 1
+        workers = min(2, os.cpu_count() or 1) if not is_model_policy(backend) else 1
     if workers < 1:
         raise MemoraError(f"--workers must be at least 1, got {workers}")
     return max(1, min(workers, n_conditions))
@@ -439,7 +435,7 @@ def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, bac
         "backend": backend, "model": (getattr(getattr(policy, "backend", None), "model", None) or policy.name) if policy else backend,
         "workers": workers,
         "options": safe_options, "seeds": {"offline_policy": "deterministic (no sampling)"},
-        "temperature": None if backend == "offline" else options.get("temperature", DEFAULT_TEMPERATURE),
+        "temperature": None if not is_model_policy(backend) else options.get("temperature", DEFAULT_TEMPERATURE),
         "bank": str(bank), "raw_bank": str(raw_bank) if raw_bank else None,
         "episodic_bank": str(episodic_bank) if episodic_bank else None,
         "tasks": str(tasks) if tasks else "bundled calibration cohort", "task_set_hash": digest,

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
-import time
-
 import click
 import polars as pl
 
-from memora_graph.errors import ConsolidationError, MemoraError, StoreError
+from memora_graph.cli_options import (
+    BACKEND, PROCESSOR, backend_option_pairs, backend_options, participants_option, progress_bar, quiet_option,
+)
 from memora_graph.output import output_options, render
 
 _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
@@ -16,20 +15,18 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 
 @click.command("consolidate")
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
-@click.option("--participants", default="all", show_default=True, help="Comma-separated ids (P01,P02) or 'all'.")
-@click.option("--processor", default="deterministic", show_default=True,
+@participants_option()
+@click.option("--processor", type=PROCESSOR, default="deterministic", show_default=True,
               help="'deterministic' (CPU rules, no model) or 'llm' (a model answers; needs --backend openai or vllm).")
-@click.option("--backend", type=click.Choice(["offline", "openai", "vllm"]), default=None,
+@click.option("--backend", type=BACKEND, default=None,
               help="With --processor llm: 'openai' is any OpenAI-compatible server (vllm serve, llama.cpp; the "
                    "default), 'vllm' an in-process engine. 'offline' has no model.")
 @click.option("--base-url", help="With --backend openai: the server (default http://127.0.0.1:8000/v1).")
 @click.option("--model", help="The consolidation model (default: the first model the server lists).")
 @click.option("--enrichment-model", help="A different model for enrichment (default: --model).")
 @click.option("--api-key", help="With --backend openai: the API key (default: $OPENAI_API_KEY).")
-@click.option("-o", "--option", "options", type=(str, str), multiple=True, metavar="NAME VALUE",
-              help="With --processor llm: any other backend option (JSON if it parses), e.g. "
-                   "-o structured_output json_object for llama-cpp-python's server. Repeatable.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@backend_option_pairs
+@quiet_option
 @output_options
 def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options, quiet,
                     fmt):
@@ -52,116 +49,69 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
       python -m llama_cpp.server --model MODEL.gguf --chat_format chatml-function-calling
       memora consolidate banks/epic --participants P09 --processor llm -o structured_output json_object
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from memora_graph.bank import Bank
-    from memora_graph.consolidate import finish_participant, get_processors, processor_names
-    from memora_graph.embed import get_embedder
+    from memora_graph.consolidate import get_processors
+    from memora_graph.consolidate.bank import consolidate_bank, consolidation_targets
+    from memora_graph.retrieve.persist import persist_bank
 
-    if processor not in processor_names():
-        raise click.BadParameter(f"no consolidation processor {processor!r}; registered: {', '.join(processor_names())}",
-                                 param_hint="'--processor'")
     given = dict(zip(_MODEL_OPTIONS, (backend, base_url, model, enrichment_model, api_key)))
     if processor != "llm":
         extra = [f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None] + (["-o"] if options else [])
         if extra:
             raise click.UsageError(f"{', '.join(extra)} only apply with --processor llm")
-
     b = Bank(bank)
-    data = b.manifest()
-    if data.get("mode") == "raw":
-        raise MemoraError(f"{bank}: a raw bank (one record per observation) is not consolidated; "
-                          "build an edited bank to consolidate")
-    known = sorted(data["participants"])
-    pids = known if participants.strip().lower() == "all" else [p.strip() for p in participants.split(",") if p.strip()]
-    missing = [p for p in pids if p not in data["participants"]]
-    if missing:
-        raise MemoraError(f"{bank}: no participant {', '.join(missing)} in this bank (has: {', '.join(known) or 'none'})")
-    if not pids:
-        raise click.UsageError("no participants given")
+    pids = consolidation_targets(b, participants)
 
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        disable=quiet, transient=False)
+    progress = progress_bar(quiet)
     task = progress.add_task("consolidating", total=len(pids))
 
     def on_step(participant: str, step: str) -> None:
         progress.update(task, description=f"{participant} {step}")
 
-    procs = get_processors(processor, options=_llm_options(given, _backend_options(options), on_step)
+    procs = get_processors(processor, options=_llm_options(given, backend_options(options), on_step)
                            if processor == "llm" else None)
     if processor == "llm":
         from memora_graph.consolidate.llm import check_servers
 
         for warning in check_servers(procs):
             click.echo(f"warning: {warning}", err=True)
-    for p in pids:  # a participant another process holds fails here, before any model call
-        try:
-            b.open(p, read_only=False).close()
-        except StoreError as exc:
-            raise MemoraError(f"cannot consolidate {p}: {exc}") from exc
-
-    embedder = get_embedder(data["embed_model"])
-    rows, failed = [], []
     with progress:
-        for p in pids:
-            progress.update(task, description=f"{p} consolidating")
-            t0 = time.perf_counter()
-            try:
-                knowledge = finish_participant(b, p, embedder, processors=procs)
-            except ConsolidationError as exc:
-                failed.append(str(exc))
-                rows.append({"participant": p, "processor": procs.name, "routines": None, "preferences": None,
-                             "dropped_ids": None, "dropped_records": None, "model_calls": None, "failed_steps": None,
-                             "status": "unchanged (every model step failed)", "seconds": round(time.perf_counter() - t0, 1)})
-                progress.advance(task)
-                continue
-            rows.append({"participant": p, "processor": procs.name, "routines": len(knowledge.routines),
-                         "preferences": len(knowledge.preferences), "dropped_ids": knowledge.dropped_ids,
-                         "dropped_records": knowledge.dropped_records, "model_calls": len(knowledge.calls),
-                         "failed_steps": len(knowledge.failed_steps), "status": "consolidated",
-                         "seconds": round(time.perf_counter() - t0, 1)})
-            failed += [f"{p} {s.step}: {s.error}" for s in knowledge.failed_steps]
-            progress.advance(task)
+        done = consolidate_bank(b, pids, procs, on_participant=lambda p: on_step(p, "consolidating"),
+                                on_done=lambda p: progress.advance(task))
         progress.update(task, description="done")
-    click.echo(render(pl.DataFrame(rows), fmt))
-    if fmt == "table" and procs.call_log is not None:
-        calls = procs.call_log.records
-        tokens = sum((r.tokens_in or 0) + (r.tokens_out or 0) for r in calls)
-        click.echo(f"{len(calls)} model calls ({sum(not r.ok for r in calls)} failed, {tokens} tokens); "
-                   f"per role: memora stats {bank} --calls role")
-    for line in failed:
+    persist_bank(b.path, [r["participant"] for r in done.rows if r["status"] == "consolidated"])
+    click.echo(render(pl.DataFrame(done.rows), fmt))
+    if fmt == "table" and done.calls_line(bank):
+        click.echo(done.calls_line(bank))
+    for line in done.failed:
         click.echo(f"failed: {line}", err=True)
-    if any(r["status"] != "consolidated" for r in rows):
+    if not done.ok:
         raise click.ClickException("some participants were left unchanged; see the failures above")
 
 
-def _llm_options(given: dict, backend_options: dict, on_step) -> dict:
+def _llm_options(given: dict, pairs: dict, on_step) -> dict:
+    """The LLM processors' options, checked against the backend's registered options model: a
+    backend without a model field has no model to consolidate with; one whose model is required
+    needs --model; --base-url / --api-key apply only where the backend takes them."""
+    from memora_graph.llm import backend_options as options_model
+
     backend = given["backend"] or "openai"
-    if backend == "offline":
+    fields = options_model(backend).model_fields
+    if "model" not in fields:
         from memora_graph.consolidate.llm import OFFLINE_MESSAGE
 
         raise click.UsageError(OFFLINE_MESSAGE)
-    if backend == "vllm" and not given["model"]:
-        raise click.UsageError("--backend vllm loads the model in-process: pass --model NAME")
-    if backend != "openai":
-        extra = [f"--{k.replace('_', '-')}" for k in ("base_url", "api_key") if given[k]]
-        if extra:
-            raise click.UsageError(f"{', '.join(extra)} only apply with --backend openai")
+    if fields["model"].is_required() and not given["model"]:
+        raise click.UsageError(f"--backend {backend} loads the model in-process: pass --model NAME")
+    extra = [f"--{k.replace('_', '-')}" for k in ("base_url", "api_key") if given[k] and k not in fields]
+    if extra:
+        raise click.UsageError(f"{', '.join(extra)} {'does' if len(extra) == 1 else 'do'} not apply to "
+                               f"--backend {backend} (its options: {', '.join(fields)})")
     opts = {"backend": backend, "on_step": on_step, "model": given["model"],
             "enrichment_model": given["enrichment_model"]}
     opts.update({k: given[k] for k in ("base_url", "api_key") if given[k]})
-    clash = sorted(set(backend_options) & {*opts, "call_log", "limits", "consolidation_model"})
+    clash = sorted(set(pairs) & {*opts, "call_log", "limits", "consolidation_model"})
     if clash:
         raise click.UsageError(f"-o {', '.join(clash)}: use the command's own option for it")
-    opts.update(backend_options)
+    opts.update(pairs)
     return opts
-
-
-def _backend_options(pairs) -> dict:
-    out = {}
-    for key, value in pairs:
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out

@@ -23,7 +23,9 @@ from memora_graph import schema
 from memora_graph.bank import Bank
 from memora_graph.embed import CachedEmbedder
 from memora_graph.errors import DiskFullError
-from memora_graph.form.editor import DeterministicPolicy, EditPolicy, EntityEditor, EntityState, RawPolicy, identity_text
+from memora_graph.form.editor import (
+    EditPolicy, EntityEditor, EntityState, editor_policy_names, get_editor_policy, identity_text,
+)
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
 from memora_graph.form.staging import StagedVideo, Staging
 from memora_graph.llm.backends import CallLog, CallRecord, ModelReplyError
@@ -32,7 +34,7 @@ from memora_graph.perceive.narration import perceive_video
 from memora_graph.records import LayeredSegment
 from memora_graph.store import Store, disk_full, disk_full_message
 
-MODES = ("edited", "raw")
+MODES = tuple(editor_policy_names())  # "edited", "raw"
 
 
 @dataclass
@@ -119,7 +121,7 @@ class ParticipantBuilder:
         self.db_entities = {e.id: (e.status, e.location) for e in entities}
         self.db_entity_rows = {e.id: _entity_row(e) for e in entities}
         self.db_places = {p.location_id: p.turn_count for p in places}
-        self.editor = EntityEditor(participant, policy or (RawPolicy() if mode == "raw" else DeterministicPolicy()),
+        self.editor = EntityEditor(participant, policy or get_editor_policy(mode),
                                    embed=self._embed_one, prompt_budget=prompt_budget, entities=entities, next_ord=next_ord)
         self.places = PlaceMemory(participant, places)
         self.staged: list[StagedVideo] = []

@@ -9,6 +9,7 @@ Policies are pluggable: `DeterministicPolicy` (default, rules plus embedding tie
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -142,6 +143,32 @@ class RawPolicy:
     def decide(self, segment, observations, candidates, embed) -> list[list[EditOp]]:
         return [[EditOp(op="ADD", entity_id="", reason="raw mode: one record per observation", changes=_add_fields(o))]
                 for o in observations]
+
+
+# The editor policies an annotation build runs by name (`memora build --mode NAME`; the bank's
+# manifest records the name as its mode). The model-backed policy of video builds
+# (form/llm_editor.py) is made from a backend instead.
+_POLICIES: dict[str, Callable[[], EditPolicy]] = {}
+
+
+def register_editor_policy(mode: str, factory: Callable[[], EditPolicy]) -> None:
+    if mode in _POLICIES:
+        raise ValueError(f"editor policy {mode!r} is already registered")
+    _POLICIES[mode] = factory
+
+
+def editor_policy_names() -> list[str]:
+    return list(_POLICIES)
+
+
+def get_editor_policy(mode: str) -> EditPolicy:
+    if mode not in _POLICIES:
+        raise ValueError(f"no editor policy {mode!r}; registered: {', '.join(_POLICIES)}")
+    return _POLICIES[mode]()
+
+
+register_editor_policy("edited", DeterministicPolicy)
+register_editor_policy("raw", RawPolicy)
 
 
 def update_or_noop(entity: EntityState, obs: ObjectObservation) -> EditOp:

@@ -6,7 +6,6 @@ import logging
 import os
 
 import click
-import polars as pl
 
 from memora_graph.output import output_options, render
 
@@ -113,6 +112,8 @@ def perf_verify_cmd(bank, participant, repeat, text):
     import sys
     import time
 
+    import polars as pl
+
     from memora_graph.bank import Bank
     from memora_graph.integrity import files
 
@@ -210,15 +211,27 @@ def _add_no_verify(command: click.Command) -> None:
         command.params.append(_no_verify_option())
 
 
+def add_no_verify(command: click.Command) -> None:
+    """`--no-verify` on a command taking a BANK argument (and on every such command of a group):
+    the `memora` groups call it on each command they load."""
+    _add_no_verify(command)
+
+
+def show_bank_notices() -> None:
+    """Bank notices (interrupted builds, unlisted databases) go to stderr as `warning: ...`."""
+    log = logging.getLogger("memora_graph.integrity")
+    if not any(isinstance(h, _StderrHandler) for h in log.handlers):
+        log.addHandler(_StderrHandler())
+        log.propagate = False
+
+
 def register(main: click.Group) -> None:
     """Add `verify` and `forget`, and `--no-verify` to every command taking a BANK argument
-    (call after every other command is registered)."""
+    (for a group whose commands are all loaded; the `memora` groups load theirs on demand and
+    call `add_no_verify` on each)."""
     main.add_command(verify_cmd, "verify")
     main.add_command(forget_cmd, "forget")
     if isinstance(main.commands.get("perf"), click.Group):
         main.commands["perf"].add_command(perf_verify_cmd, "verify")
     _add_no_verify(main)
-    log = logging.getLogger("memora_graph.integrity")
-    if not any(isinstance(h, _StderrHandler) for h in log.handlers):
-        log.addHandler(_StderrHandler())
-        log.propagate = False
+    show_bank_notices()

@@ -153,9 +153,28 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
             problems.append(f"{staging.root / name}: {why} (a build will build it again)")
         for f in foreign:
             problems.append(f"{f}: not a staged video (never opened by a build; remove it)")
+    row["tool_stores"] = _tool_stores(bank, data, p, integ, problems)
     row["status"] = "ok" if not problems else "problem"
     row["problems"] = problems
     return row
+
+
+def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str]) -> str:
+    """The stores persisted for one-shot tools (memora_graph/retrieve/persist.py): stale ones
+    (from an earlier version of the database) are expected after a write and never read; a
+    damaged one is reported (never read either; written again on the next open)."""
+    from memora_graph.retrieve.persist import PersistedStores, StaleStores, store_dir
+
+    if not store_dir(bank.path, p).exists():
+        return "none (computed on first use)"
+    try:
+        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"))
+    except StaleStores as why:
+        if why.damaged:
+            problems.append(f"{why}; never read (the next open reads the database and writes them again)")
+            return "damaged"
+        return "stale (written again on the next open)"
+    return "ok"
 
 
 def accept(path: str | Path, participant: str) -> dict:

@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import json
 
-import click
-import polars as pl
+from typing import TYPE_CHECKING
 
+import click
+
+from memora_graph.cli_options import FAMILY, RECIPE, check_participant_option, participants_option
 from memora_graph.output import output_options, render
+
+if TYPE_CHECKING:
+    import polars as pl
 
 # Where each tool's records are in its result, for --table / --csv / --nl.
 
@@ -59,6 +64,8 @@ def records_frame(result, compact: bool = False) -> pl.DataFrame:
     with several lists (a unified `search`) gets one shape for every store: which record, what it
     says, why it was returned. `compact` keeps the fields a table can show and splits the score
     breakdown into columns. A result without record lists is one row of its fields."""
+    import polars as pl
+
     records = list(result.records())
     kinds = list(dict.fromkeys(k for k, _ in records))
     if len(kinds) > 1:
@@ -79,14 +86,8 @@ def records_frame(result, compact: bool = False) -> pl.DataFrame:
     return pl.DataFrame([{c: _flat(r.get(c)) for c in cols} for r in rows], infer_schema_length=None)
 
 
-def _families() -> list[str]:
-    from memora_graph.retrieve import families
-
-    return families()
-
-
 @click.command("tools")
-@click.option("--memory", "family", default=None, metavar="FAMILY",
+@click.option("--memory", "family", type=FAMILY, default=None,
               help="Only the tools of one memory representation: memora (default for --json), flat1d, graph2d.")
 @output_options
 def tools_cmd(family, fmt):
@@ -101,11 +102,10 @@ def tools_cmd(family, fmt):
       memora tools --memory flat1d
       memora tools --json
     """
-    from memora_graph.retrieve import specs, tool_names, tool_schemas
+    import polars as pl
 
-    if family is not None and family not in _families():
-        raise click.BadParameter(f"no memory family {family!r}; families: {', '.join(_families())}",
-                                 param_hint="'--memory'")
+    from memora_graph.retrieve.registry import specs, tool_names, tool_schemas
+
     if fmt == "json":
         family = family or "memora"
         click.echo(json.dumps(tool_schemas(tool_names(family), family), indent=2))
@@ -121,22 +121,17 @@ def tools_cmd(family, fmt):
     click.echo(render(pl.DataFrame(rows), fmt))
 
 
-def _recipes() -> list[str]:
-    from memora_graph.retrieve.search import RECIPES
-
-    return list(RECIPES)
-
-
 @click.command("tool")
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.argument("name")
 @click.argument("text", required=False)
-@click.option("--participant", required=True, help="Whose memory to search (P01); tools never see another's.")
+@click.option("--participant", required=True, callback=check_participant_option,
+              help="Whose memory to search (P01); tools never see another's.")
 @click.option("--arg", "args", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="A tool argument (see `memora tools`). Repeatable.")
-@click.option("--recipe", type=click.Choice(_recipes()), default="inprocess", show_default=True,
+@click.option("--recipe", type=RECIPE, default="inprocess", show_default=True,
               help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py).")
-@click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
+@click.option("--memory", "family", type=FAMILY, default="memora", show_default=True,
               help="Which memory the tool reads: memora, or a baseline's representation (flat1d, graph2d).")
 @output_options
 def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
@@ -155,12 +150,9 @@ def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
       memora tool banks/epic get_state_at_time 120 --participant P01 --arg video P01_102
       memora tool banks/epic search "wash the plate" --participant P01 --memory flat1d
     """
-    from memora_graph.retrieve import MemoryView, call_tool, get_family, get_tool
-    from memora_graph.retrieve.registry import parse_arguments
+    from memora_graph.retrieve.registry import call_tool, get_family, get_tool, parse_arguments
+    from memora_graph.retrieve.view import MemoryView
 
-    if family not in _families():
-        raise click.BadParameter(f"no memory family {family!r}; families: {', '.join(_families())}",
-                                 param_hint="'--memory'")
     spec = get_tool(name, family)
     raw = dict(args)
     if text is not None:
@@ -184,7 +176,7 @@ def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
 
 @click.command("tools")
 @click.argument("bank", type=click.Path(exists=True, file_okay=False), default="banks/epic")
-@click.option("--participants", default="all", show_default=True, help="Comma-separated ids or 'all'.")
+@participants_option()
 @click.option("--queries", "n_queries", default=10, show_default=True, help="Queries per tool and participant.")
 @click.option("--recipes", default="inprocess,fts,kuzu", show_default=True,
               help="Retrieval variants to time (see memora_graph/retrieve/search.py).")
@@ -205,8 +197,7 @@ def perf_tools_cmd(bank, participants, n_queries, recipes, hnsw, fmt):
     """
     from memora_graph.retrieve.perf import run_perf
 
-    pids = None if participants == "all" else [p.strip() for p in participants.split(",") if p.strip()]
-    report = run_perf(bank, pids, n_queries=n_queries, recipes=[r.strip() for r in recipes.split(",") if r.strip()],
+    report = run_perf(bank, participants, n_queries=n_queries, recipes=[r.strip() for r in recipes.split(",") if r.strip()],
                       hnsw=hnsw, echo=click.echo)
     click.echo(render(report.latency, fmt))
     if fmt == "table":

@@ -154,7 +154,9 @@ def perf_encoders_cmd(bank, participants, rounds, export, fmt):
       memora perf encoders banks/epic
       memora perf encoders banks/epic --participants P01,P04 --no-export
     """
-    pids = None if participants == "all" else [p.strip() for p in participants.split(",") if p.strip()]
+    from memora_graph.bank import parse_participants
+
+    pids = parse_participants(participants)
     queries, passages, notes = run_encoder_perf(bank, pids, rounds=rounds, export=export, echo=click.echo)
     click.echo(render(queries, fmt))
     if fmt == "table":

@@ -67,6 +67,13 @@ class VectorTable:
         self.mat = np.divide(mat, norms, out=np.zeros_like(mat), where=norms > 0)
 
     @classmethod
+    def normalized(cls, ids: list[str], mat: np.ndarray) -> VectorTable:
+        """A table from rows already L2-normalised by this class (a persisted, memory-mapped `mat`)."""
+        table = cls.__new__(cls)
+        table.ids, table.index, table.mat = ids, {i: n for n, i in enumerate(ids)}, mat
+        return table
+
+    @classmethod
     def from_rows(cls, rows: list[dict]) -> VectorTable:
         rows = [r for r in rows if r["emb"] is not None]
         return cls([r["id"] for r in rows], np.asarray([r["emb"] for r in rows], dtype=np.float32))
@@ -107,6 +114,19 @@ class Bm25:
                 self.postings[t].append((n, c))
         self.avg = (sum(self.lengths) / len(self.lengths)) if self.lengths else 1.0
         self.n = len(ids)
+
+    def state(self) -> dict:
+        """Everything `search` reads, as JSON-ready values (persisted next to the bank)."""
+        return {"ids": self.ids, "k1": self.k1, "b": self.b, "lengths": self.lengths, "avg": self.avg,
+                "postings": {t: [list(p) for p in plist] for t, plist in self.postings.items()}}
+
+    @classmethod
+    def from_state(cls, state: dict) -> Bm25:
+        bm = cls.__new__(cls)
+        bm.ids, bm.k1, bm.b, bm.lengths, bm.avg = state["ids"], state["k1"], state["b"], state["lengths"], state["avg"]
+        bm.postings = {t: [tuple(p) for p in plist] for t, plist in state["postings"].items()}
+        bm.n = len(bm.ids)
+        return bm
 
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
         scores: dict[int, float] = defaultdict(float)

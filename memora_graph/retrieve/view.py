@@ -11,9 +11,12 @@ the large tables (segments, state history) with prepared named queries.
 from __future__ import annotations
 
 import json
+import logging
+import os
 from collections import Counter, defaultdict
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,10 +24,15 @@ from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
 from memora_graph.retrieve.search import DEFAULT_RECIPE, RECIPES, Bm25, SearchConfig, VectorTable
-from memora_graph.store import Store, index_names
+
+if TYPE_CHECKING:
+    from memora_graph.retrieve.persist import PersistedStores
+    from memora_graph.store import Store
 
 TABLES = ("segment", "entity", "place", "routine", "preference")
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
+log = logging.getLogger("memora_graph.integrity")
+TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
 
 
 class ToolError(MemoraError):
@@ -49,18 +57,33 @@ def _single_thread_blas() -> None:
     threadpool_limits(limits=1, user_api="blas")
 
 
+def _config(config: SearchConfig | str) -> SearchConfig:
+    if isinstance(config, str) and config not in RECIPES:
+        raise ToolError(f"no retrieval recipe {config!r}; recipes: {', '.join(RECIPES)}")
+    return RECIPES[config] if isinstance(config, str) else config
+
+
 class MemoryView:
-    def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
-                 owns_store: bool = False):
+    def __init__(self, store: Store | None, participant: str, embedder=None,
+                 config: SearchConfig | str = DEFAULT_RECIPE, owns_store: bool = False,
+                 persisted: PersistedStores | None = None, open_store=None):
+        """`store` is the participant's open database; or None with `persisted` stores (read
+        instead of Kùzu for what they hold) and `open_store()` to open the database when a tool
+        needs something else (`MemoryView.open` does that)."""
         _single_thread_blas()
-        self.store = store
+        self._store = store
+        self._open_store = open_store
+        self._persisted = persisted
+        self.persisted_written: Path | None = None  # where `open(..., persist=True)` wrote the stores
         self.participant = participant
-        if isinstance(config, str) and config not in RECIPES:
-            raise ToolError(f"no retrieval recipe {config!r}; recipes: {', '.join(RECIPES)}")
-        self.config = RECIPES[config] if isinstance(config, str) else config
+        self.config = _config(config)
         self._embedder = embedder
         self._owns = owns_store
         self.notes: list[str] = []  # degradations a caller should know about (none at present)
+        if store is None:
+            if persisted is None or open_store is None:
+                raise ValueError("a MemoryView needs a store, or persisted stores and a way to open the store")
+            return  # the persisted stores were written by a view that passed the checks below
         migrations = set(store.migrations())
         if "002_inferred.cypher" not in migrations:
             raise BankError(f"{store.path}: built before inferred knowledge existed (schema 002 missing); "
@@ -70,6 +93,8 @@ class MemoryView:
     def _check_indexes(self, config: SearchConfig | str) -> None:
         """A recipe that reads Kùzu's optional indexes fails here, saying how to build them,
         rather than on its first call. Builds make none by default ('inprocess' needs none)."""
+        from memora_graph.store import index_names
+
         kinds = [k for k, on in (("fts", self.config.keyword == "fts"), ("hnsw", self.config.vector == "hnsw")) if on]
         if not kinds:
             return
@@ -89,17 +114,56 @@ class MemoryView:
             f"'{DEFAULT_RECIPE}', which needs none.")
 
     @classmethod
-    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
-        store = Bank(bank).open(participant, read_only=True)
+    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
+             persist: bool | None = None) -> MemoryView:
+        """Open a participant's memory read-only. With `persist` and an in-process recipe, the
+        stores persisted next to the bank (memora_graph/retrieve/persist.py) are read when they
+        match the database's recorded sha256, and Kùzu is opened only if a tool needs more; when
+        they are missing, stale or damaged they are computed from the database and written.
+        `persist` defaults to on unless MEMORA_TOOL_STORES=0."""
+        if persist is None:
+            persist = os.environ.get(TOOL_STORES_ENV, "1") != "0"
+        b = Bank(bank)
+        cfg = _config(config)
+        sha = None
+        if persist and cfg.vector == "numpy" and cfg.keyword in ("bm25", "none"):
+            from memora_graph.retrieve.persist import PersistedStores, StaleStores
+
+            sha = b.checked_sha256(participant)
+            embed_model = b.manifest().get("embed_model")
+            if sha is not None:
+                try:
+                    stores = PersistedStores.open(bank, participant, sha, embed_model)
+                except StaleStores as why:
+                    if why.damaged:  # stale is expected after any write; damage is worth a word
+                        log.warning(f"{why}; reading the database instead (and writing them again)")
+                else:
+                    return cls(None, participant, embedder, config, owns_store=True, persisted=stores,
+                               open_store=lambda: b.open(participant, read_only=True))
+        store = b.open(participant, read_only=True)
         try:
-            return cls(store, participant, embedder, config, owns_store=True)
+            view = cls(store, participant, embedder, config, owns_store=True)
         except BaseException:
             store.close()
             raise
+        if sha is not None and _writable(Path(bank)):
+            from memora_graph.retrieve.persist import write
+
+            try:
+                view.persisted_written = write(view, bank, sha, b.manifest().get("embed_model"))
+            except OSError as exc:  # a full or read-only disk: the view works without them
+                log.warning(f"{bank}: could not persist {participant}'s tool stores ({exc})")
+        return view
+
+    @property
+    def store(self) -> Store:
+        if self._store is None:
+            self._store = self._open_store()
+        return self._store
 
     def close(self) -> None:
-        if self._owns:
-            self.store.close()
+        if self._owns and self._store is not None:
+            self._store.close()
 
     def __enter__(self) -> MemoryView:
         return self
@@ -109,7 +173,23 @@ class MemoryView:
 
     # -- queries and embeddings ---------------------------------------------------------
     def fetch(self, name: str, **params) -> list[dict]:
+        if not params and self._persisted is not None and self._persisted.has_rows(name):
+            got = self._from_persisted(lambda p: p.rows(name))
+            if got is not None:
+                return got
         return self.store.fetch(name, participant=self.participant, **params)
+
+    def _from_persisted(self, read):
+        """`read(persisted)`, or None (and the persisted stores dropped, with a warning) when a
+        file turns out damaged: the database is read instead."""
+        from memora_graph.retrieve.persist import StaleStores
+
+        try:
+            return read(self._persisted)
+        except StaleStores as why:
+            log.warning(f"{why}; reading the database instead")
+            self._persisted = None
+            return None
 
     @cached_property
     def encoder(self) -> QueryEncoder:
@@ -130,7 +210,8 @@ class MemoryView:
     def vectors(self, table: str) -> VectorTable:
         cache = self.__dict__.setdefault("_vector_cache", {})
         if table not in cache:
-            cache[table] = VectorTable.from_rows(self.fetch(f"_tool_vectors_{table}"))
+            got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted is not None else None
+            cache[table] = got if got is not None else VectorTable.from_rows(self.fetch(f"_tool_vectors_{table}"))
         return cache[table]
 
     @cached_property
@@ -185,8 +266,15 @@ class MemoryView:
             return [(r["id"], float(r["score"])) for r in self.fetch(f"_tool_fts_{table}", query=query)[:k]]
         return self._bm25(table).search(query, k)
 
+    def bm25(self, table: str) -> Bm25:
+        return self._bm25(table)
+
     def _bm25(self, table: str) -> Bm25:
         cache = self.__dict__.setdefault("_bm25_cache", {})
+        if table not in cache and self._persisted is not None:
+            got = self._from_persisted(lambda p: p.bm25(table))
+            if got is not None:
+                cache[table] = got
         if table not in cache:
             if table == "segment":
                 rows = self.fetch("_tool_segment_texts")
@@ -210,6 +298,11 @@ class MemoryView:
         if self.config.keyword == "bm25":
             for t in TABLES:
                 self._bm25(t)
+
+
+def _writable(bank: Path) -> bool:
+    cache = bank / ".cache"
+    return os.access(cache if cache.is_dir() else bank, os.W_OK)
 
 
 class ObservationGraph:

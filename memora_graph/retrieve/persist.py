@@ -1,0 +1,191 @@
+"""What the in-process recipe reads, persisted next to the bank, so that opening a participant for
+one tool call maps files instead of querying Kùzu and recomputing.
+
+Per participant, `BANK/.cache/tools-PXX/` holds the embedding matrices (L2-normalised, one
+memory-mapped `.npy` per table with its ids), the BM25 statistics of every table (postings,
+document lengths), and the rows of the participant-wide tool queries (entity registry, places,
+videos, routines, preferences, the observation graph, segment texts). `meta.json` records the
+sha256 of every file and the sha256 of the database they were computed from, as the bank's
+manifest records it (memora_graph/integrity/): after any write to the database (a rebuild,
+`memora consolidate`, `memora index`) the files are stale and are not used. A file whose hash no
+longer matches its record is damaged: it is not used either, and a warning says so. Either way the
+view reads Kùzu instead and writes the files again (where the bank is writable).
+
+Everything here is computed by the `MemoryView` code itself (`write` warms a view on the database
+and saves what it loaded), so tool results are the same whichever way a view was opened
+(tests/retrieve/test_persist.py compares them).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from memora_graph.retrieve.search import Bm25, VectorTable
+
+FORMAT = 1
+DIRNAME = "tools-{participant}"
+# participant-wide named queries (no parameter but $participant) whose rows are kept
+ROW_QUERIES = ("_tool_entities", "_tool_places", "_tool_videos", "_tool_routines", "_tool_preferences",
+               "_tool_observations", "_tool_inferred_links", "_tool_segment_texts")
+
+log = logging.getLogger("memora_graph.integrity")
+
+
+class StaleStores(Exception):
+    """The persisted files do not belong to the database as it is now (or are damaged)."""
+
+    @property
+    def damaged(self) -> bool:
+        return "damaged" in str(self) or "unreadable" in str(self)
+
+
+def store_dir(bank_path: str | Path, participant: str) -> Path:
+    return Path(bank_path) / ".cache" / DIRNAME.format(participant=participant)
+
+
+def _sha256(path: Path) -> str:
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
+
+
+class PersistedStores:
+    """One participant's persisted tool stores, checked against the database's recorded sha256.
+    Files are hashed when first read (each once), so a damaged one is never used."""
+
+    def __init__(self, root: Path, meta: dict):
+        self.root, self.meta = root, meta
+        self._checked: set[str] = set()
+
+    @classmethod
+    def open(cls, bank_path: str | Path, participant: str, db_sha256: str | None,
+             embed_model: str | None) -> PersistedStores:
+        """The stores of a participant, or StaleStores saying why they cannot be used."""
+        root = store_dir(bank_path, participant)
+        try:
+            meta = json.loads((root / "meta.json").read_text())
+        except FileNotFoundError:
+            raise StaleStores(f"{root}: none persisted") from None
+        except (OSError, ValueError) as exc:
+            raise StaleStores(f"{root / 'meta.json'}: unreadable ({exc})") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise StaleStores(f"{root}: written in another format")
+        if not db_sha256 or meta.get("db_sha256") != db_sha256:
+            raise StaleStores(f"{root}: computed from another version of {participant}.kuzu (stale)")
+        if meta.get("participant") != participant or meta.get("embed_model") != embed_model:
+            raise StaleStores(f"{root}: computed for another participant or embedding model")
+        stores = cls(root, meta)
+        for name in meta.get("files", {}):  # a few MB: hashing them all costs milliseconds
+            stores._path(name)
+        return stores
+
+    def _path(self, name: str) -> Path:
+        """A file of the stores, after checking its sha256 against meta.json (once per process)."""
+        files = self.meta.get("files", {})
+        if name not in files:
+            raise StaleStores(f"{self.root / name}: not recorded in meta.json")
+        path = self.root / name
+        if name not in self._checked:
+            try:
+                digest = _sha256(path)
+            except OSError as exc:
+                raise StaleStores(f"{path}: unreadable ({exc})") from None
+            if digest != files[name]:
+                raise StaleStores(f"{path}: damaged (its sha256 does not match the record in meta.json)")
+            self._checked.add(name)
+        return path
+
+    def has_rows(self, query: str) -> bool:
+        return f"rows{query}.json" in self.meta.get("files", {})
+
+    def rows(self, query: str) -> list[dict]:
+        return json.loads(self._path(f"rows{query}.json").read_text())
+
+    def vectors(self, table: str) -> VectorTable:
+        ids = json.loads(self._path(f"ids-{table}.json").read_text())
+        mat = np.load(self._path(f"vectors-{table}.npy"), mmap_mode="r", allow_pickle=False)
+        return VectorTable.normalized(ids, mat)
+
+    def bm25(self, table: str) -> Bm25:
+        return Bm25.from_state(json.loads(self._path(f"bm25-{table}.json").read_text()))
+
+
+def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) -> Path:
+    """Warm `view` (open on the database) and persist what it loaded. The directory is replaced
+    whole (written aside, then renamed), so a reader sees the old files or the new ones."""
+    from memora_graph.retrieve.view import TABLES
+
+    root = store_dir(bank_path, view.participant)
+    tmp = root.with_name(f".{root.name}.{os.getpid()}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        files = {}
+
+        def put(name: str, write_fn) -> None:
+            write_fn(tmp / name)
+            files[name] = _sha256(tmp / name)
+
+        for query in ROW_QUERIES:
+            rows = view.fetch(query)
+            text = json.dumps(rows, ensure_ascii=False)
+            if json.loads(text) != rows:  # a value JSON does not carry exactly: leave it to Kùzu
+                continue
+            put(f"rows{query}.json", lambda p, t=text: p.write_text(t))
+        for table in TABLES:
+            vt = view.vectors(table)
+            put(f"ids-{table}.json", lambda p, v=vt: p.write_text(json.dumps(v.ids)))
+            put(f"vectors-{table}.npy", lambda p, v=vt: np.save(p, np.ascontiguousarray(v.mat), allow_pickle=False))
+            bm = view.bm25(table)
+            put(f"bm25-{table}.json", lambda p, b=bm: p.write_text(json.dumps(b.state())))
+        meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
+                "embed_model": embed_model, "files": files}
+        (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+        if root.exists():
+            old = root.with_name(f".{root.name}.{os.getpid()}.old")
+            try:
+                root.rename(old)
+            except FileNotFoundError:  # another process replaced them first
+                pass
+            shutil.rmtree(old, ignore_errors=True)
+        try:
+            tmp.rename(root)
+        except OSError:
+            if not root.is_dir():
+                raise
+            shutil.rmtree(tmp, ignore_errors=True)  # another process wrote them meanwhile: theirs stand
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return root
+
+
+@dataclass
+class Persisted:
+    written: list[Path] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
+    """Write the persisted tool stores of each participant (all by default) whose files are
+    missing or stale (after a build or `memora consolidate`); returns the directories written."""
+    from memora_graph.bank import Bank
+    from memora_graph.retrieve.view import MemoryView
+
+    t0 = time.perf_counter()
+    bank = Bank(bank_path)
+    out = Persisted()
+    for p in bank.participants() if participants is None else participants:
+        with MemoryView.open(bank_path, p, persist=True) as view:
+            if view.persisted_written is not None:
+                out.written.append(view.persisted_written)
+    out.seconds = time.perf_counter() - t0
+    return out

@@ -1,0 +1,153 @@
+"""The stores persisted next to a bank for one-shot tools: the same results as reading Kùzu,
+Kùzu left closed when they suffice, and stale or damaged files detected, never used."""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+
+import pytest
+from click.testing import CliRunner
+
+from memora_graph.bank import Bank
+from memora_graph.cli import main
+from memora_graph.retrieve import MemoryView, call_tool
+from memora_graph.retrieve.persist import PersistedStores, StaleStores, persist_bank, store_dir
+
+P = "P37"
+CALLS = [("search", {"query": "wash the pan"}), ("search_objects", {"query": "knife", "top_k": 10}),
+         ("search_activities", {"query": "cut vegetables"}), ("search_patterns", {"query": "after washing"}),
+         ("get_routine_skill", {"goal_query": "wash pan"}), ("get_preferences", {"query": "knife"}),
+         ("get_object_history", {"object_query": "pan"}), ("search_environment", {"query": "sink"}),
+         ("get_state_at_time", {"time_seconds": 120})]
+
+
+@pytest.fixture()
+def bank(small_bank, tmp_path):
+    path = tmp_path / "bank"
+    shutil.copytree(small_bank[0], path, ignore=shutil.ignore_patterns("tools-*"))
+    return path
+
+
+def _results(path, embedder, persist: bool) -> list[str]:
+    with MemoryView.open(path, P, embedder, persist=persist) as view:
+        view.encoder.clear()
+        out = []
+        for name, args in CALLS:
+            if name == "get_state_at_time":
+                args = {**args, "video": sorted(view.videos)[0]}
+            out.append(json.dumps(call_tool(view, name, args).as_json(), sort_keys=True))
+        return out
+
+
+def test_persisted_stores_give_the_results_kuzu_gives(bank, embedder):
+    reference = _results(bank, embedder, persist=False)
+    assert not store_dir(bank, P).exists(), "persist=False writes nothing"
+    written = persist_bank(bank, [P])
+    assert written.written == [store_dir(bank, P)]
+    meta = json.loads((store_dir(bank, P) / "meta.json").read_text())
+    assert meta["db_sha256"] == Bank(bank).manifest()["participants"][P]["integrity"]["sha256"]
+    assert {"vectors-segment.npy", "bm25-segment.json", "rows_tool_entities.json"} <= set(meta["files"])
+    assert persist_bank(bank, [P]).written == [], "up-to-date stores are not written again"
+
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None and view._store is None
+        assert call_tool(view, "search_objects", {"query": "knife"}).results
+        assert view._store is None, "search_objects reads only persisted stores: Kùzu stays closed"
+        assert type(view.vectors("entity").mat).__name__ == "memmap"
+    assert _results(bank, embedder, persist=True) == reference
+
+
+def test_a_first_open_computes_and_writes_them(bank, embedder):
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is None and view.persisted_written == store_dir(bank, P)
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None and view.persisted_written is None
+
+
+def test_a_write_to_the_database_makes_them_stale(bank, embedder):
+    persist_bank(bank, [P])
+    runner = CliRunner()
+    before = runner.invoke(main, ["tool", str(bank), "search_objects", "knife", "--participant", P, "--json"])
+    assert before.exit_code == 0, before.output
+    first = json.loads(before.output)["results"][0]
+    r = runner.invoke(main, ["query", str(bank), "MATCH (e:Entity) WHERE e.id = $id SET e.name = 'zzz renamed'",
+                             "-p", "id", first["entity_id"], "--participant", P, "--write"])
+    assert r.exit_code == 0, r.output
+    sha = Bank(bank).manifest()["participants"][P]["integrity"]["sha256"]
+    with pytest.raises(StaleStores, match="stale"):
+        PersistedStores.open(bank, P, sha, Bank(bank).manifest().get("embed_model"))
+    after = runner.invoke(main, ["tool", str(bank), "search_objects", "knife", "--participant", P, "--json"])
+    assert after.exit_code == 0, after.output
+    renamed = {o["entity_id"]: o["name"] for o in json.loads(after.output)["results"]}
+    assert renamed.get(first["entity_id"]) == "zzz renamed", "the stale stores were not read"
+    assert json.loads((store_dir(bank, P) / "meta.json").read_text())["db_sha256"] == sha, "written again"
+
+
+@pytest.mark.parametrize("victim", ["vectors-entity.npy", "bm25-entity.json", "rows_tool_entities.json"])
+def test_a_damaged_file_is_detected_and_not_used(bank, embedder, caplog, victim):
+    reference = _results(bank, embedder, persist=False)
+    persist_bank(bank, [P])
+    path = store_dir(bank, P) / victim
+    data = bytearray(path.read_bytes())
+    data[-3] ^= 0x01  # one bit: still parses, wrong values
+    path.write_bytes(bytes(data))
+    with caplog.at_level(logging.WARNING, logger="memora_graph.integrity"):
+        with MemoryView.open(bank, P, embedder) as view:
+            assert view._persisted is None
+    assert any(victim in r.getMessage() and "damaged" in r.getMessage() for r in caplog.records)
+    assert _results(bank, embedder, persist=True) == reference
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None, "written again, whole"
+
+
+def test_a_file_damaged_after_opening_is_not_used(bank, embedder, caplog):
+    reference = _results(bank, embedder, persist=False)
+    persist_bank(bank, [P])
+    with MemoryView.open(bank, P, embedder) as view:
+        stores = view._persisted
+        stores._checked.discard("vectors-segment.npy")  # as if not yet read in this process
+        path = stores.root / "vectors-segment.npy"
+        path.write_bytes(path.read_bytes()[:-4] + b"\0\0\0\0")
+        with caplog.at_level(logging.WARNING, logger="memora_graph.integrity"):
+            got = json.dumps(call_tool(view, "search", {"query": "wash the pan"}).as_json(), sort_keys=True)
+    assert got == reference[0]
+    assert any("damaged" in r.getMessage() for r in caplog.records)
+
+
+def test_no_verify_never_reads_them(bank, embedder, monkeypatch):
+    persist_bank(bank, [P])
+    monkeypatch.setenv("MEMORA_NO_VERIFY", "1")
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is None and view.persisted_written is None
+
+
+def test_forget_removes_them(bank):
+    persist_bank(bank, [P])
+    assert str(store_dir(bank, P)) in Bank(bank).forget(P)
+    assert not store_dir(bank, P).exists()
+
+
+def test_verify_reports_damaged_stores(bank):
+    from memora_graph.integrity.verify import verify_bank
+
+    assert verify_bank(bank, [P]).rows[0]["tool_stores"].startswith("none")
+    persist_bank(bank, [P])
+    assert verify_bank(bank, [P]).ok and verify_bank(bank, [P]).rows[0]["tool_stores"] == "ok"
+    path = store_dir(bank, P) / "ids-entity.json"
+    path.write_text(path.read_text().replace(f'"{P}:', f'"{P}:x', 1))
+    report = verify_bank(bank, [P])
+    assert not report.ok and report.rows[0]["tool_stores"] == "damaged"
+    assert any("ids-entity.json: damaged" in line for line in report.rows[0]["problems"])
+
+
+def test_perf_startup_prints_its_figures(bank):
+    r = CliRunner().invoke(main, ["perf", "startup", str(bank), "--participant", P, "--repeat", "1",
+                                  "--query", "knife"])
+    assert r.exit_code == 0, r.output
+    for label in ("memora --help", "(no persisted stores: Kùzu)", "(first call: computes and writes them)",
+                  "(persisted stores)"):
+        assert label in r.output
+    assert "heavy modules imported by `memora --help`: none" in r.output
+    assert store_dir(bank, P).is_dir()
