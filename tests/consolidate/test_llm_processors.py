@@ -106,7 +106,7 @@ def turns(*contents):
 
 def processors(server, **options):
     return get_processors("llm", options={"backend": "openai", "base_url": server.base_url, "model": MODEL,
-                                          "backoff_s": 0, "timeout_s": 10, **options})
+                                          "timeout_s": 10, **options})
 
 
 def user_prompt(request: dict) -> str:
