@@ -151,9 +151,12 @@ def _backend_options(base_url, model, api_key, temperature, timeout_s, options) 
 @click.option("--workers", type=int, default=None,
               help="Processes to run conditions in (default: 2 under offline on a 2+ core machine, 1 for model "
                    "backends). Results do not depend on it.")
+@click.option("--concurrency", type=int, default=None,
+              help="Agent loops in flight against the model server (model backends; default 32). Records are the "
+                   "same as with --concurrency 1, in the same order (timings aside).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
-            temperature, timeout_s, options, limit, workers, quiet):
+            temperature, timeout_s, options, limit, workers, concurrency, quiet):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
 
     \b
@@ -163,7 +166,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
       memora build banks/cal-episodic --episodic --participants P01,P02,P03,P04
       memora bench run banks/cal --raw-bank banks/cal-raw --episodic-bank banks/cal-episodic --out runs/offline
       memora bench run banks/cal --raw-bank banks/cal-raw --out runs/qwen --backend openai \\
-          --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
+          --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B --concurrency 64
       memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -186,7 +189,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
             summary = run_bench(bank, out, conditions=conditions, participants=_participants(participants),
                                 tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
-                                on_item=on_item, on_plan=on_plan, workers=workers)
+                                on_item=on_item, on_plan=on_plan, workers=workers, concurrency=concurrency)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{summary.done} items run ({summary.failed} failed), {summary.skipped} already done; "
