@@ -82,10 +82,13 @@ def main():
 @click.option("--rebuild", "rebuild", metavar="VIDEO", multiple=True,
               help="Rebuild the participant that owns this video (or a participant id) from scratch, e.g. after "
                    "its annotations changed (memory formation is sequential). Repeatable or comma-separated.")
+@click.option("--concurrency", type=click.IntRange(min=1), default=None,
+              help="With --video: videos perceived at once (each video's clips in order; the editor takes the "
+                   "videos one after another) and consolidation calls in flight (default 8; 1: one call at a time).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
-          rebuild, quiet):
+          rebuild, concurrency, quiet):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -118,7 +121,10 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
                                    "and --jobs")
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
-        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts})
+        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts,
+                                                                        **({"concurrency": concurrency} if concurrency else {})})
+    if concurrency is not None:
+        raise click.UsageError("--concurrency applies to --video builds (annotation builds use --jobs)")
     given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply with --video")
@@ -438,6 +444,9 @@ def _register_perf_video() -> None:
 
     perf.add_command(perf_decode)
     perf.add_command(perf_video)
+    from memora_graph.perf_model import perf_model
+
+    perf.add_command(perf_model)
 
 
 _register_perf_video()

@@ -171,8 +171,9 @@ def test_vllm_backend_batches_the_turns_of_concurrent_callers(monkeypatch):
             t.join(20)
     finally:
         unregister_backend("fake-vllm-test")
-    # Whatever the first engine call got, everything that queued meanwhile went in one second call.
-    assert len(engine.batches) == 2 and sum(len(b) for b in engine.batches) == n
+    # Whatever the first engine call got (all n, if they queued before the engine thread woke),
+    # everything that queued meanwhile went in one second call: never one call per conversation.
+    assert len(engine.batches) in (1, 2) and sum(len(b) for b in engine.batches) == n
     assert backend.batcher.batches == [len(b) for b in engine.batches]
     assert {i: r.parsed.place for i, r in replies.items()} == {i: f"thing{i}" for i in range(n)}
     assert len(backend.call_log) == n and {r.tokens_in for r in backend.call_log.records} == {7}

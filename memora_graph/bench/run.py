@@ -60,6 +60,7 @@ class RunSummary:
     skipped: int = 0
     failed: int = 0
     seconds: float = 0.0
+    items_seconds: float = 0.0  # running the items (after the run's setup: scoring memory, formation stats)
     per_condition_seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -287,6 +288,7 @@ def run_bench(
         memories[pid] = scoring_memory(bank, pid)
         _write_json(out / "scoring_memory" / f"{pid}.json", memories[pid], indent=1)
         _write_json(out / "memory_formation" / f"{pid}.json", memory_formation(bank, pid))
+    t_items = time.perf_counter()
     if workers > 1:
         _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary, on_item)
     elif concurrency > 1:
@@ -295,6 +297,7 @@ def run_bench(
     else:
         with _one_torch_thread():
             _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item)
+    summary.items_seconds = time.perf_counter() - t_items
     write_results_table(out)
     summary.seconds = time.perf_counter() - t_start
     manifest = json.loads((out / "manifest.json").read_text())

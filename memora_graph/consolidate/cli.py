@@ -29,10 +29,12 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 @click.option("-o", "--option", "options", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="With --processor llm: any other backend option (JSON if it parses), e.g. "
                    "-o structured_output json_object for llama-cpp-python's server. Repeatable.")
+@click.option("--concurrency", type=int, default=8, show_default=True,
+              help="With --processor llm: per-video model calls in flight at once (the bank does not depend on it).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @output_options
-def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options, quiet,
-                    fmt):
+def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options,
+                    concurrency, quiet, fmt):
     """Re-run offline consolidation and enrichment on an existing bank.
 
     Each participant's routines and preferences are replaced in one transaction (a failed or
@@ -87,8 +89,8 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     def on_step(participant: str, step: str) -> None:
         progress.update(task, description=f"{participant} {step}")
 
-    procs = get_processors(processor, options=_llm_options(given, _backend_options(options), on_step)
-                           if processor == "llm" else None)
+    procs = get_processors(processor, options={**_llm_options(given, _backend_options(options), on_step),
+                                               "concurrency": concurrency} if processor == "llm" else None)
     if processor == "llm":
         from memora_graph.consolidate.llm import check_servers
 
@@ -150,7 +152,7 @@ def _llm_options(given: dict, backend_options: dict, on_step) -> dict:
     opts = {"backend": backend, "on_step": on_step, "model": given["model"],
             "enrichment_model": given["enrichment_model"]}
     opts.update({k: given[k] for k in ("base_url", "api_key") if given[k]})
-    clash = sorted(set(backend_options) & {*opts, "call_log", "limits", "consolidation_model"})
+    clash = sorted(set(backend_options) & {*opts, "call_log", "limits", "consolidation_model", "concurrency"})
     if clash:
         raise click.UsageError(f"-o {', '.join(clash)}: use the command's own option for it")
     opts.update(backend_options)

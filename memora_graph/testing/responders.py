@@ -49,3 +49,35 @@ def agent(body: dict[str, Any]) -> Turn:
         return Turn(content=f"The records point to one option.\nAnswer: {'ABCDE'[digest % 5]}", usage=USAGE)
     return Turn(content="Plan:\n1. Pick up the plate from the counter.\n2. Wash the plate at the sink.\n"
                         "3. Put the plate on the drying rack.", usage=USAGE)
+
+
+def _minimal(schema: dict[str, Any], defs: dict[str, Any]) -> Any:
+    """The smallest value a JSON schema accepts for its required fields (empty lists, "" , 0)."""
+    if "$ref" in schema:
+        return _minimal(defs[schema["$ref"].split("/")[-1]], defs)
+    kind = schema.get("type")
+    if kind == "object" or "properties" in schema:
+        props = schema.get("properties", {})
+        return {k: _minimal(props[k], defs) for k in schema.get("required", []) if k in props}
+    return {"array": [], "string": "", "integer": 0, "number": 0, "boolean": False}.get(kind)
+
+
+def video(body: dict[str, Any]) -> Turn:
+    """The video build's models: perception (a plausible layered record, objects moving between
+    places), the entity editor (ADD for every observation group), and the smallest valid reply
+    for any other structured step (consolidation, enrichment)."""
+    from memora_graph.perf_video import scripted_perception
+
+    fmt = (body.get("response_format") or {})
+    schema = (fmt.get("json_schema") or {}).get("schema") or fmt.get("schema") or {}
+    name = (fmt.get("json_schema") or {}).get("name", "")
+    text = json.dumps(body["messages"][-1].get("content"))
+    turn = int(hashlib.sha256(text.encode()).hexdigest()[:8], 16) % 8
+    if name == "PerceptionReply":
+        return Turn(content=json.dumps(scripted_perception(turn, 8)),
+                    usage={"prompt_tokens": 3000, "completion_tokens": 600})
+    if name == "EditorReply":
+        ops = [{"event": "ADD", "observation": g, "object_id": "new", "data": {"name": "x"}, "reason": "seen"}
+               for g in range(9)]
+        return Turn(content=json.dumps({"object_operations": ops}), usage={"prompt_tokens": 900, "completion_tokens": 200})
+    return Turn(content=json.dumps(_minimal(schema, schema.get("$defs", {}))), usage=USAGE)

@@ -177,6 +177,17 @@ class ScriptedServer:
                     "inflight_mean": round(self._inflight_area / self._busy_s, 3) if self._busy_s else 0.0,
                     "busy_s": round(self._busy_s, 3)}
 
+    def reset_stats(self) -> dict[str, Any]:
+        """The stats so far, then start counting afresh (requests in flight stay counted)."""
+        out = self.stats()
+        with self._lock:
+            self.requests.clear()
+            self.headers.clear()
+            self.arrivals.clear()
+            self._inflight_max = self._inflight
+            self._inflight_area = self._busy_s = 0.0
+        return out
+
     def _track(self, delta: int) -> None:
         with self._lock:
             now = time.monotonic()
@@ -256,6 +267,8 @@ class _Handler(BaseHTTPRequestHandler):
     def do_GET(self):
         if self.path.rstrip("/") == "/v1/_stats":
             self._send(200, self.scripted.stats())
+        elif self.path.rstrip("/") == "/v1/_stats/reset":
+            self._send(200, self.scripted.reset_stats())
         elif self.path.rstrip("/") == "/v1/models":
             data = [{"id": m, "object": "model", "owned_by": "scripted"} for m in self.scripted.models]
             self._send(200, {"object": "list", "data": data})
