@@ -122,7 +122,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
         return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts,
-                                                                        **({"concurrency": concurrency} if concurrency else {})})
+                                                                        "concurrency": concurrency or 8})
     if concurrency is not None:
         raise click.UsageError("--concurrency applies to --video builds (annotation builds use --jobs)")
     given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]

@@ -55,9 +55,14 @@ def server_stats(base_url: str, *, reset: bool = False) -> dict:
         return json.loads(response.read())
 
 
-def _overhead_ms(records) -> tuple[float, float]:
+def _overhead_ms(records) -> tuple[float, float, float]:
+    """Per call: wall (client latency minus the server's time: ours plus waiting for a core or
+    the GIL) mean and median, and the CPU the call took on its thread (ours alone), median."""
     own = [1000 * (r.latency_s - r.server_s) for r in records if r.server_s is not None]
-    return (statistics.fmean(own), statistics.median(own)) if own else (float("nan"), float("nan"))
+    cpu = [1000 * r.cpu_s for r in records if r.cpu_s is not None]
+    nan = float("nan")
+    return (statistics.fmean(own) if own else nan, statistics.median(own) if own else nan,
+            statistics.median(cpu) if cpu else nan)
 
 
 def bench_rows(bank: Path, base_url: str, conditions: str, limit: int | None, levels: list[int], tmp: Path,
@@ -76,11 +81,12 @@ def bench_rows(bank: Path, base_url: str, conditions: str, limit: int | None, le
         wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
         stats = server_stats(base_url)
         calls = CallLog.read_jsonl(out / "model_calls.jsonl")
-        mean_ms, median_ms = _overhead_ms(calls)
+        mean_ms, median_ms, cpu_call_ms = _overhead_ms(calls)
         rows.append({"concurrency": c, "items": summary.done, "failed": summary.failed, "calls": len(calls),
                      "wall_s": wall, "items_s": summary.items_seconds, "inflight_mean": stats["inflight_mean"],
                      "inflight_max": stats["inflight_max"], "overhead_ms_mean": mean_ms,
-                     "overhead_ms_median": median_ms, "cpu_ms_per_call": 1000 * cpu / max(len(calls), 1),
+                     "overhead_ms_median": median_ms, "call_cpu_ms": cpu_call_ms,
+                     "cpu_ms_per_call": 1000 * cpu / max(len(calls), 1),
                      "records": out})
     return rows
 
@@ -150,11 +156,16 @@ def perf_model(bank, conditions, participants, limit, concurrency, latency, jitt
         click.echo(f"\nmemora bench run, {conditions}, {', '.join(pids)}, --limit {limit}: "
                    f"{base['items']} items ({base['failed']} failed)")
         click.echo(f"{'concurrency':>11} {'wall s':>8} {'items s':>8} {'calls':>6} {'in flight mean/max':>19} "
-                   f"{'speedup':>8} {'own ms/call mean/median':>24} {'CPU ms/call':>11}")
+                   f"{'speedup':>8} {'items speedup':>13} {'wall-minus-server ms mean/median':>32} "
+                   f"{'call CPU ms':>11} {'process CPU ms/call':>19}")
         for r in rows:
             click.echo(f"{r['concurrency']:>11} {r['wall_s']:>8.1f} {r['items_s']:>8.1f} {r['calls']:>6} "
                        f"{r['inflight_mean']:>12.1f} / {r['inflight_max']:<4} {base['wall_s'] / r['wall_s']:>7.1f}x "
-                       f"{r['overhead_ms_mean']:>15.2f} / {r['overhead_ms_median']:<6.2f} {r['cpu_ms_per_call']:>11.1f}")
+                       f"{base['items_s'] / r['items_s']:>12.1f}x {r['overhead_ms_mean']:>23.2f} / "
+                       f"{r['overhead_ms_median']:<6.2f} {r['call_cpu_ms']:>11.2f} {r['cpu_ms_per_call']:>19.1f}")
+        click.echo("call CPU ms: the median CPU one model call takes on its own thread (request, client, parsing, "
+                   "validation, log): our overhead, excluding the server; wall-minus-server adds waiting for a core "
+                   "and the GIL; process CPU includes the memory tools and the run's setup")
         same = _same_records(rows[0]["records"], rows[-1]["records"])
         click.echo(f"records identical to --concurrency 1 (timings aside): {same}")
         if video_seconds:

@@ -570,7 +570,7 @@ def build_from_video(
     fts: bool = False,
     consolidation: str | None = None,
     consolidation_model: str | None = None,
-    concurrency: int = 8,
+    concurrency: int = 1,
 ) -> VideoBuild:
     """Build (or resume) one participant's memory from a video file or a directory of videos:
     10 s clips -> VLM perception -> LLM entity editor -> the participant's graph.

@@ -773,7 +773,7 @@ def make_llm_processors(
     enrichment_backend: Backend | None = None,
     limits: PromptLimits | None = None,
     on_step: Callable[[str, str], None] | None = None,
-    concurrency: int = 8,
+    concurrency: int = 1,
     **backend_options: Any,
 ) -> Processors:
     """The "llm" processors. `backend` is a backend instance or a registered backend name built

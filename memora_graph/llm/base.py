@@ -118,7 +118,9 @@ class Backend:
         turn on failure, then ModelReplyError). Every call is logged, failed ones included.
         Safe to call from many threads at once."""
         self.require(role)
+        cpu0 = time.thread_time()
         record, started, stats = self._start(messages, role, tags)
+        stats.cpu0 = cpu0
         plan = self._plan(messages, role, tools, tool_choice, response_model, stats)
         try:
             request = next(plan)
@@ -212,6 +214,7 @@ class Backend:
             latency_s=round(latency, 6), retries=stats.retries,
             repairs=max(len(stats.completions) - 1, 0), ok=ok, error=clip(error, 500) if error else None,
             server_s=round(stats.server_s, 6) if stats.server_s is not None else None,
+            cpu_s=round(time.thread_time() - stats.cpu0, 6) if stats.cpu0 is not None else None,
         ))
         return latency
 
@@ -244,6 +247,7 @@ class _CallStats:
     retries: int = 0
     completions: list[_Completion] = field(default_factory=list)
     server_s: float | None = None  # time the server says it spent (an X-Server-Time header), summed
+    cpu0: float | None = None  # time.thread_time() when a sync call started
 
 
 Completion = _Completion

@@ -39,6 +39,7 @@ class CallRecord(BaseModel):
     started_at: str
     tags: dict[str, str] = Field(default_factory=dict)  # caller context, e.g. {"segment": ...}
     server_s: float | None = None  # time the server reported spending (X-Server-Time), when it does
+    cpu_s: float | None = None  # CPU time this call took on its own thread (sync calls): our overhead
 
 
 class CallLog:
