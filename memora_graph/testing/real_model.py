@@ -38,8 +38,8 @@ and what the client is given: `structured_output=json_object` (this server answe
 into a grammar instead; without one the model echoes the prompt and never writes JSON),
 `max_retries=0` with a long `timeout_s` (the server has one slot and does not stop a request
 whose client went away, so a retry after a timeout queues behind its own abandoned twin),
-`--concurrency 1` (one slot; by default the server also interrupts a running request when a new
-one arrives), and `max_tokens` bounded so that one call takes seconds.
+`--concurrency 1` (one slot: concurrent requests wait their turn, so 32 in flight would only
+queue there and run into timeout_s), and `max_tokens` bounded so that one call takes seconds.
 """
 
 from __future__ import annotations
