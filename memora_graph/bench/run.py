@@ -249,6 +249,7 @@ def run_bench(
     `concurrency` is the number of agent loops in flight for model backends (default 32); records
     do not depend on it either (content and order, timings aside)."""
     t_start = time.perf_counter()
+    concurrency = resolve_concurrency(concurrency, backend)  # a bad value fails before anything is written
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     bank = Path(bank)
@@ -268,7 +269,6 @@ def run_bench(
     banks = BankSet(edited=bank, raw=Path(raw_bank) if raw_bank else None,
                     episodic=Path(episodic_bank) if episodic_bank else None)
     workers = resolve_workers(workers, backend, len(conds))
-    concurrency = resolve_concurrency(concurrency, backend)
     # under parallel offline workers each process loads its own reader; the parent needs none
     policy = None if workers > 1 and backend == "offline" else make_policy(backend, backend_options or {}, out)
     _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit,

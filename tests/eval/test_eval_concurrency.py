@@ -86,3 +86,23 @@ def test_concurrent_resume_runs_only_what_is_missing_or_failed(small_bank, tiny_
     assert (again.done, again.skipped, again.failed) == (1, 8, 1)
     records = load_run(out)["eam_qa"]["no_memory"]
     assert len(records) == 9
+
+
+def test_cli_concurrency_option(small_bank, tiny_tasks, tmp_path):
+    from click.testing import CliRunner
+
+    from memora_graph.cli import main
+
+    bank, _ = small_bank
+    runner = CliRunner()
+    with ScriptedServer(responder=agent, latency_s=0.05) as server:
+        args = ["bench", "run", str(bank), "--out", str(tmp_path / "run"), "--conditions", "no_memory",
+                "--participants", "P37", "--tasks", str(tiny_tasks), "--backend", "openai", "--base-url",
+                server.base_url, "--model", "m", "--quiet"]
+        bad = runner.invoke(main, [*args, "--concurrency", "0"])
+        assert bad.exit_code != 0 and "--concurrency must be at least 1" in bad.output
+        assert not (tmp_path / "run").exists()  # refused before anything was written
+        ok = runner.invoke(main, [*args, "--concurrency", "4"])
+        assert ok.exit_code == 0, ok.output
+    manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
+    assert manifest["concurrency"] == 4 and "4 items run (0 failed)" in ok.output
