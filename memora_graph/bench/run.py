@@ -567,30 +567,37 @@ def _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summa
         with ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="bench-item") as pool:
             pending: dict[Any, int] = {}
             i = 0
-            while i < len(jobs) or pending:
-                while i < len(jobs) and len(pending) < 2 * concurrency:  # a bounded queue ahead of the pool
-                    pid, cond, kind, item, _, skip = jobs[i]
-                    if skip:
-                        results[i] = None
-                    else:
-                        pending[pool.submit(_run_item, policy, _LockedCondition(cond, shared), shared, kind, item,
-                                            memories[pid], pid)] = i
-                    i += 1
-                write_ready()
-                if not pending:
-                    continue
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    j = pending.pop(fut)
-                    results[j] = fut.result()  # _run_item records failures; anything else is a bug
-                    pid = jobs[j][0]
-                    left[pid] -= 1
-                    if left[pid] == 0:
-                        shared.release(pid)
-                write_ready()
+            try:
+                while i < len(jobs) or pending:
+                    while i < len(jobs) and len(pending) < 2 * concurrency:  # a bounded queue ahead of the pool
+                        pid, cond, kind, item, _, skip = jobs[i]
+                        if skip:
+                            results[i] = None
+                        else:
+                            pending[pool.submit(_run_item, policy, _LockedCondition(cond, shared), shared, kind, item,
+                                                memories[pid], pid)] = i
+                        i += 1
+                    write_ready()
+                    if not pending:
+                        continue
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        j = pending.pop(fut)
+                        results[j] = fut.result()  # _run_item records failures; anything else is a bug
+                        pid = jobs[j][0]
+                        left[pid] -= 1
+                        if left[pid] == 0:
+                            shared.release(pid)
+                    write_ready()
+            except BaseException:  # Ctrl-C or a bug: items not started are dropped; written records stay
+                for fut in pending:
+                    fut.cancel()
+                raise
     finally:
         for fh in files.values():
             fh.close()
+        for pid in left:
+            shared.release(pid)
 
 
 def _now() -> str:
