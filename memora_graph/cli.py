@@ -72,6 +72,8 @@ PERF_COMMANDS = {
     "encoders": ("memora_graph.retrieve.perf_encoders:perf_encoders_cmd",
                  "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
+    "model": ("memora_graph.perf_model:perf_model",
+              "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
     "startup": ("memora_graph.perf_startup:perf_startup_cmd",
                 "How fast one-shot commands start: `memora --help` and a one-shot `memora tool` as new processes "
                 "(median wall and CPU seconds of several runs)."),
@@ -137,10 +139,13 @@ def main():
 @click.option("--rebuild", "rebuild", metavar="VIDEO", multiple=True,
               help="Rebuild the participant that owns this video (or a participant id) from scratch, e.g. after "
                    "its annotations changed (memory formation is sequential). Repeatable or comma-separated.")
+@click.option("--concurrency", type=click.IntRange(min=1), default=None,
+              help="With --video: videos perceived at once (each video's clips in order; the editor takes the "
+                   "videos one after another) and consolidation calls in flight (default 8; 1: one call at a time).")
 @quiet_option
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
-          rebuild, quiet):
+          rebuild, concurrency, quiet):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -171,7 +176,10 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
                                    "and --jobs")
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
-        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts})
+        return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts,
+                                                                        "concurrency": concurrency or 8})
+    if concurrency is not None:
+        raise click.UsageError("--concurrency applies to --video builds (annotation builds use --jobs)")
     given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply with --video")

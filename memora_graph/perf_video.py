@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -103,7 +104,7 @@ def perf_decode(seconds, size, fps, video_path, repeat, fast):
 
 
 def _support_server():
-    """The scripted OpenAI-compatible server (memora_graph.testing): real HTTP, scripted words."""
+    """The scripted OpenAI-compatible server the tests use (memora_graph/testing/scripted_server.py)."""
     from memora_graph.testing.scripted_server import ScriptedServer, Turn
 
     return ScriptedServer, Turn
@@ -166,7 +167,7 @@ def perf_video(seconds, objects):
     with tempfile.TemporaryDirectory() as tmp, ScriptedServer(script) as server:
         video = make_synthetic_video(Path(tmp) / "kitchen.mp4", seconds, width=320, height=180, fps=10, preset="ultrafast")
         res = build_from_video(Path(tmp) / "bank", video, "P01", backend="openai", base_url=server.base_url,
-                               perception_model="scripted-vlm", backend_options={"backoff_s": 0})
+                               perception_model="scripted-vlm", backend_options={"max_retries": 0})
     segs = max(res.segments, 1)
     t = res.timings
     graph = res.graph_seconds

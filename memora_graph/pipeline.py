@@ -570,6 +570,7 @@ def build_from_video(
     fts: bool = False,
     consolidation: str | None = None,
     consolidation_model: str | None = None,
+    concurrency: int = 1,
 ) -> VideoBuild:
     """Build (or resume) one participant's memory from a video file or a directory of videos:
     10 s clips -> VLM perception -> LLM entity editor -> the participant's graph.
@@ -578,6 +579,8 @@ def build_from_video(
     perception. Consolidation and enrichment then run by model too (`consolidation="llm"`, the
     default here; the consolidation model defaults to the editor's) or by the deterministic rules. `audio=None` sends audio to audio-capable models only (by model name).
     `on_video(video_id, n_clips)` and `on_segment(video_id, turn, error_or_None)` report progress.
+    `concurrency`: videos perceived at once (each video's clips in order), and consolidation calls
+    in flight; 1 runs everything one call at a time.
     """
     import dataclasses
 
@@ -606,7 +609,7 @@ def build_from_video(
 
         processors = make_llm_processors(_model_backend(
             backend, editor_base_url or base_url, consolidation_model or editor_model or perception_model, CallLog(),
-            backend_options))
+            backend_options), concurrency=concurrency)
     opts = decode or DecodeOptions()
     opts = dataclasses.replace(opts, audio=opts.audio and perceiver.audio)
     infos = [probe_video(f, video_id) for f in files]
@@ -625,7 +628,8 @@ def build_from_video(
     new = participant not in bank.manifest()["participants"] and not bank.db_path(participant).exists()
     try:
         with bank.participant_lock(participant):
-            _build_videos(bank, participant, embedder, policy, log, perceiver, infos, opts, out, on_video, on_segment)
+            _build_videos(bank, participant, embedder, policy, log, perceiver, infos, opts, out, on_video, on_segment,
+                          concurrency)
         t0 = time.perf_counter()
         entry = bank.manifest().get("participants", {}).get(participant, {})
         if out.loaded or "inferred" not in entry or bank.writing_here(participant):  # a resume with nothing new: done
@@ -647,7 +651,7 @@ def build_from_video(
 
 
 def _build_videos(bank: Bank, participant: str, embedder, policy, log, perceiver, infos, opts, out: VideoBuild,
-                  on_video, on_segment) -> None:
+                  on_video, on_segment, concurrency: int = 1) -> None:
     """Perceive, edit and stage each video, then load them all. A video that fails (a decode
     error halfway through, a model server that goes away) removes what this run staged, so the
     database and staging are as they were; it is reported naming the file."""
@@ -656,22 +660,38 @@ def _build_videos(bank: Bank, participant: str, embedder, policy, log, perceiver
     from memora_graph.embed import torch_threads
 
     builder = ParticipantBuilder(bank, participant, embedder, policy=policy, call_log=log)
+    todo = [info for info in infos if info.video_id not in builder.done]
+
+    def perceive(info):
+        n_clips = info.n_segments(opts.segment_seconds)
+        if on_video:
+            on_video(info.video_id, n_clips)
+        perceived = []
+        for pc in perceiver.perceive(_timed(segment_video(info.path, opts, info=info), out)):
+            perceived.append(pc)
+            if on_segment:
+                on_segment(info.video_id, pc.clip.turn_id, pc.error)
+        return perceived
+
+    pool = None
     try:
         with torch_threads(1):  # small embedding batches: one torch thread is faster on 2 cores
+            if concurrency > 1 and len(todo) > 1:
+                # Perception of different videos is in flight together (each video's clips in order:
+                # the working summary chains them); the editor takes the videos one after another.
+                from concurrent.futures import ThreadPoolExecutor
+
+                pool = ThreadPoolExecutor(max_workers=min(concurrency, len(todo)), thread_name_prefix="perceive")
+                ahead = {info.video_id: pool.submit(perceive, info) for info in todo}
+            else:
+                ahead = {}
             for info in infos:
                 if info.video_id in builder.done:
                     out.videos.append({"video": info.video_id, "skipped": True})
                     continue
-                n_clips = info.n_segments(opts.segment_seconds)
-                if on_video:
-                    on_video(info.video_id, n_clips)
                 t_video = time.perf_counter()
                 decode_before = out.decode_seconds
-                perceived = []
-                for pc in perceiver.perceive(_timed(segment_video(info.path, opts, info=info), out)):
-                    perceived.append(pc)
-                    if on_segment:
-                        on_segment(info.video_id, pc.clip.turn_id, pc.error)
+                perceived = ahead[info.video_id].result() if ahead else perceive(info)
                 segments = [pc.segment for pc in perceived if pc.segment is not None]
                 timings, dropped = builder.build_segments(info.video_id, segments, info.duration, n_turns=len(perceived))
                 out.timings.add(timings)
@@ -690,9 +710,13 @@ def _build_videos(bank: Bank, participant: str, embedder, policy, log, perceiver
             out.decisions = builder.decisions()
             bank.record_participant(participant, sorted(builder.done), out.counts)
     except Exception:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
         builder.discard()
         raise
     finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
         builder.close()
 
 

@@ -13,6 +13,7 @@ Two tokenizers live here because two parts of the method define theirs:
 
 from __future__ import annotations
 
+import functools
 import re
 
 # -- MEMORA-Bench tokens (METHOD_NOTES 1.4) ---------------------------------------------------------
@@ -25,6 +26,7 @@ STOPWORDS = frozenset(
 _TOKEN = re.compile(r"\b[a-z][a-z\-]{2,}\b")
 
 
+@functools.lru_cache(maxsize=1 << 16)  # the planning metrics stem the same memory words for every item
 def stem(word: str) -> str:
     """Strip the first fitting suffix of ing/ied/ies/ed/es/s, then one letter of a final double."""
     for suffix in ("ing", "ied", "ies", "ed", "es", "s"):

@@ -24,7 +24,7 @@ class Where(BaseModel):
 
 
 def _backend(server, **options):
-    return get_backend("openai", base_url=server.base_url, model="smollm2-135m", backoff_s=0, timeout_s=5, **options)
+    return get_backend("openai", base_url=server.base_url, model="smollm2-135m", timeout_s=5, **options)
 
 
 # Its reply to {"response_format": {"type": "json_schema", ...}} (pydantic's validation error of the request).

@@ -18,6 +18,7 @@ from memora_graph.llm import (
     BackendOptionsError,
     CallLog,
     ModelReplyError,
+    ModelServerDownError,
     ModelServerError,
     ModelUnavailableError,
     UnknownBackendError,
@@ -44,7 +45,7 @@ class Answer(BaseModel):
 
 
 def openai_backend(server: ScriptedServer, **options):
-    options = {"model": "test-model", "backoff_s": 0, "timeout_s": 5, **options}
+    options = {"model": "test-model", "timeout_s": 5, **options}
     return get_backend("openai", base_url=server.base_url, **options)
 
 
@@ -96,7 +97,7 @@ def test_multimodal_content_parts_pass_through_unchanged():
 
 def test_model_defaults_to_the_first_model_the_server_lists():
     with ScriptedServer(["hi"], models=("Qwen/Qwen3-30B-A3B-Instruct-2507", "other")) as server:
-        backend = get_backend("openai", base_url=server.base_url, backoff_s=0)
+        backend = get_backend("openai", base_url=server.base_url)
         assert backend.model is None
         backend.chat(MESSAGES, role="editor")
     assert server.requests[0]["model"] == "Qwen/Qwen3-30B-A3B-Instruct-2507"
@@ -107,7 +108,7 @@ def test_api_key_comes_from_the_environment(monkeypatch):
     monkeypatch.setenv("OPENAI_API_KEY", "sk-test-123")
     with ScriptedServer(["ok"]) as server:
         openai_backend(server).chat(MESSAGES, role="answer")
-    assert server.headers[0]["Authorization"] == "Bearer sk-test-123"
+    assert {k.lower(): v for k, v in server.headers[0].items()}["authorization"] == "Bearer sk-test-123"
 
 
 def test_extra_body_reaches_the_server():
@@ -248,13 +249,15 @@ def test_connection_refused_names_the_url():
     with socket.socket() as sock:  # a port nobody listens on
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    backend = get_backend("openai", base_url=f"http://127.0.0.1:{port}/v1", model="m", backoff_s=0)
+    # No retries: the error comes at once. (The default, 3 client retries, waits about 3.5 s first:
+    # a server that is restarting gets that long to come back.)
+    backend = get_backend("openai", base_url=f"http://127.0.0.1:{port}/v1", model="m", max_retries=0)
     started = time.perf_counter()
-    with pytest.raises(ModelServerError) as info:
+    with pytest.raises(ModelServerDownError) as info:
         backend.chat(MESSAGES, role="answer")
     assert time.perf_counter() - started < 2
     assert f"http://127.0.0.1:{port}/v1/chat/completions" in str(info.value)
-    assert "connection refused" in str(info.value)
+    assert "connection refused" in str(info.value) and "Is the model server running?" in str(info.value)
     assert not backend.call_log.records[0].ok
 
 
@@ -425,8 +428,8 @@ def test_vllm_engine_is_loaded_once_and_kept_resident(monkeypatch):
     fake_params.StructuredOutputsParams = lambda **kwargs: kwargs
     monkeypatch.setitem(sys.modules, "vllm", fake)
     monkeypatch.setitem(sys.modules, "vllm.sampling_params", fake_params)
-    from memora_graph.llm import backends
-    monkeypatch.setattr(backends, "_ENGINES", {})
+    from memora_graph.llm import vllm_backend
+    monkeypatch.setattr(vllm_backend, "_ENGINES", {})
 
     first = get_backend("vllm", model="fake/model-resident")
     second = get_backend("vllm", model="fake/model-resident")

@@ -45,7 +45,7 @@ def test_reply_from_a_real_server_round_trip():
               Turn(content='Let me check.\n<tool_call>\n{"name": "get_object_history", '
                            '"arguments": {"object_query": "knife"}}\n</tool_call>')]
     with ScriptedServer(script) as server:
-        backend = get_backend("openai", base_url=server.base_url, model="m", backoff_s=0)
+        backend = get_backend("openai", base_url=server.base_url, model="m")
         first = backend.chat([{"role": "user", "content": "Where is the knife?"}], role="answer")
         second = backend.chat([{"role": "user", "content": "Where is the knife?"}], role="answer")
     assert calls(first.content, first.tool_calls) == [("search_objects", {"query": "knife"})]

@@ -131,9 +131,12 @@ def validate_cmd(directory: Path, participants: list[str] | None, as_json: bool)
 @click.option("--workers", type=int, default=None,
               help="Processes to run conditions in (default: 2 under offline on a 2+ core machine, 1 for model "
                    "backends). Results do not depend on it.")
+@click.option("--concurrency", type=int, default=None,
+              help="Agent loops in flight against the model server (model backends; default 32). Records are the "
+                   "same as with --concurrency 1, in the same order (timings aside).")
 @quiet_option
 def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
-            temperature, timeout_s, options, limit, workers, quiet):
+            temperature, timeout_s, options, limit, workers, concurrency, quiet):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
 
     \b
@@ -143,7 +146,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
       memora build banks/cal-episodic --episodic --participants P01,P02,P03,P04
       memora bench run banks/cal --raw-bank banks/cal-raw --episodic-bank banks/cal-episodic --out runs/offline
       memora bench run banks/cal --raw-bank banks/cal-raw --out runs/qwen --backend openai \\
-          --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
+          --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B --concurrency 64
       memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
     """
     from memora_graph.bench.run import run_bench
@@ -164,7 +167,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
             summary = run_bench(bank, out, conditions=conditions, participants=participants,
                                 tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
-                                on_item=on_item, on_plan=on_plan, workers=workers)
+                                on_item=on_item, on_plan=on_plan, workers=workers, concurrency=concurrency)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{summary.done} items run ({summary.failed} failed), {summary.skipped} already done; "

@@ -13,6 +13,11 @@ Layout of a run directory:
     results.parquet               one row per item (the latest record of each), written at the end
     model_calls.jsonl             one line per model call (model backends only)
 
+Model backends run `concurrency` agent loops at once (default 32; threads, each loop unchanged):
+records are written in the order a `--concurrency 1` run writes them, with the same content
+except timings. Memory tools run one at a time under a lock (Kùzu connections and the query
+encoder are shared); the model calls overlap.
+
 Resumable: an item with an `ok` record is not run again; a failed one is retried (the loader keeps
 the last record of each item). One failing item is recorded as failed and never stops the run.
 Under the offline backend the run is deterministic.
@@ -46,6 +51,7 @@ from memora_graph.stats import memory_formation
 RUN_FORMAT = 1
 KINDS = ("eam_qa", "replay", "generalize")
 DEFAULT_TEMPERATURE = 0.6
+DEFAULT_CONCURRENCY = 32  # agent loops in flight against a model server
 
 
 @dataclass
@@ -55,6 +61,7 @@ class RunSummary:
     skipped: int = 0
     failed: int = 0
     seconds: float = 0.0
+    items_seconds: float = 0.0  # running the items (after the run's setup: scoring memory, formation stats)
     per_condition_seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -234,11 +241,15 @@ def run_bench(
     on_item: Callable[[dict[str, Any]], None] | None = None,
     on_plan: Callable[[int], None] | None = None,
     workers: int | None = None,
+    concurrency: int | None = None,
 ) -> RunSummary:
     """Run every (condition, item) not yet recorded in `out`. `limit` caps items per participant
     and task kind (for smoke runs). `workers` > 1 runs the conditions in that many processes
-    (default: 2 under `offline` on a machine with 2+ cores, else 1); results do not depend on it."""
+    (default: 2 under `offline` on a machine with 2+ cores, else 1); results do not depend on it.
+    `concurrency` is the number of agent loops in flight for model backends (default 32); records
+    do not depend on it either (content and order, timings aside)."""
     t_start = time.perf_counter()
+    concurrency = resolve_concurrency(concurrency, backend)  # a bad value fails before anything is written
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     bank = Path(bank)
@@ -261,7 +272,7 @@ def run_bench(
     # under parallel offline workers each process loads its own reader; the parent needs none
     policy = None if workers > 1 and not is_model_policy(backend) else make_policy(backend, backend_options or {}, out)
     _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, backend_options or {}, policy, kinds, limit,
-                    workers)
+                    workers, concurrency)
     plan: list[tuple[str, str, Any]] = []
     for pid, entry in suite.participants.items():
         items = {"eam_qa": entry.eam_qa.questions if entry.eam_qa else [], "replay": entry.replay or [],
@@ -277,11 +288,16 @@ def run_bench(
         memories[pid] = scoring_memory(bank, pid)
         _write_json(out / "scoring_memory" / f"{pid}.json", memories[pid], indent=1)
         _write_json(out / "memory_formation" / f"{pid}.json", memory_formation(bank, pid))
+    t_items = time.perf_counter()
     if workers > 1:
         _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary, on_item)
+    elif concurrency > 1:
+        with _one_torch_thread():
+            _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summary, on_item, concurrency)
     else:
         with _one_torch_thread():
             _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item)
+    summary.items_seconds = time.perf_counter() - t_items
     write_results_table(out)
     summary.seconds = time.perf_counter() - t_start
     manifest = json.loads((out / "manifest.json").read_text())
@@ -321,6 +337,16 @@ def resolve_workers(workers: int | None, backend: str, n_conditions: int) -> int
     if workers < 1:
         raise MemoraError(f"--workers must be at least 1, got {workers}")
     return max(1, min(workers, n_conditions))
+
+
+def resolve_concurrency(concurrency: int | None, backend: str) -> int:
+    """Agent loops in flight: given, or 32 for model backends; the offline policy runs one at a
+    time per worker process (it is CPU-bound, so threads would only take turns)."""
+    if concurrency is None:
+        return 1 if backend == "offline" else DEFAULT_CONCURRENCY
+    if concurrency < 1:
+        raise MemoraError(f"--concurrency must be at least 1, got {concurrency}")
+    return 1 if backend == "offline" else concurrency
 
 
 def split_conditions(conds: list[Condition], workers: int) -> list[list[Condition]]:
@@ -416,12 +442,166 @@ def _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item
                 time.perf_counter() - t_cond)
 
 
+class _LockedTools:
+    """A condition's tool set whose calls run one at a time (shared Kùzu connections, encoder)."""
+
+    def __init__(self, toolset, lock):
+        self._toolset, self._lock = toolset, lock
+        self.participant = toolset.participant
+
+    def schemas(self):
+        return self._toolset.schemas()
+
+    def call(self, name, arguments):
+        with self._lock:
+            return self._toolset.call(name, arguments)
+
+    def prefetch(self, calls):
+        prefetch = getattr(self._toolset, "prefetch", None)
+        if prefetch is not None:
+            with self._lock:
+                prefetch(calls)
+
+
+class _SharedBanks:
+    """The run's BankSet for many threads: memories load once under a lock, stay open while any
+    item of their participant is still to run, and are closed when its last item is done."""
+
+    def __init__(self, banks: BankSet):
+        import threading
+
+        self._banks = banks
+        self._lock = threading.Lock()
+        self.tool_lock = threading.RLock()
+        self._memories: dict[tuple[str, str], Any] = {}
+
+    def path(self, kind: str) -> Path:
+        return self._banks.path(kind)
+
+    def memory(self, key: str, participant: str, loader: Callable[[], Any]) -> Any:
+        with self._lock:
+            k = (key, participant)
+            if k not in self._memories:
+                with self.tool_lock:
+                    self._memories[k] = loader()
+            return self._memories[k]
+
+    def release(self, participant: str) -> None:
+        with self._lock:
+            for k in [k for k in self._memories if k[1] == participant]:
+                closer = getattr(self._memories.pop(k), "close", None)
+                if closer:
+                    with self.tool_lock:
+                        closer()
+
+
+class _LockedCondition:
+    """A condition whose tools come from the shared banks, behind the tool lock."""
+
+    def __init__(self, condition: Condition, banks: _SharedBanks):
+        self._condition, self._banks = condition, banks
+
+    def __getattr__(self, name):
+        return getattr(self._condition, name)
+
+    def open_tools(self, banks, participant):
+        toolset = self._condition.open_tools(self._banks, participant)
+        return None if toolset is None else _LockedTools(toolset, self._banks.tool_lock)
+
+
+def _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summary, on_item, concurrency) -> None:
+    """`_run_plan` with `concurrency` items in flight: the same jobs in the same order, and
+    records written in that order as soon as every earlier one is written."""
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+
+    shared = _SharedBanks(banks)
+    jobs: list[tuple[str, Condition, str, Any, str, bool]] = []  # pid, condition, kind, item, item_id, skip
+    existing: dict[tuple[str, str], dict] = {}
+    for pid in dict.fromkeys(p for p, _, _ in plan):
+        for cond in conds:
+            for kind in kinds:
+                if (kind, cond.name) not in existing:
+                    existing[(kind, cond.name)] = read_records(record_path(out, kind, cond.name))
+                for p, k, item in plan:
+                    if p != pid or k != kind:
+                        continue
+                    item_id = item.question_id if kind == "eam_qa" else item.task_id
+                    skip = existing[(kind, cond.name)].get(item_id, {}).get("status") == "ok"
+                    jobs.append((pid, cond, kind, item, item_id, skip))
+    left = {}  # pid -> jobs not yet finished (its memories close at 0)
+    for pid, *_rest, skip in jobs:
+        left[pid] = left.get(pid, 0) + (not skip)
+    files: dict[Path, Any] = {}
+    results: dict[int, dict[str, Any] | None] = {}
+    next_write = 0
+
+    def write_ready() -> None:
+        nonlocal next_write
+        while next_write in results:
+            pid, cond, kind, _, item_id, skip = jobs[next_write]
+            rec = results.pop(next_write)
+            next_write += 1
+            if skip:
+                summary.skipped += 1
+                if on_item:
+                    on_item({"condition": cond.name, "item_id": item_id, "status": "skipped"})
+                continue
+            path = record_path(out, kind, cond.name)
+            if path not in files:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                files[path] = path.open("a", encoding="utf-8")
+            files[path].write(json.dumps(rec, ensure_ascii=False, default=str) + "\n")
+            files[path].flush()
+            summary.done += 1
+            summary.failed += rec["status"] != "ok"
+            summary.per_condition_seconds[cond.name] = summary.per_condition_seconds.get(cond.name, 0.0) + (
+                rec.get("time", {}).get("total_s", 0.0))
+            if on_item:
+                on_item(rec)
+
+    try:
+        with ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="bench-item") as pool:
+            pending: dict[Any, int] = {}
+            i = 0
+            try:
+                while i < len(jobs) or pending:
+                    while i < len(jobs) and len(pending) < 2 * concurrency:  # a bounded queue ahead of the pool
+                        pid, cond, kind, item, _, skip = jobs[i]
+                        if skip:
+                            results[i] = None
+                        else:
+                            pending[pool.submit(_run_item, policy, _LockedCondition(cond, shared), shared, kind, item,
+                                                memories[pid], pid)] = i
+                        i += 1
+                    write_ready()
+                    if not pending:
+                        continue
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        j = pending.pop(fut)
+                        results[j] = fut.result()  # _run_item records failures; anything else is a bug
+                        pid = jobs[j][0]
+                        left[pid] -= 1
+                        if left[pid] == 0:
+                            shared.release(pid)
+                    write_ready()
+            except BaseException:  # Ctrl-C or a bug: items not started are dropped; written records stay
+                for fut in pending:
+                    fut.cancel()
+                raise
+    finally:
+        for fh in files.values():
+            fh.close()
+        for pid in left:
+            shared.release(pid)
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, backend, options, policy, kinds, limit,
-                    workers=1) -> None:
+                    workers=1, concurrency=1) -> None:
     path = out / "manifest.json"
     old = json.loads(path.read_text()) if path.exists() else {}
     safe_options = {k: ("***" if "key" in k.lower() else v) for k, v in options.items()}
@@ -433,7 +613,7 @@ def _write_manifest(out, bank, raw_bank, episodic_bank, conds, suite, tasks, bac
         **old,
         "format": RUN_FORMAT, "code_version": _code_version(), "prompt_version": PROMPT_VERSION,
         "backend": backend, "model": (getattr(getattr(policy, "backend", None), "model", None) or policy.name) if policy else backend,
-        "workers": workers,
+        "workers": workers, "concurrency": concurrency,
         "options": safe_options, "seeds": {"offline_policy": "deterministic (no sampling)"},
         "temperature": None if not is_model_policy(backend) else options.get("temperature", DEFAULT_TEMPERATURE),
         "bank": str(bank), "raw_bank": str(raw_bank) if raw_bank else None,

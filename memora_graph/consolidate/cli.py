@@ -26,10 +26,12 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 @click.option("--enrichment-model", help="A different model for enrichment (default: --model).")
 @click.option("--api-key", help="With --backend openai: the API key (default: $OPENAI_API_KEY).")
 @backend_option_pairs
+@click.option("--concurrency", type=int, default=8, show_default=True,
+              help="With --processor llm: per-video model calls in flight at once (the bank does not depend on it).")
 @quiet_option
 @output_options
-def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options, quiet,
-                    fmt):
+def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options,
+                    concurrency, quiet, fmt):
     """Re-run offline consolidation and enrichment on an existing bank.
 
     Each participant's routines and preferences are replaced in one transaction (a failed or
@@ -68,8 +70,8 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     def on_step(participant: str, step: str) -> None:
         progress.update(task, description=f"{participant} {step}")
 
-    procs = get_processors(processor, options=_llm_options(given, backend_options(options), on_step)
-                           if processor == "llm" else None)
+    procs = get_processors(processor, options={**_llm_options(given, backend_options(options), on_step),
+                                               "concurrency": concurrency} if processor == "llm" else None)
     if processor == "llm":
         from memora_graph.consolidate.llm import check_servers
 
@@ -110,7 +112,7 @@ def _llm_options(given: dict, pairs: dict, on_step) -> dict:
     opts = {"backend": backend, "on_step": on_step, "model": given["model"],
             "enrichment_model": given["enrichment_model"]}
     opts.update({k: given[k] for k in ("base_url", "api_key") if given[k]})
-    clash = sorted(set(pairs) & {*opts, "call_log", "limits", "consolidation_model"})
+    clash = sorted(set(pairs) & {*opts, "call_log", "limits", "consolidation_model", "concurrency"})
     if clash:
         raise click.UsageError(f"-o {', '.join(clash)}: use the command's own option for it")
     opts.update(pairs)

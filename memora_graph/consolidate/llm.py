@@ -773,12 +773,16 @@ def make_llm_processors(
     enrichment_backend: Backend | None = None,
     limits: PromptLimits | None = None,
     on_step: Callable[[str, str], None] | None = None,
+    concurrency: int = 1,
     **backend_options: Any,
 ) -> Processors:
     """The "llm" processors. `backend` is a backend instance or a registered backend name built
     here with `backend_options` (base_url, api_key, timeout_s, ...); `consolidation_model` (or
     `model`) and `enrichment_model` (default: the same) pick the models. Every call goes to one
-    call log: `call_log`, or the given backend's."""
+    call log: `call_log`, or the given backend's. `concurrency`: per-video consolidation calls in
+    flight at once (the bank written does not depend on it)."""
+    if concurrency < 1:
+        raise MemoraError(f"--concurrency must be at least 1, got {concurrency}")
     if isinstance(backend, str):
         if backend == "offline":
             raise ModelUnavailableError(OFFLINE_MESSAGE)
@@ -806,7 +810,8 @@ def make_llm_processors(
         raise MemoraError("make_llm_processors: the enrichment backend must share the consolidation backend's call log")
     reports: list[StepReport] = []
     return Processors("llm", LLMConsolidator(cons, limits=limits, reports=reports, on_step=on_step),
-                      LLMEnricher(enr, limits=limits, reports=reports, on_step=on_step), call_log=log_, reports=reports)
+                      LLMEnricher(enr, limits=limits, reports=reports, on_step=on_step), call_log=log_, reports=reports,
+                      concurrency=concurrency)
 
 
 def check_servers(processors: Processors) -> list[str]:

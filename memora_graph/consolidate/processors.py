@@ -66,6 +66,7 @@ class Processors:
     enrichment: EnrichmentProcessor
     call_log: CallLog | None = None
     reports: list[StepReport] | None = None
+    concurrency: int = 1  # per-video consolidation calls in flight at once (model-backed processors)
 
 
 _REGISTRY: dict[str, Callable[..., Processors]] = {}

@@ -150,11 +150,33 @@ def _marks(processors: Processors) -> tuple[int, int]:
             len(processors.reports) if processors.reports is not None else 0)
 
 
+def _per_video(memory: ParticipantMemory, processors: Processors, call_mark: int, report_mark: int) -> list:
+    """Each video's consolidation; with `processors.concurrency` > 1 their model calls are in
+    flight together, and the calls and step reports they added are put back in video order (so
+    the ModelCall rows and the report do not depend on which reply came first)."""
+    videos = list(memory.videos)
+    if processors.concurrency <= 1 or len(videos) <= 1:
+        return [processors.consolidation.consolidate_video(memory, v) for v in videos]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=min(processors.concurrency, len(videos)),
+                            thread_name_prefix="consolidate") as pool:
+        per_video = list(pool.map(lambda v: processors.consolidation.consolidate_video(memory, v), videos))
+    order = {v: i for i, v in enumerate(videos)}
+    if processors.call_log is not None:
+        log = processors.call_log
+        log.records[call_mark:] = sorted(log.records[call_mark:], key=lambda r: order.get(r.tags.get("video"), len(order)))
+    if processors.reports is not None:
+        reps = processors.reports
+        reps[report_mark:] = sorted(reps[report_mark:], key=lambda r: order.get(r.step.removeprefix("video "), len(order)))
+    return per_video
+
+
 def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processors) -> InferredKnowledge:
     """Run both processors over a loaded slice and collect validated rows (no I/O)."""
     call_mark, report_mark = _marks(processors)
     t0 = time.perf_counter()
-    per_video = [processors.consolidation.consolidate_video(memory, v) for v in memory.videos]
+    per_video = _per_video(memory, processors, call_mark, report_mark)
     consolidation = processors.consolidation.consolidate_participant(memory, per_video)
     t1 = time.perf_counter()
     enrichment = processors.enrichment.enrich(memory, consolidation)

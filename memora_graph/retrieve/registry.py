@@ -15,7 +15,9 @@ commands. Adding a tool is one function plus its `@tool(...)` line:
 
 from __future__ import annotations
 
+import functools
 import importlib
+import json
 import typing
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -29,6 +31,16 @@ from memora_graph.retrieve.results import ToolErrorResult, ToolResult
 from memora_graph.retrieve.view import ToolError
 
 MEMORA = "memora"
+
+
+@functools.lru_cache(maxsize=None)
+def _schema_json(spec: "ToolSpec") -> str:
+    params = spec.args.model_json_schema()
+    props = {k: {kk: vv for kk, vv in v.items() if kk != "title"} for k, v in params.get("properties", {}).items()}
+    return json.dumps({"type": "function", "function": {
+        "name": spec.name, "description": spec.description,
+        "parameters": {"type": "object", "properties": props, "required": params.get("required", [])},
+    }})
 
 
 @dataclass(frozen=True)
@@ -63,12 +75,8 @@ class ToolSpec:
         return frozenset(names | {a for a, n in self.aliases.items() if n in names})
 
     def schema(self) -> dict:
-        params = self.args.model_json_schema()
-        props = {k: {kk: vv for kk, vv in v.items() if kk != "title"} for k, v in params.get("properties", {}).items()}
-        return {"type": "function", "function": {
-            "name": self.name, "description": self.description,
-            "parameters": {"type": "object", "properties": props, "required": params.get("required", [])},
-        }}
+        # pydantic builds a JSON schema in ~4 ms; every agent episode asks for all of them: once per spec.
+        return json.loads(_schema_json(self))
 
     def validate(self, arguments: dict | None) -> dict:
         try:

@@ -37,8 +37,9 @@ and what the client is given: `structured_output=json_object` (this server answe
 `json_schema` response format with HTTP 500 and turns `{"type": "json_object", "schema": ...}`
 into a grammar instead; without one the model echoes the prompt and never writes JSON),
 `max_retries=0` with a long `timeout_s` (the server has one slot and does not stop a request
-whose client went away, so a retry after a timeout queues behind its own abandoned twin), and
-`max_tokens` bounded so that one call takes seconds.
+whose client went away, so a retry after a timeout queues behind its own abandoned twin),
+`--concurrency 1` (one slot: concurrent requests wait their turn, so 32 in flight would only
+queue there and run into timeout_s), and `max_tokens` bounded so that one call takes seconds.
 """
 
 from __future__ import annotations
@@ -355,12 +356,12 @@ def run_check(
         bench = _run(Step("bench run", memora_command(
             "bench", "run", str(bank), "--out", str(run), "--conditions", ",".join(conditions),
             "--participants", ",".join(bench_participants), "--limit", str(limit), *common, *client_opts,
-            "-o", "max_tokens", str(client.answer_max_tokens), "--quiet")), step_timeout_s, log)
+            "-o", "max_tokens", str(client.answer_max_tokens), "--concurrency", "1", "--quiet")), step_timeout_s, log)
         steps.append(bench)
         consolidate = _run(Step("consolidate --processor llm", memora_command(
             "consolidate", str(bank), "--participants", consolidate_participant, "--processor", "llm", *common,
             *client_opts, "-o", "max_tokens", str(client.structured_max_tokens),
-            "-o", "structured_output", "json_object", "--quiet")), step_timeout_s, log)
+            "-o", "structured_output", "json_object", "--concurrency", "1", "--quiet")), step_timeout_s, log)
         steps.append(consolidate)
     log("server stopped")
     if bench.returncode != 0:

@@ -1,5 +1,8 @@
 """A real OpenAI-compatible HTTP server on 127.0.0.1 whose model turns are scripted.
 
+Used by the tests (tests/support re-exports it) and by `memora perf model`, which runs it in a
+subprocess (`python -m memora_graph.testing.scripted_server --responder agent --latency 0.5`).
+
 Only the model's words are scripted; the protocol is real (HTTP, JSON bodies, status codes,
 delays), so the `openai` backend is tested exactly as it talks to vLLM serve or llama.cpp.
 
@@ -13,12 +16,17 @@ delays), so the `openai` backend is tested exactly as it talks to vLLM serve or 
             "plain text reply",                                             # str = Turn(content=...)
         ]
         with ScriptedServer(script) as server:
-            backend = get_backend("openai", base_url=server.base_url, model="m", backoff_s=0)
+            backend = get_backend("openai", base_url=server.base_url, model="m", max_retries=0)
             ...
             assert server.requests[0]["messages"][0]["content"] == "..."
 
 Endpoints: POST /v1/chat/completions answers the next scripted turn (one turn per request,
-in order); GET /v1/models lists `models`. Every request is recorded (`server.requests`: the
+in order), or, with `responder=`, the turn `responder(request_body)` returns (a pure function of
+the request, so many requests can be in flight in any order); GET /v1/models lists `models`;
+GET /v1/_stats reports requests served and requests in flight (time-weighted mean, max).
+`latency_s` (+- `jitter` as a fraction) delays every reply like a model would, and
+`max_concurrency` makes requests beyond it queue, like a server's batch slots. Every reply
+carries X-Server-Time: the seconds the server held the request. Every request is recorded (`server.requests`: the
 chat request bodies; `server.headers`: their headers). When the script runs out the server
 answers HTTP 410 with a message saying so, and leaving the `with` block raises
 AssertionError (unless `strict=False`), so a test cannot pass by accident.
@@ -28,11 +36,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import random
 import threading
 import time
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
+from typing import Any, Callable
 
 __all__ = ["ScriptedServer", "Turn", "tool_call"]
 
@@ -76,8 +85,21 @@ class ScriptedServer:
     """Context manager: starts on a free port of 127.0.0.1 in a background thread."""
 
     def __init__(self, turns: list[Turn | str] | None = None, *, models: tuple[str, ...] = ("scripted-model",),
-                 strict: bool = True):
+                 strict: bool = True, responder: Callable[[dict[str, Any]], Turn | str] | None = None,
+                 latency_s: float = 0.0, jitter: float = 0.0, max_concurrency: int | None = None,
+                 seed: int = 0):
         self._turns: list[Turn] = []
+        self.responder = responder
+        self.latency_s = latency_s
+        self.jitter = jitter
+        self._random = random.Random(seed)
+        self._slots = threading.BoundedSemaphore(max_concurrency) if max_concurrency else None
+        self.arrivals: list[float] = []  # time.monotonic() of each chat request's arrival
+        self._inflight = 0
+        self._inflight_max = 0
+        self._inflight_area = 0.0  # integral of requests-in-flight over time while any is in flight
+        self._busy_s = 0.0
+        self._last_change: float | None = None
         self.models = list(models)
         self.strict = strict
         self.requests: list[dict[str, Any]] = []  # chat-completion request bodies, in arrival order
@@ -123,7 +145,7 @@ class ScriptedServer:
         class Handler(_Handler):
             scripted = server
 
-        self._httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self._httpd = _Server(("127.0.0.1", 0), Handler)
         self._httpd.daemon_threads = True
         self._port = self._httpd.server_address[1]
         self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.02},
@@ -148,8 +170,51 @@ class ScriptedServer:
 
     # -- used by the handler ------------------------------------------------------------------
 
-    def _next_turn(self, body: dict[str, Any], headers: dict[str, str]) -> Turn | None:
+    def stats(self) -> dict[str, Any]:
+        """Requests served and requests in flight (mean over the time any was in flight, max)."""
         with self._lock:
+            return {"requests": len(self.requests), "inflight_max": self._inflight_max,
+                    "inflight_mean": round(self._inflight_area / self._busy_s, 3) if self._busy_s else 0.0,
+                    "busy_s": round(self._busy_s, 3)}
+
+    def reset_stats(self) -> dict[str, Any]:
+        """The stats so far, then start counting afresh (requests in flight stay counted)."""
+        out = self.stats()
+        with self._lock:
+            self.requests.clear()
+            self.headers.clear()
+            self.arrivals.clear()
+            self._inflight_max = self._inflight
+            self._inflight_area = self._busy_s = 0.0
+        return out
+
+    def _track(self, delta: int) -> None:
+        with self._lock:
+            now = time.monotonic()
+            if self._last_change is not None and self._inflight:
+                self._inflight_area += self._inflight * (now - self._last_change)
+                self._busy_s += now - self._last_change
+            self._last_change = now
+            self._inflight += delta
+            self._inflight_max = max(self._inflight_max, self._inflight)
+
+    def _delay(self) -> float:
+        if not self.latency_s:
+            return 0.0
+        with self._lock:
+            return max(0.0, self.latency_s * (1 + self.jitter * (2 * self._random.random() - 1)))
+
+    def _next_turn(self, body: dict[str, Any], headers: dict[str, str]) -> Turn | None:
+        if self.responder is not None:
+            turn = self.responder(body)
+            with self._lock:
+                self.arrivals.append(time.monotonic())
+                self.requests.append(body)
+                self.headers.append(headers)
+                self.served += 1
+            return Turn(content=turn) if isinstance(turn, str) else turn
+        with self._lock:
+            self.arrivals.append(time.monotonic())
             self.requests.append(body)
             self.headers.append(headers)
             if not self._turns:
@@ -169,6 +234,11 @@ def _last_message(body: dict[str, Any]) -> str:
         return ""
     text = content if isinstance(content, str) else json.dumps(content)
     return text[:120]
+
+
+class _Server(ThreadingHTTPServer):
+    request_queue_size = 256  # many clients connect at once (the default backlog of 5 stalls them)
+    daemon_threads = True
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -195,7 +265,11 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(status, {"error": {"message": message, "type": "scripted_error", "code": status}}, headers)
 
     def do_GET(self):
-        if self.path.rstrip("/") == "/v1/models":
+        if self.path.rstrip("/") == "/v1/_stats":
+            self._send(200, self.scripted.stats())
+        elif self.path.rstrip("/") == "/v1/_stats/reset":
+            self._send(200, self.scripted.reset_stats())
+        elif self.path.rstrip("/") == "/v1/models":
             data = [{"id": m, "object": "model", "owned_by": "scripted"} for m in self.scripted.models]
             self._send(200, {"object": "list", "data": data})
         else:
@@ -218,12 +292,28 @@ class _Handler(BaseHTTPRequestHandler):
             self.scripted.failures.append(f"malformed request: {problem}")
             self._error(400, problem)
             return
+        scripted = self.scripted
+        if scripted._slots is not None:
+            scripted._slots.acquire()
+        started = time.perf_counter()
+        scripted._track(+1)
+        try:
+            self._answer(body, started)
+        finally:
+            scripted._track(-1)
+            if scripted._slots is not None:
+                scripted._slots.release()
+
+    def _answer(self, body: dict[str, Any], started: float) -> None:
         turn = self.scripted._next_turn(body, dict(self.headers.items()))
         if turn is None:
             self._error(410, "scripted server: the script ran out of model turns")
             return
-        if turn.delay_s:
-            time.sleep(turn.delay_s)
+        delay = turn.delay_s or self.scripted._delay()
+        if delay:
+            time.sleep(delay)
+        turn = Turn(**{**turn.__dict__, "headers": {
+            **turn.headers, "X-Server-Time": f"{time.perf_counter() - started:.6f}"}})
         if turn.status != 200:
             self._error(turn.status, turn.error or f"scripted HTTP {turn.status}", turn.headers)
             return
@@ -266,3 +356,33 @@ def _check_request(body: Any) -> str | None:
     if body.get("stream"):
         return "the scripted server does not stream; send stream=false"
     return None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Serve on 127.0.0.1 until killed; prints `PORT <n>` once listening (for `memora perf model`)."""
+    import argparse
+    import importlib
+    import sys
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--responder", default="memora_graph.testing.responders:agent",
+                        help="module:function that turns a request body into a Turn")
+    parser.add_argument("--latency", type=float, default=0.5)
+    parser.add_argument("--jitter", type=float, default=0.2)
+    parser.add_argument("--max-concurrency", type=int, default=64)
+    parser.add_argument("--model", default="scripted-model")
+    args = parser.parse_args(argv)
+    module, _, func = args.responder.partition(":")
+    responder = getattr(importlib.import_module(module), func)
+    server = ScriptedServer(responder=responder, latency_s=args.latency, jitter=args.jitter,
+                            max_concurrency=args.max_concurrency, models=(args.model,), strict=False)
+    server.start()
+    print(f"PORT {server._port}", flush=True)
+    try:
+        sys.stdin.read()  # until the parent closes our stdin (or kills us)
+    finally:
+        server.stop()
+
+
+if __name__ == "__main__":
+    main()

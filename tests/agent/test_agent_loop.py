@@ -39,7 +39,7 @@ def _tools(participant="P09"):
 
 
 def _policy(server, **options):
-    return ModelPolicy(get_backend("openai", base_url=server.base_url, model="m", backoff_s=0, **options))
+    return ModelPolicy(get_backend("openai", base_url=server.base_url, model="m", **options))
 
 
 def test_native_tool_calls_then_answer():
@@ -122,8 +122,8 @@ def test_premature_reply_gets_one_retry():
 def test_timeout_then_retry_and_default_temperature(tmp_path):
     toolset, _ = _tools()
     with ScriptedServer([Turn(content="Answer: A", delay_s=1.0), "Answer: B"], strict=False) as server:
-        policy = make_policy("openai", {"base_url": server.base_url, "model": "m", "timeout_s": 0.3,
-                                        "backoff_s": 0}, tmp_path)
+        policy = make_policy("openai", {"base_url": server.base_url, "model": "m", "timeout_s": 0.3},
+                       tmp_path)
         res = run_agent(policy, toolset, "eam_qa", QUESTION, "flat1d")
         temperature = server.requests[-1]["temperature"]
     assert res.final_text == "Answer: B" and temperature == 0.6

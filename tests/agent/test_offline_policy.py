@@ -130,7 +130,7 @@ def test_a_responses_queries_are_embedded_in_one_batch_before_its_calls(small_ba
                 "choices": ["a", "b", "c", "d", "The information is not available based on the given context"]}
     try:
         with ScriptedServer(script) as server:
-            policy = ModelPolicy(get_backend("openai", base_url=server.base_url, model="m", backoff_s=0))
+            policy = ModelPolicy(get_backend("openai", base_url=server.base_url, model="m"))
             res = run_agent(policy, toolset, "eam_qa", question, "memora")
         encoder = view.encoder
         assert len(res.tool_calls) == 3 and all(c["error"] is None for c in res.tool_calls)

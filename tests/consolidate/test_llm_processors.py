@@ -106,7 +106,7 @@ def turns(*contents):
 
 def processors(server, **options):
     return get_processors("llm", options={"backend": "openai", "base_url": server.base_url, "model": MODEL,
-                                          "backoff_s": 0, "timeout_s": 10, **options})
+                                          "timeout_s": 10, **options})
 
 
 def user_prompt(request: dict) -> str:
@@ -330,7 +330,8 @@ def test_cli_consolidate_end_to_end_with_stats_and_errors(bank, small_bank):
     deterministic = Bank(small_bank[0]).manifest()["participants"][P]["counts"]
     with ScriptedServer(turns(*SCRIPT), models=(MODEL, "other")) as server:
         result = runner.invoke(main, ["consolidate", path, "--participants", P, "--processor", "llm", "--backend",
-                                      "openai", "--base-url", server.base_url, "--model", MODEL, "--quiet", "--json"])
+                                      "openai", "--base-url", server.base_url, "--model", MODEL, "--quiet", "--json",
+                                      "--concurrency", "1"])  # the script answers in order
     assert result.exit_code == 0, result.output
     assert server.pending == 0
     row = json.loads(result.output)[0]
@@ -394,7 +395,7 @@ def test_cli_consolidate_passes_backend_options(bank):
     with ScriptedServer(turns(*SCRIPT), models=(MODEL,)) as server:
         result = runner.invoke(main, ["consolidate", path, "--participants", P, "--processor", "llm", "--base-url",
                                       server.base_url, "-o", "structured_output", "json_object", "-o", "max_tokens",
-                                      "512", "--quiet"])
+                                      "512", "--concurrency", "1", "--quiet"])
     assert result.exit_code == 0, result.output
     assert len(server.requests) == len(SCRIPT)
     for request in server.requests:
@@ -408,3 +409,35 @@ def test_cli_consolidate_passes_backend_options(bank):
         unknown = runner.invoke(main, ["consolidate", path, "--processor", "llm", "--base-url", server.base_url,
                                        "-o", "max_tokenz", "5", "--quiet"])
     assert unknown.exit_code == 1 and "'max_tokenz': unknown option" in unknown.output
+
+
+def test_per_video_calls_in_flight_together_write_what_one_at_a_time_writes(small_bank, tmp_path, embedder):
+    """concurrency=4: the four per-video calls are at the server together; the records, their
+    evidence and the ModelCall rows (in order) are those of a one-at-a-time run."""
+    def respond(body):
+        prompt = user_prompt(body)
+        name = body["response_format"]["json_schema"]["name"]
+        if name == "ConsolidationReply":
+            for video, reply in (("P09_103", V103), ("P09_104", V104)):
+                if f"completed video {video}" in prompt:
+                    return Turn(content=reply, usage=USAGE, delay_s=0.5 if video == "P09_103" else 0.2)
+            across = "F1" in prompt and "completed video" not in prompt
+            return Turn(content=ACROSS if across else EMPTY, usage=USAGE, delay_s=0 if across else 0.2)
+        return Turn(content=SKILLS if name == "SkillsReply" else PREFS, usage=USAGE)
+
+    results = {}
+    for c in (1, 4):
+        src, _ = small_bank
+        copy = tmp_path / f"bank{c}"
+        shutil.copytree(src, copy, ignore=shutil.ignore_patterns(".staging"))
+        with ScriptedServer(responder=respond) as server:
+            finish_participant(Bank(copy), P, embedder, processors=processors(server, concurrency=c))
+            stats = server.stats()
+        with Store(Bank(copy).db_path(P)) as store:
+            calls = store.query("MATCH (c:ModelCall) WHERE c.participant = $p RETURN c.id AS id, c.video AS video, "
+                                "c.role AS role, c.prompt_hash AS h ORDER BY c.id", {"p": P}).rows()
+            results[c] = (by_statement(store), routines(store), evidence(store), [row[1:] for row in calls], stats)
+    assert results[1][4]["inflight_max"] == 1 and results[4][4]["inflight_max"] >= 2
+    assert results[1][0] and results[1][1]  # something was written
+    for part in range(4):
+        assert results[1][part] == results[4][part]

@@ -45,7 +45,7 @@ def damaged_video(tmp_path_factory):
 def _build(bank, video, turns, **kw):
     with ScriptedServer(turns) as server:
         return build_from_video(bank, video, "P09", backend="openai", base_url=server.base_url, perception_model="m",
-                                consolidation="deterministic", backend_options={"backoff_s": 0, "timeout_s": 10}, **kw)
+                                consolidation="deterministic", backend_options={"timeout_s": 10}, **kw)
 
 
 def _snapshot(path):

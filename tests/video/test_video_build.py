@@ -89,7 +89,7 @@ def _build(bank, video, script, participant="P01", **kw):
     with ScriptedServer(script) as server:
         kw.setdefault("consolidation", "deterministic")  # the LLM consolidation has its own test below
         result = build_from_video(bank, video, participant, backend="openai", base_url=server.base_url,
-                                  perception_model="scripted-omni", backend_options={"backoff_s": 0, "timeout_s": 10},
+                                  perception_model="scripted-omni", backend_options={"timeout_s": 10},
                                   **kw)
     return result, server
 
