@@ -450,6 +450,7 @@ def _register_optional_groups() -> None:
     from memora_graph.explore.cli import explore_cmd
     from memora_graph.retrieve.cli import perf_tools_cmd, tool_cmd, tools_cmd
     from memora_graph.retrieve.perf_encoders import perf_encoders_cmd
+    from memora_graph.serve.cli import perf_serve_cmd, serve_cmd
     from memora_graph.transfer.cli import export_cmd, import_cmd
 
     main.add_command(consolidate_cmd, "consolidate")
@@ -460,6 +461,8 @@ def _register_optional_groups() -> None:
     perf.add_command(perf_tools_cmd, "tools")
     perf.add_command(perf_encoders_cmd, "encoders")
     main.add_command(ask_cmd, "ask")
+    main.add_command(serve_cmd, "serve")
+    perf.add_command(perf_serve_cmd, "serve")
     main.add_command(bench_group, "bench")
 
 
