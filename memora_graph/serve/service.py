@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from memora_graph.bank import Bank
 from memora_graph.cypher_guard import check_participant
-from memora_graph.errors import MemoraError, QueryRefused
+from memora_graph.errors import BankError, MemoraError, QueryRefused
 from memora_graph.queries import load_queries
 from memora_graph.retrieve.registry import MEMORA, ToolSpec, specs
 from memora_graph.retrieve.search import DEFAULT_RECIPE
@@ -155,7 +155,8 @@ class MemoryService:
         self.participants = self.bank.participants()
         if participant is not None:
             participant = check_participant(participant, "--participant")
-            self._known(participant, "--participant")
+            if self._unknown(participant):
+                raise BankError(f"{self.bank.path}: {self._unknown(participant)}")
         self.participant = participant
         self.recipe = recipe
         self.max_rows = max_rows
@@ -166,10 +167,10 @@ class MemoryService:
             self.warm(participant)  # a damaged database is refused now, before the first call
 
     # -- participants and views ------------------------------------------------------------------
-    def _known(self, participant: str, source: str) -> None:
+    def _unknown(self, participant: str) -> str | None:
         if participant not in self.participants:
-            raise ArgumentError(source, [(source.lstrip("-"), f"{participant} is not in this bank (has: "
-                                          f"{', '.join(self.participants) or 'none'})")])
+            return f"{participant} is not in this bank (has: {', '.join(self.participants) or 'none'})"
+        return None
 
     def _view(self, participant: str) -> MemoryView:
         """The participant's memory, opened read-only (integrity checked) on first use and kept."""
@@ -290,11 +291,11 @@ class MemoryService:
         else:
             try:
                 participant = check_participant(given, "participant")
-                self._known(participant, "participant")
             except QueryRefused as exc:
                 problems.append(("participant", str(exc)))
-            except ArgumentError as exc:
-                problems += exc.problems
+            else:
+                if self._unknown(participant):
+                    problems.append(("participant", self._unknown(participant)))
         try:
             validated = endpoint.args.model_validate(arguments).model_dump()
         except ValidationError as exc:
