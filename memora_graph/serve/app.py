@@ -59,9 +59,10 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
 
     async def on_call_tool(ctx, params: types.CallToolRequestParams) -> types.CallToolResult:
         try:
-            # tool calls are CPU work on Kùzu and numpy: off the event loop, so that other
-            # requests (and pings) are read meanwhile; the service serialises what must be
-            result = await anyio.to_thread.run_sync(service.call, params.name, params.arguments)
+            if service.slow(params.name):  # a child process, up to its time limit: off the event loop
+                result = await anyio.to_thread.run_sync(service.call, params.name, params.arguments)
+            else:  # milliseconds of work, serialised by the service anyway: a thread hop would cost
+                result = service.call(params.name, params.arguments)  # more than it frees (1-2 ms a call)
         except UnknownTool as exc:
             raise MCPError(types.INVALID_PARAMS, str(exc), data={"tool": params.name}) from None
         except ArgumentError as exc:

@@ -57,6 +57,9 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
              if ctx.get_parameter_source(p) is not click.core.ParameterSource.DEFAULT]
     if transport == "stdio" and given:
         raise click.UsageError(f"{' and '.join(given)} apply to --transport http")
+    if transport == "http" and host not in ("127.0.0.1", "localhost", "::1"):
+        click.echo(f"warning: listening on {host}: the server has no authentication; anyone who can reach this "
+                   "port can read this memory", err=True)
     service = MemoryService(bank, participant, recipe=recipe)
     who = participant or f"each call names one of {', '.join(service.participants)}"
     try:
@@ -73,8 +76,9 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
 @click.command("serve")
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--participant", required=True, help="Whose memory the server serves (P01).")
-@click.option("--repeat", default=20, show_default=True, help="Timed calls of each argument set.")
-@click.option("--cypher-repeat", default=3, show_default=True,
+@click.option("--repeat", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Timed calls of each argument set.")
+@click.option("--cypher-repeat", type=click.IntRange(min=0), default=3, show_default=True,
               help="Timed calls of the cypher tool (a child process per call: about half a second each).")
 @click.option("--output-schemas", is_flag=True,
               help="Time the server with `--output-schemas` (the client then validates every result).")

@@ -4,7 +4,11 @@ measured with the `mcp` SDK's own client, next to the same calls made in process
 The server runs as a child process (`memora serve BANK --participant P --transport http --port
 0`), as a user runs it. Every call is made once to warm it (tables, vectors and query embeddings
 loaded), then the whole set is timed `repeat` times, interleaved, client-side: from the request
-to the parsed, schema-checked result.
+to the parsed result (schema-checked with --output-schemas).
+
+On a shared machine the wall times include waiting for a core; the CPU time a call costs (the
+server's threads and the client, Linux only) does not, and is what the call takes on an idle
+machine, where client and server run one after the other.
 """
 
 from __future__ import annotations
@@ -111,6 +115,20 @@ class ServerProcess:
                 self._ready.set()
         self._ready.set()  # it ended
 
+    def cpu_seconds(self) -> float | None:
+        """CPU time the server process has used, all threads, to the nanosecond (Linux
+        /proc/PID/task/*/schedstat); None elsewhere."""
+        total = 0
+        try:
+            for task in Path(f"/proc/{self.proc.pid}/task").iterdir():
+                try:
+                    total += int((task / "schedstat").read_text().split()[0])
+                except FileNotFoundError:  # a thread that just ended
+                    continue
+        except (OSError, ValueError, IndexError):
+            return None
+        return total / 1e9
+
     def stop(self) -> None:
         if self.proc.poll() is None:
             self.proc.terminate()
@@ -121,28 +139,47 @@ class ServerProcess:
                 self.proc.wait()
 
 
-def _time_over_http(url: str, calls: list[tuple[str, dict]], repeat: dict[str, int]) -> dict[str, list[float]]:
+def _time_over_http(server: ServerProcess, calls: list[tuple[str, dict]], repeat: dict[str, int],
+                    cpu: dict[str, float]) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Per tool, the seconds of each timed call, and the CPU-seconds the server and this process
+    (the client) spent on it; `cpu` gets the totals over the timed calls but cypher's."""
     import anyio
     from mcp import Client
 
     out: dict[str, list[float]] = {}
+    used: dict[str, list[float]] = {}
+    timed = [(n, a) for n, a in calls if n != "cypher"]
+
+    async def timed_calls(client, selected: list[tuple[str, dict]]) -> None:
+        for r in range(max((repeat[n] for n, _ in selected), default=0)):
+            for name, args in selected:
+                if r < repeat[name]:
+                    s0, c0 = server.cpu_seconds(), time.process_time()
+                    t0 = time.perf_counter()
+                    await client.call_tool(name, args)
+                    out.setdefault(name, []).append(time.perf_counter() - t0)
+                    s1, c1 = server.cpu_seconds(), time.process_time()
+                    if s0 is not None and s1 is not None:
+                        used.setdefault(name, []).append((s1 - s0) + (c1 - c0))
 
     async def main() -> None:
-        async with Client(url) as client:
+        async with Client(server.url) as client:
             await client.list_tools()
             for name, args in calls:  # warm: every call once
                 res = await client.call_tool(name, args)
                 if res.is_error:
                     raise MemoraError(f"{name}({args}) failed over HTTP: {res.content[0].text}")
-            for r in range(max(repeat.values())):
-                for name, args in calls:
-                    if r < repeat[name]:
-                        t0 = time.perf_counter()
-                        await client.call_tool(name, args)
-                        out.setdefault(name, []).append(time.perf_counter() - t0)
+            server0, client0 = server.cpu_seconds(), time.process_time()
+            await timed_calls(client, timed)
+            server1, client1 = server.cpu_seconds(), time.process_time()
+            cpu["calls"] = sum(repeat[n] for n, _ in timed)
+            cpu["client"] = client1 - client0
+            if server0 is not None and server1 is not None:
+                cpu["server"] = server1 - server0
+            await timed_calls(client, [(n, a) for n, a in calls if n == "cypher"])
 
     anyio.run(main)
-    return out
+    return out, used
 
 
 def run_perf(bank: str | Path, participant: str, repeat: int = 20, cypher_repeat: int = 3,
@@ -154,26 +191,38 @@ def run_perf(bank: str | Path, participant: str, repeat: int = 20, cypher_repeat
         kinds = {e.name: e.kind for e in service.endpoints()}
         times = {name: (cypher_repeat if kinds[name] == "cypher" else repeat) for name, _ in calls}
         server = ServerProcess(bank, participant, *(["--output-schemas"] if output_schemas else []))
+        cpu: dict[str, float] = {}
         try:
-            http = _time_over_http(server.url, calls, times)
+            http, used = _time_over_http(server, calls, times, cpu)
         finally:
             server.stop()
         local = _time_in_process(service, calls, times)
     rows = []
     for name in dict.fromkeys(n for n, _ in calls):
+        if name not in http:  # --cypher-repeat 0
+            continue
         h, p = [1000 * x for x in http[name]], [1000 * x for x in local[name]]
+        c = [1000 * x for x in used.get(name, [])]
         rows.append({"tool": name, "kind": kinds[name], "calls": len(h),
                      "http_p50_ms": round(_percentile(h, 50), 2), "http_p95_ms": round(_percentile(h, 95), 2),
-                     "in_process_p50_ms": round(_percentile(p, 50), 2),
-                     "protocol_ms": round(_percentile(h, 50) - _percentile(p, 50), 2)})
+                     "cpu_p50_ms": round(_percentile(c, 50), 2) if c else None,
+                     "in_process_p50_ms": round(_percentile(p, 50), 2)})
     frame = pl.DataFrame(rows)
     summary = []
     for label, kinds_in in (("typed retrieval tools", ("retrieval",)), ("named queries (query_*)", ("query",)),
                             ("every tool but cypher", ("retrieval", "ask", "query"))):
         sel = [1000 * x for n in http if kinds[n] in kinds_in for x in http[n]]
+        spent = [1000 * x for n in used if kinds[n] in kinds_in for x in used[n]]
         if sel:
             summary.append(f"{label}: p50 {_percentile(sel, 50):.1f} ms, p95 {_percentile(sel, 95):.1f} ms over "
-                           f"{len(sel)} warm calls over HTTP (target p50 <= {TARGET_P50_MS:.0f} ms)")
+                           f"{len(sel)} warm calls over HTTP (target p50 <= {TARGET_P50_MS:.0f} ms)"
+                           + (f"; CPU per call (server + client) p50 {_percentile(spent, 50):.1f} ms, p95 "
+                              f"{_percentile(spent, 95):.1f} ms" if spent else ""))
+    if cpu.get("calls"):
+        n = cpu["calls"]
+        served = "" if "server" not in cpu else f"the server process {1000 * cpu['server'] / n:.1f} ms, "
+        summary.append(f"CPU per call (all but cypher): {served}the client (mcp SDK) {1000 * cpu['client'] / n:.1f} "
+                       f"ms; in process the calls alone take the in_process column")
     mode = ("with --output-schemas: the client validates every result against its schema" if output_schemas else
             "without output schemas (the default)")
     summary.append(f"{participant} of {bank}; server `memora serve --transport http` on 127.0.0.1 {mode}; client `mcp` "

@@ -240,6 +240,11 @@ class MemoryService:
     def endpoints(self) -> list[Endpoint]:
         return list(self._endpoints.values())
 
+    def slow(self, name: str) -> bool:
+        """Whether a call may take seconds (Cypher runs in a child process under a time limit)."""
+        endpoint = self._endpoints.get(name)
+        return endpoint is not None and endpoint.kind == "cypher"
+
     def _retrieval(self, spec: ToolSpec) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
             with self._lock:
