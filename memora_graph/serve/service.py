@@ -120,8 +120,8 @@ class Rows(BaseModel):
 
 
 def _schema(model: type[BaseModel]) -> dict[str, Any]:
-    """An argument model's JSON schema as the registry advertises it to agents (titles dropped),
-    keeping `additionalProperties: false` (unknown arguments are refused, not ignored)."""
+    """An argument model's JSON schema in the registry's style (titles dropped), with
+    `additionalProperties: false` (unknown arguments are refused, not ignored)."""
     params = model.model_json_schema()
     props = {k: {kk: vv for kk, vv in v.items() if kk != "title"} for k, v in params.get("properties", {}).items()}
     out: dict[str, Any] = {"type": "object", "properties": props, "required": list(params.get("required", [])),
@@ -205,8 +205,8 @@ class MemoryService:
                 "description": "Whose memory to read (one participant id of this bank); calls never see another's."}
 
     def _endpoint(self, name: str, description: str, args: type[BaseModel], output: dict | None, kind: str,
-                  run: Callable[[str, dict[str, Any]], dict[str, Any]]) -> Endpoint:
-        schema = _schema(args)
+                  run: Callable[[str, dict[str, Any]], dict[str, Any]], schema: dict | None = None) -> Endpoint:
+        schema = dict(schema or _schema(args))
         if self.participant is None:
             schema["properties"] = {"participant": self._participant_schema(), **schema["properties"]}
             schema["required"] = ["participant", *schema["required"]]
@@ -216,10 +216,11 @@ class MemoryService:
 
     def _build_endpoints(self) -> list[Endpoint]:
         out = []
-        for spec in specs(MEMORA):
+        for spec in specs(MEMORA):  # the registry's schema, as agents get it (`memora tools --json`)
+            registry = {**spec.schema()["function"]["parameters"], "additionalProperties": False}
             out.append(self._endpoint(spec.name, spec.description, spec.args,
                                       spec.result.model_json_schema(mode="serialization"), "retrieval",
-                                      self._retrieval(spec)))
+                                      self._retrieval(spec), registry))
         out.append(self._endpoint(
             "ask", "Ask the person's memory a question, answered by the typed reader (deterministic, no model): it "
                    "makes the typed lookups the question needs and answers with the records behind the answer, or "
@@ -231,7 +232,7 @@ class MemoryService:
         for q in load_queries().values():
             if q.name.startswith("_") or q.writes or "participant" not in q.params:
                 continue
-            fields = {p: (str, Field(description=f"${p} of the query")) for p in q.params if p != "participant"}
+            fields = {p: (str, Field(description=f"The query's ${p} (`memora queries`).")) for p in q.params if p != "participant"}
             args = create_model(f"{q.name}_args", __base__=_Args, **fields)
             out.append(self._endpoint(QUERY_PREFIX + q.name, f"Named query {q.name}: {q.description}", args,
                                       Rows.model_json_schema(mode="serialization"), "query", self._named(q.name)))
