@@ -56,6 +56,8 @@ COMMANDS = {
                "their texts; it is rebuilt on demand), and their manifest entry."),
     "import": ("memora_graph.transfer.cli:import_cmd",
                "Import a JSON or Parquet export (`memora export`) into BANK as a new participant."),
+    "serve": ("memora_graph.serve.cli:serve_cmd",
+              "Serve a memory bank to agents over the Model Context Protocol (MCP)."),
     "tool": ("memora_graph.retrieve.cli:tool_cmd",
              "Call one retrieval tool on one participant's memory."),
     "tools": ("memora_graph.retrieve.cli:tools_cmd",
@@ -74,6 +76,8 @@ PERF_COMMANDS = {
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
     "model": ("memora_graph.perf_model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
+    "serve": ("memora_graph.serve.cli:perf_serve_cmd",
+              "Warm tool-call latency of `memora serve` over streamable HTTP on loopback."),
     "startup": ("memora_graph.perf_startup:perf_startup_cmd",
                 "How fast one-shot commands start: `memora --help` and a one-shot `memora tool` as new processes "
                 "(median wall and CPU seconds of several runs)."),

@@ -11,7 +11,7 @@ from pathlib import Path
 import memora_graph
 
 PACKAGE = Path(memora_graph.__file__).parent
-ORDER = ("base", "perceive", "form", "consolidate", "retrieve", "agent", "bench", "cli")
+ORDER = ("base", "perceive", "form", "consolidate", "retrieve", "agent", "serve", "bench", "cli")
 # first match wins: a module path (dotted, without the package name) -> its layer
 RULES = (
     # commands, benchmarks, test helpers, and the bank report that reads every layer's files (verify)
@@ -22,6 +22,7 @@ RULES = (
     ("consolidate", lambda m: m.startswith("consolidate") or m == "pipeline"),
     ("retrieve", lambda m: m.startswith(("retrieve", "baselines", "explore", "transfer"))),
     ("agent", lambda m: m.startswith("agent")),
+    ("serve", lambda m: m.startswith("serve")),  # the MCP server: over retrieve and agent, below the commands
     ("bench", lambda m: m.startswith("bench")),
     ("base", lambda m: True),
 )

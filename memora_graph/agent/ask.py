@@ -92,21 +92,29 @@ def ask(bank: str | Path, participant: str, question: str, choices: list[str] | 
         memory: str = "memora", embed=None) -> AskResult:
     """Answer `question` from `participant`'s memory in `bank` (see the module docstring).
     `memory` picks the representation the tools read (memora, flat1d, graph2d)."""
+    store = get_family(memory).open(Path(bank), participant)
+    try:
+        return ask_memory(store, participant, question, choices, memory, embed)
+    finally:
+        closer = getattr(store, "close", None)
+        if closer is not None:
+            closer()
+
+
+def ask_memory(store, participant: str, question: str, choices: list[str] | None = None, memory: str = "memora",
+               embed=None) -> AskResult:
+    """`ask` over a memory already open (a `MemoryView` for "memora"), which stays open: a server
+    answers many questions from one open bank."""
     lex = Lexicon.load()
     intent = parse_question(question, lex)
-    family = get_family(memory)
     names = tool_names(memory, advertised_only=False)
-    store = family.open(Path(bank), participant)
     tools = tool_set(memory, names, participant, store)
     calls, results = [], []
-    try:
-        for round_ in lookups.plan(intent, names):
-            tools.prefetch(round_)
-            for name, args in round_:
-                calls.append({"tool": name, "arguments": args})
-                results.append(tools.call(name, args))
-    finally:
-        tools.close()
+    for round_ in lookups.plan(intent, names):
+        tools.prefetch(round_)
+        for name, args in round_:
+            calls.append({"tool": name, "arguments": args})
+            results.append(tools.call(name, args))
     events = [e for r in results for e in events_of(r, lex)]
     if choices:
         opts = list(choices[:4])

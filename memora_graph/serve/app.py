@@ -1,0 +1,125 @@
+"""A `MemoryService` on the wire: an MCP server (the official `mcp` SDK's low-level `Server`, so
+the tool schemas are the registry's, not derived from Python signatures) over stdio or
+streamable HTTP.
+
+Errors: a call to a tool the server does not have, or with arguments its schema refuses, is a
+JSON-RPC error (-32602, invalid params) whose message names each field at fault (its `data`
+lists them); a call the tool cannot answer (an unknown video, a refused Cypher statement, a
+damaged database) is a tool result with `isError` and the reason in words, which an agent reads
+and acts on.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from importlib.metadata import PackageNotFoundError, version
+
+import anyio
+import mcp_types as types
+from mcp.server.lowlevel import Server
+from mcp.shared.exceptions import MCPError
+
+from memora_graph.errors import MemoraError
+from memora_graph.serve.service import ArgumentError, MemoryService, UnknownTool
+
+READ_ONLY = types.ToolAnnotations(read_only_hint=True, destructive_hint=False, idempotent_hint=True,
+                                  open_world_hint=False)
+HTTP_PATH = "/mcp"
+
+
+def _version() -> str:
+    try:
+        return version("memora-graph")
+    except PackageNotFoundError:
+        return ""
+
+
+def instructions(service: MemoryService) -> str:
+    who = (f"Every tool reads the memory of {service.participant}." if service.participant else
+           f"Every call names whose memory it reads with `participant` (one of {', '.join(service.participants)}).")
+    return ("Embodied action memory of a person (memora-graph): their places, objects and how their state changed, "
+            "10 s activity records, routines and preferences. " + who + " Start with `search` or `ask`; "
+            "`get_routine_skill` and `get_preferences` before planning; `cypher` and the `query_*` tools read the "
+            "graph directly. Everything is read-only.")
+
+
+def build_server(service: MemoryService, output_schemas: bool = False) -> Server:
+    """The MCP server of a service: tools/list and tools/call. Results always carry structured
+    content (and the same JSON as text); `output_schemas` also advertises each tool's result
+    schema. Off by default: a client that validates results against it (the `mcp` SDK's does, in
+    pure-Python jsonschema) spends 5-40 ms per call on a 10-25 kB result, several times the
+    call itself (`memora perf serve --output-schemas`)."""
+    tools = [types.Tool(name=e.name, description=e.description, input_schema=e.input_schema,
+                        output_schema=e.output_schema if output_schemas else None, annotations=READ_ONLY)
+             for e in service.endpoints()]
+
+    async def on_list_tools(ctx, params) -> types.ListToolsResult:
+        return types.ListToolsResult(tools=tools)
+
+    async def on_call_tool(ctx, params: types.CallToolRequestParams) -> types.CallToolResult:
+        try:
+            if service.slow(params.name):  # a child process, up to its time limit: off the event loop
+                result = await anyio.to_thread.run_sync(service.call, params.name, params.arguments)
+            else:  # milliseconds of work, serialised by the service anyway: a thread hop would cost
+                result = service.call(params.name, params.arguments)  # more than it frees (1-2 ms a call)
+        except UnknownTool as exc:
+            raise MCPError(types.INVALID_PARAMS, str(exc), data={"tool": params.name}) from None
+        except ArgumentError as exc:
+            raise MCPError(types.INVALID_PARAMS, str(exc), data={"tool": exc.tool, "fields": exc.fields()}) from None
+        except MemoraError as exc:
+            return types.CallToolResult(content=[types.TextContent(type="text", text=str(exc))], is_error=True)
+        text = json.dumps(result, ensure_ascii=False)
+        return types.CallToolResult(content=[types.TextContent(type="text", text=text)], structured_content=result)
+
+    return Server("memora", version=_version(), title="memora-graph memory",
+                  instructions=instructions(service), on_list_tools=on_list_tools, on_call_tool=on_call_tool)
+
+
+def serve_stdio(service: MemoryService, output_schemas: bool = False) -> None:
+    """Serve over this process's stdin / stdout until the client closes stdin."""
+    from mcp.server.stdio import stdio_server
+
+    server = build_server(service, output_schemas)
+
+    async def main() -> None:
+        async with stdio_server() as (read, write):
+            await server.run(read, write, server.create_initialization_options())
+
+    anyio.run(main)
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A listening socket (port 0: any free port), so the address printed is the one bound."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    # Accepted connections inherit this. Without it a response written in two parts (headers,
+    # body) waits for the client's delayed ACK: every call took 40-48 ms more on loopback.
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise MemoraError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from exc
+    sock.listen(128)
+    return sock
+
+
+def serve_http(service: MemoryService, host: str = "127.0.0.1", port: int = 8765, on_ready=None,
+               output_schemas: bool = False) -> None:
+    """Serve streamable HTTP at http://HOST:PORT/mcp until interrupted. `on_ready(url)` is called
+    once the socket is bound (the CLI prints the URL, with the actual port for --port 0)."""
+    import uvicorn
+
+    app = build_server(service, output_schemas).streamable_http_app(streamable_http_path=HTTP_PATH, json_response=True, host=host)
+    sock = listen(host, port)
+    bound = sock.getsockname()[1]
+    shown = f"[{host}]" if ":" in host else host
+    if on_ready is not None:
+        on_ready(f"http://{shown}:{bound}{HTTP_PATH}")
+    config = uvicorn.Config(app, log_level="warning", lifespan="on", access_log=False)
+    try:
+        uvicorn.Server(config).run(sockets=[sock])
+    finally:
+        sock.close()

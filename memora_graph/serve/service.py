@@ -1,0 +1,318 @@
+"""The memory service behind `memora serve`: one bank opened read-only and kept open, its typed
+retrieval tools, `ask`, the guarded ad-hoc Cypher path and the named queries, each a served tool
+with a JSON schema, called with JSON arguments and answering JSON.
+
+It knows nothing of MCP (memora_graph/serve/app.py puts it on the wire), so it can be called and
+timed in process. The argument schemas are the tool registry's (memora_graph/retrieve/registry.py)
+and the result schemas its result models'. Scoping: a service bound to one participant serves
+only that person's memory; an unbound one requires `participant` in every call and opens that
+person's database, never another's (one database per participant, read-only, checked against its
+integrity record before Kùzu opens it). Nothing served writes: the views and named queries run on
+read-only stores, and the Cypher tool is the read guard's (memora_graph/cypher_guard.py) path
+without `--write`.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+
+from memora_graph.bank import Bank
+from memora_graph.cypher_guard import check_participant
+from memora_graph.errors import BankError, MemoraError, QueryRefused
+from memora_graph.queries import load_queries
+from memora_graph.retrieve.registry import MEMORA, ToolSpec, specs
+from memora_graph.retrieve.search import DEFAULT_RECIPE
+from memora_graph.retrieve.view import MemoryView
+
+MAX_ROWS = 1000  # rows a Cypher or named query returns at most (the rest is counted, not sent)
+CYPHER_TIMEOUT = 30.0
+MAX_CYPHER_TIMEOUT = 300.0
+QUERY_PREFIX = "query_"  # a named query `object_history` is served as the tool `query_object_history`
+
+
+class UnknownTool(MemoraError):
+    """A call to a tool this server does not have."""
+
+
+class ArgumentError(MemoraError):
+    """Arguments refused before the tool runs; `problems` names each field at fault."""
+
+    def __init__(self, tool: str, problems: list[tuple[str, str]]):
+        self.tool = tool
+        self.problems = problems
+        super().__init__(f"{tool}: invalid arguments (" + "; ".join(f"{f}: {m}" for f, m in problems) + ")")
+
+    def fields(self) -> list[dict[str, str]]:
+        return [{"field": f, "message": m} for f, m in self.problems]
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """One served tool: what a client lists, and how a call is answered."""
+
+    name: str
+    description: str
+    args: type[BaseModel]  # validates the arguments (participant aside)
+    input_schema: dict[str, Any]
+    output_schema: dict[str, Any] | None
+    kind: str  # retrieval, ask, cypher, query
+    run: Callable[[str, dict[str, Any]], dict[str, Any]]  # (participant, validated arguments) -> JSON result
+
+
+# -- argument and result models of the tools this module adds ------------------------------------
+
+class _Args(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class AskArgs(_Args):
+    question: str = Field(min_length=1, description="The question, in words (e.g. 'After P03 turns on the tap, "
+                                                     "what do they usually do next?').")
+    choices: list[str] | None = Field(None, max_length=4, description="Up to four answer options (A-D). With them "
+                                      "the answer is one of them or 'not in memory'; without, an answer in words.")
+
+
+class CypherArgs(_Args):
+    query: str = Field(min_length=1, description="One read-only Cypher statement (MATCH ... RETURN ...). $participant "
+                                                 "is bound to the participant served. Writes, files, extensions, other "
+                                                 "databases and schema statements are refused.")
+    params: dict[str, Any] = Field(default_factory=dict, description="Values of the statement's other $parameters.")
+    timeout: float = Field(CYPHER_TIMEOUT, gt=0, le=MAX_CYPHER_TIMEOUT, allow_inf_nan=False,
+                           description="Seconds before the query is stopped.")
+
+
+class EvidenceItem(BaseModel):
+    id: str
+    text: str
+
+
+class ToolCall(BaseModel):
+    tool: str
+    arguments: dict[str, Any]
+
+
+class AskAnswer(BaseModel):
+    question: str
+    participant: str
+    answer: str = Field(description="An option's letter and text, the answer in words, or 'not in memory'.")
+    letter: str | None
+    in_memory: bool
+    kind: str = Field(description="The question's kind: habit, preference, routine or recall.")
+    reason: str
+    scores: list[float]
+    evidence: list[EvidenceItem] = Field(description="The records behind the answer.")
+    calls: list[ToolCall] = Field(description="The typed lookups the reader made.")
+
+
+class Rows(BaseModel):
+    participant: str
+    columns: list[str]
+    rows: list[dict[str, Any]]
+    row_count: int = Field(description="Rows the query returned (rows holds at most the first max_rows).")
+    truncated: bool
+
+
+def _schema(model: type[BaseModel]) -> dict[str, Any]:
+    """An argument model's JSON schema in the registry's style (titles dropped), with
+    `additionalProperties: false` (unknown arguments are refused, not ignored)."""
+    params = model.model_json_schema()
+    props = {k: {kk: vv for kk, vv in v.items() if kk != "title"} for k, v in params.get("properties", {}).items()}
+    out: dict[str, Any] = {"type": "object", "properties": props, "required": list(params.get("required", [])),
+                           "additionalProperties": False}
+    if "$defs" in params:
+        out["$defs"] = params["$defs"]
+    return out
+
+
+def _problems(exc: ValidationError) -> list[tuple[str, str]]:
+    return [(".".join(map(str, e["loc"])) or "arguments", e["msg"]) for e in exc.errors()]
+
+
+def _rows(frame, participant: str, max_rows: int) -> dict[str, Any]:
+    """A polars frame as JSON rows (dates as ISO text, as polars writes them)."""
+    head = frame.head(max_rows)
+    rows = json.loads(head.write_json()) if head.height else []
+    return Rows(participant=participant, columns=list(frame.columns), rows=rows, row_count=frame.height,
+                truncated=frame.height > max_rows).model_dump(mode="json")
+
+
+class MemoryService:
+    """A bank kept open for many calls. `participant` binds every call to one person; without it,
+    each call names one. Thread-safe: calls that read a view take one lock (a view and its Kùzu
+    connection are not shared across threads); Cypher runs in its own child process."""
+
+    def __init__(self, bank: str | Path, participant: str | None = None, recipe: str = DEFAULT_RECIPE,
+                 max_rows: int = MAX_ROWS):
+        self.bank = Bank(bank)
+        self.bank.manifest()  # a missing or damaged bank fails here, naming the file
+        self.participants = self.bank.participants()
+        if participant is not None:
+            participant = check_participant(participant, "--participant")
+            if self._unknown(participant):
+                raise BankError(f"{self.bank.path}: {self._unknown(participant)}")
+        self.participant = participant
+        self.recipe = recipe
+        self.max_rows = max_rows
+        self._views: dict[str, MemoryView] = {}
+        self._lock = threading.Lock()
+        self._endpoints = {e.name: e for e in self._build_endpoints()}
+        if participant is not None:
+            self.warm(participant)  # a damaged database is refused now, before the first call
+
+    # -- participants and views ------------------------------------------------------------------
+    def _unknown(self, participant: str) -> str | None:
+        if participant not in self.participants:
+            return f"{participant} is not in this bank (has: {', '.join(self.participants) or 'none'})"
+        return None
+
+    def _view(self, participant: str) -> MemoryView:
+        """The participant's memory, opened read-only (integrity checked) on first use and kept."""
+        view = self._views.get(participant)
+        if view is None:
+            view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
+        return view
+
+    def warm(self, participant: str) -> None:
+        """Open a participant's memory and load what every call reads (tables, vectors, the query
+        encoder), so that the first call costs what later ones do."""
+        with self._lock:
+            view = self._view(participant)
+            view.warm()
+            view.embed("warm up the query encoder")
+
+    def close(self) -> None:
+        with self._lock:
+            for view in self._views.values():
+                view.close()
+            self._views.clear()
+
+    def __enter__(self) -> MemoryService:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- the served tools ------------------------------------------------------------------------
+    def _participant_schema(self) -> dict[str, Any]:
+        return {"type": "string", "enum": list(self.participants),
+                "description": "Whose memory to read (one participant id of this bank); calls never see another's."}
+
+    def _endpoint(self, name: str, description: str, args: type[BaseModel], output: dict | None, kind: str,
+                  run: Callable[[str, dict[str, Any]], dict[str, Any]], schema: dict | None = None) -> Endpoint:
+        schema = dict(schema or _schema(args))
+        if self.participant is None:
+            schema["properties"] = {"participant": self._participant_schema(), **schema["properties"]}
+            schema["required"] = ["participant", *schema["required"]]
+        else:
+            description = f"{description} (Memory of {self.participant}.)"
+        return Endpoint(name, description, args, schema, output, kind, run)
+
+    def _build_endpoints(self) -> list[Endpoint]:
+        out = []
+        for spec in specs(MEMORA):  # the registry's schema, as agents get it (`memora tools --json`)
+            registry = {**spec.schema()["function"]["parameters"], "additionalProperties": False}
+            out.append(self._endpoint(spec.name, spec.description, spec.args,
+                                      spec.result.model_json_schema(mode="serialization"), "retrieval",
+                                      self._retrieval(spec), registry))
+        out.append(self._endpoint(
+            "ask", "Ask the person's memory a question, answered by the typed reader (deterministic, no model): it "
+                   "makes the typed lookups the question needs and answers with the records behind the answer, or "
+                   "'not in memory'.", AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
+        out.append(self._endpoint(
+            "cypher", "Run one read-only Cypher statement on the person's memory graph (schema: `memora queries`, "
+                      "schema/*.cypher). Writes, file access, extensions and other databases are refused.",
+            CypherArgs, Rows.model_json_schema(mode="serialization"), "cypher", self._cypher))
+        for q in load_queries().values():
+            if q.name.startswith("_") or q.writes or "participant" not in q.params:
+                continue
+            fields = {p: (str, Field(description=f"The query's ${p} (`memora queries`).")) for p in q.params if p != "participant"}
+            args = create_model(f"{q.name}_args", __base__=_Args, **fields)
+            out.append(self._endpoint(QUERY_PREFIX + q.name, f"Named query {q.name}: {q.description}", args,
+                                      Rows.model_json_schema(mode="serialization"), "query", self._named(q.name)))
+        return out
+
+    def endpoints(self) -> list[Endpoint]:
+        return list(self._endpoints.values())
+
+    def slow(self, name: str) -> bool:
+        """Whether a call may take seconds (Cypher runs in a child process under a time limit)."""
+        endpoint = self._endpoints.get(name)
+        return endpoint is not None and endpoint.kind == "cypher"
+
+    def _retrieval(self, spec: ToolSpec) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
+        def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+            with self._lock:
+                return spec.fn(self._view(participant), **arguments).as_json()
+        return run
+
+    def _ask(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        from memora_graph.agent.ask import ask_memory
+
+        with self._lock:
+            result = ask_memory(self._view(participant), participant, arguments["question"], arguments["choices"])
+        return AskAnswer.model_validate(result.as_dict()).model_dump(mode="json")
+
+    def _cypher(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        from memora_graph.adhoc import run_query
+
+        # the guarded ad-hoc path of `memora query`, read-only, on this participant's database only
+        # (a `participant` parameter that names someone else is refused there)
+        frame = run_query(self.bank.path, arguments["query"], arguments["params"], participant=participant,
+                          write=False, timeout=arguments["timeout"])
+        return _rows(frame, participant, self.max_rows)
+
+    def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
+        def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+            with self._lock:
+                frame = self._view(participant).store.run(name, participant=participant, **arguments)
+            return _rows(frame, participant, self.max_rows)
+        return run
+
+    # -- calls -----------------------------------------------------------------------------------
+    def resolve(self, name: str, arguments: dict[str, Any] | None) -> tuple[Endpoint, str, dict[str, Any]]:
+        """The tool, the participant and the validated arguments of a call, or ArgumentError
+        naming every field at fault (UnknownTool for a tool this server does not have)."""
+        endpoint = self._endpoints.get(name)
+        if endpoint is None:
+            raise UnknownTool(f"no tool {name!r}; tools: {', '.join(self._endpoints)}")
+        if arguments is not None and not isinstance(arguments, dict):
+            raise ArgumentError(name, [("arguments", "must be an object")])
+        arguments = dict(arguments or {})
+        problems: list[tuple[str, str]] = []
+        given = arguments.pop("participant", None)
+        participant = self.participant
+        if participant is not None:
+            if given is not None and given != participant:
+                problems.append(("participant", f"this server serves only {participant}'s memory, not {given!r}"))
+        elif given is None:
+            problems.append(("participant", "required: whose memory to read (one of "
+                                            f"{', '.join(self.participants)})"))
+        else:
+            try:
+                participant = check_participant(given, "participant")
+            except QueryRefused as exc:
+                problems.append(("participant", str(exc)))
+            else:
+                if self._unknown(participant):
+                    problems.append(("participant", self._unknown(participant)))
+        try:
+            validated = endpoint.args.model_validate(arguments).model_dump()
+        except ValidationError as exc:
+            problems += _problems(exc)
+        if problems:
+            raise ArgumentError(name, problems)
+        return endpoint, participant, validated
+
+    def call(self, name: str, arguments: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Answer one call: the tool's JSON result. Raises UnknownTool or ArgumentError before
+        anything runs, ToolError / QueryRefused / BankError / StoreError (MemoraError) for a call
+        the tool cannot answer."""
+        endpoint, participant, validated = self.resolve(name, arguments)
+        return endpoint.run(participant, validated)
