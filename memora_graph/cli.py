@@ -438,6 +438,9 @@ def _register_perf_video() -> None:
 
     perf.add_command(perf_decode)
     perf.add_command(perf_video)
+    from memora_graph.perf_scale import perf_scale_cmd
+
+    perf.add_command(perf_scale_cmd)
 
 
 _register_perf_video()

@@ -134,8 +134,9 @@ def _recipes() -> list[str]:
 @click.option("--participant", required=True, help="Whose memory to search (P01); tools never see another's.")
 @click.option("--arg", "args", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="A tool argument (see `memora tools`). Repeatable.")
-@click.option("--recipe", type=click.Choice(_recipes()), default="inprocess", show_default=True,
-              help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py).")
+@click.option("--recipe", type=click.Choice(_recipes()), default=None,
+              help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py). Default: "
+                   "'inprocess', or 'hnsw' for a memory of HNSW_MIN_SEGMENTS segments or more that has its indexes.")
 @click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
               help="Which memory the tool reads: memora, or a baseline's representation (flat1d, graph2d).")
 @output_options

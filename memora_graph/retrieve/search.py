@@ -53,6 +53,9 @@ RECIPES: dict[str, SearchConfig] = {
     "vector": SearchConfig(keyword="none"),
 }
 DEFAULT_RECIPE = "inprocess"
+# From this many segments on, a participant whose database has the FTS and HNSW indexes opens with
+# the "hnsw" recipe when no recipe is asked for: measured by `memora perf scale` (README "Memory at scale").
+HNSW_MIN_SEGMENTS = 1_000_000_000
 
 
 # -- vectors ---------------------------------------------------------------------------------

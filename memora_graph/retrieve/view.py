@@ -20,7 +20,7 @@ import numpy as np
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
-from memora_graph.retrieve.search import DEFAULT_RECIPE, RECIPES, Bm25, SearchConfig, VectorTable
+from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, Bm25, SearchConfig, VectorTable
 from memora_graph.store import Store, index_names
 
 TABLES = ("segment", "entity", "place", "routine", "preference")
@@ -50,13 +50,18 @@ def _single_thread_blas() -> None:
 
 
 class MemoryView:
-    def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
+    def __init__(self, store: Store, participant: str, embedder=None, config: SearchConfig | str | None = None,
                  owns_store: bool = False):
+        """`config`: a recipe name (RECIPES) or a SearchConfig; None picks one by the memory's size
+        (`auto_recipe`)."""
         _single_thread_blas()
         self.store = store
         self.participant = participant
         if isinstance(config, str) and config not in RECIPES:
             raise ToolError(f"no retrieval recipe {config!r}; recipes: {', '.join(RECIPES)}")
+        if config is None:
+            config = self.auto_recipe()
+        self.recipe = config if isinstance(config, str) else None
         self.config = RECIPES[config] if isinstance(config, str) else config
         self._embedder = embedder
         self._owns = owns_store
@@ -66,6 +71,18 @@ class MemoryView:
             raise BankError(f"{store.path}: built before inferred knowledge existed (schema 002 missing); "
                             "rebuild it with `memora build`")
         self._check_indexes(config)
+
+    def auto_recipe(self) -> str:
+        """The recipe a view opens with when none is asked for: the default ('inprocess', exact
+        numpy top-k and in-process BM25, which load the participant's vectors and texts and scan
+        them per call), or 'hnsw' (Kùzu's HNSW and FTS indexes) for a memory of at least
+        HNSW_MIN_SEGMENTS segments whose database has those indexes: from that size on the
+        indexed recipe measured faster (`memora perf scale`). Without the indexes it stays exact."""
+        have = set(self.store.indexes())
+        if not have or not (set(index_names("fts")) | set(index_names("hnsw"))) <= have:
+            return DEFAULT_RECIPE  # most banks: one index listing, no count
+        n = self.fetch("_segment_count")[0]["n"]
+        return "hnsw" if n >= HNSW_MIN_SEGMENTS else DEFAULT_RECIPE
 
     def _check_indexes(self, config: SearchConfig | str) -> None:
         """A recipe that reads Kùzu's optional indexes fails here, saying how to build them,
@@ -89,7 +106,7 @@ class MemoryView:
             f"'{DEFAULT_RECIPE}', which needs none.")
 
     @classmethod
-    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
+    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str | None = None) -> MemoryView:
         store = Bank(bank).open(participant, read_only=True)
         try:
             return cls(store, participant, embedder, config, owns_store=True)
@@ -214,7 +231,9 @@ class MemoryView:
 
 class ObservationGraph:
     """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
-    the entity co-occurrence counts (segments two entities share) computed once as M @ M.T."""
+    the entity co-occurrence counts (segments two entities share), computed once. The counts are
+    kept sparse (pairs that co-occur, sorted): a dense entity x segment incidence product grows as
+    entities^2 x segments and does not fit a 1,000-hour memory (README "Memory at scale")."""
 
     def __init__(self, rows: list[dict]):
         self.segment_entities: dict[str, set[str]] = defaultdict(set)
@@ -227,17 +246,31 @@ class ObservationGraph:
                 self.entity_places[r["entity"]][r["location"]] += int(r["n"])
         self.entities = sorted(self.entity_segments)
         self._row = {e: i for i, e in enumerate(self.entities)}
-        segs = {s: i for i, s in enumerate(sorted(self.segment_entities))}
-        incidence = np.zeros((len(self.entities), len(segs)), dtype=np.float32)
-        for e, ss in self.entity_segments.items():
-            incidence[self._row[e], [segs[s] for s in ss]] = 1.0
-        self.cooccur = incidence @ incidence.T
+        self._pairs, self._counts = self._cooccurrence()
+
+    def _cooccurrence(self) -> tuple[np.ndarray, np.ndarray]:
+        """(sorted keys i * E + j, segments shared) for every ordered pair i != j seen together."""
+        n = len(self.entities)
+        members = [sorted(self._row[e] for e in es) for es in self.segment_entities.values()]
+        seg = np.repeat(np.arange(len(members)), [len(m) for m in members])
+        ent = np.fromiter((i for m in members for i in m), dtype=np.int64, count=len(seg))
+        a_parts, b_parts = [], []
+        for d in range(1, max((len(m) for m in members), default=0)):
+            same = seg[:-d] == seg[d:]  # edges d apart within one segment (rows are grouped by segment)
+            a_parts += [ent[:-d][same], ent[d:][same]]
+            b_parts += [ent[d:][same], ent[:-d][same]]
+        if not a_parts:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        keys = np.concatenate(a_parts) * n + np.concatenate(b_parts)
+        return np.unique(keys, return_counts=True)
 
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""
         i = self._row.get(entity)
         if i is None:
             return []
-        row = self.cooccur[i]
-        order = sorted((j for j in np.flatnonzero(row) if j != i), key=lambda j: (-row[j], self.entities[j]))[:k]
-        return [(self.entities[j], int(row[j])) for j in order]
+        n = len(self.entities)
+        lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
+        row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
+        order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
+        return [(self.entities[j], int(c)) for j, c in order]
