@@ -354,6 +354,7 @@ class RuleConsolidator:
         for steps, (group, videos) in candidates.items():
             if covered.get(steps, 0) >= len(videos):
                 continue  # a longer sequence covers every video this one is seen in
+            n = len(steps)
             a0 = group[0]
             kept.append(ActionSequence(
                 title=a0.title, steps=list(steps), actions=a0.actions, activity_type=a0.activity_type,
