@@ -76,6 +76,8 @@ PERF_COMMANDS = {
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
     "model": ("memora_graph.perf_model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
+    "scale": ("memora_graph.perf_scale:perf_scale_cmd",
+              "Build 10, 100 and 1,000 hours of one participant and print, per size: build seconds per hour, bank size, open time, peak resident memory, p50/p95 per tool for the in-process and the K\u00f9zu HNSW recipes, and the size at which HNSW becomes faster."),
     "serve": ("memora_graph.serve.cli:perf_serve_cmd",
               "Warm tool-call latency of `memora serve` over streamable HTTP on loopback."),
     "startup": ("memora_graph.perf_startup:perf_startup_cmd",

@@ -128,6 +128,9 @@ class Flat1DMemory:
     @classmethod
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Flat1DMemory:
         """Built once per bank and participant, then read from `BANK/.cache/`."""
+        from memora_graph.retrieve.view import _single_thread_blas
+
+        _single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)

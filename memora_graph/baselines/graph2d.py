@@ -194,6 +194,9 @@ class Graph2DMemory:
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Graph2DMemory:
         import networkx as nx
 
+        from memora_graph.retrieve.view import _single_thread_blas
+
+        _single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)

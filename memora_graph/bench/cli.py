@@ -193,3 +193,35 @@ def report_cmd(run_dir, show):
     if show:
         click.echo(paths["markdown"].read_text())
     click.echo("Wrote " + ", ".join(str(p) for p in paths.values()))
+
+
+@bench_group.command("synth")
+@click.option("--participant", required=True, help="Whose videos to replay (P01).")
+@click.option("--hours", required=True, type=click.FloatRange(min=0, min_open=True), help="Hours of video to make.")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Folder to write annotations.csv, video_info.csv, the class tables and synth.json into.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed for the renamed objects and reordered actions.")
+@click.option("--rename-share", default=0.1, show_default=True, type=click.FloatRange(0, 1),
+              help="Share of the object nouns renamed in each replay after the first.")
+@click.option("--reorder-share", default=0.1, show_default=True, type=click.FloatRange(0, 1),
+              help="Share of actions swapped with the next one in each replay after the first.")
+@click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="EPIC-style annotation CSV to replay (default: the bundled extension subset).")
+def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annotations) -> None:
+    """Make a long-horizon participant: replay a person's videos for --hours, with new video ids
+    and shifted times, renaming a share of objects and reordering a share of actions in every
+    replay after the first, so memory keeps growing. The same arguments give the same file.
+
+    \b
+    Examples:
+      memora bench synth --participant P01 --hours 1000 --out runs/synth-1000h
+      memora build banks/p01-1000h --annotations runs/synth-1000h/annotations.csv --participants P01
+    """
+    from memora_graph.bench.synth import synthesize
+
+    r = synthesize(participant.strip().upper(), hours, out, seed=seed, rename_share=rename_share,
+                   reorder_share=reorder_share, annotations=annotations)
+    click.echo(f"Wrote {r.annotations}: {r.hours:g} h of {r.participant} as {r.replays} replays of its "
+               f"{r.source_hours:g} h in {r.videos} videos, {r.actions} actions ({r.renamed} with a renamed object, "
+               f"{len(r.new_objects)} new object names; {r.reordered} moved by reordering); seed {r.seed}")
+    click.echo(f"build it: memora build BANK --annotations {r.annotations} --participants {r.participant}")

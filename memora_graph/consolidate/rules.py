@@ -350,11 +350,11 @@ class RuleConsolidator:
             if len(videos) >= self.min_videos:
                 candidates[steps] = (group, videos)
         kept = []
+        covered = _longest_cover({steps: len(videos) for steps, (_, videos) in candidates.items()})
         for steps, (group, videos) in candidates.items():
-            n = len(steps)
-            longer = [s for s in candidates if len(s) > n and any(s[i:i + n] == steps for i in range(len(s) - n + 1))]
-            if any(len(candidates[s][1]) >= len(videos) for s in longer):
+            if covered.get(steps, 0) >= len(videos):
                 continue  # a longer sequence covers every video this one is seen in
+            n = len(steps)
             a0 = group[0]
             kept.append(ActionSequence(
                 title=a0.title, steps=list(steps), actions=a0.actions, activity_type=a0.activity_type,
@@ -372,6 +372,32 @@ class RuleConsolidator:
                 seen.add(loop)
                 out.append(a)
         return out[: self.caps["sequence"]]
+
+
+def _longest_cover(videos: dict[tuple[str, ...], int]) -> dict[tuple[str, ...], int]:
+    """For every step sequence that is a contiguous part of a longer candidate: the most videos any
+    such longer candidate is seen in. Each candidate lists its own parts (a few steps: a handful
+    of parts), where comparing every pair of candidates grew with their square (minutes at 100
+    hours of video, where every sequence recurs in dozens of videos)."""
+    cover: dict[tuple[str, ...], int] = {}
+    for steps, n_videos in videos.items():
+        for n in range(1, len(steps)):
+            for i in range(len(steps) - n + 1):
+                part = steps[i:i + n]
+                if cover.get(part, -1) < n_videos:
+                    cover[part] = n_videos
+    return cover
+
+
+def _longest_cover_pairwise(videos: dict[tuple[str, ...], int]) -> dict[tuple[str, ...], int]:
+    """`_longest_cover` by comparing every pair, as first written (the tests' reference)."""
+    out = {}
+    for steps in videos:
+        n = len(steps)
+        longer = [s for s in videos if len(s) > n and any(s[i:i + n] == steps for i in range(len(s) - n + 1))]
+        if longer:
+            out[steps] = max(videos[s] for s in longer)
+    return out
 
 
 _lcs = lcs_length

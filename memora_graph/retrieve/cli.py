@@ -129,8 +129,9 @@ def tools_cmd(family, fmt):
               help="Whose memory to search (P01); tools never see another's.")
 @click.option("--arg", "args", type=(str, str), multiple=True, metavar="NAME VALUE",
               help="A tool argument (see `memora tools`). Repeatable.")
-@click.option("--recipe", type=RECIPE, default="inprocess", show_default=True,
-              help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py).")
+@click.option("--recipe", type=RECIPE, default=None,
+              help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py). Default: "
+                   "'inprocess', or 'hnsw' for a memory of HNSW_MIN_SEGMENTS segments or more that has its indexes.")
 @click.option("--memory", "family", type=FAMILY, default="memora", show_default=True,
               help="Which memory the tool reads: memora, or a baseline's representation (flat1d, graph2d).")
 @output_options

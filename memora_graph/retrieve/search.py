@@ -53,6 +53,12 @@ RECIPES: dict[str, SearchConfig] = {
     "vector": SearchConfig(keyword="none"),
 }
 DEFAULT_RECIPE = "inprocess"
+# From this many segments on, a participant whose database has the FTS and HNSW indexes opens with
+# the "hnsw" recipe when no recipe is asked for. `memora perf scale` (README "Memory at scale"): at
+# 3,612 and 10,801 segments (10 and 30 h of P01) the in-process recipe was cheaper (median tool p95
+# 11.5 / 18.8 ms CPU against 16.7 / 23.6), at 36,003 (100 h) HNSW was (45.0 against 64.4); this is
+# the smallest size measured faster.
+HNSW_MIN_SEGMENTS = 36_000
 
 
 # -- vectors ---------------------------------------------------------------------------------

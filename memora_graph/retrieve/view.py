@@ -23,7 +23,7 @@ import numpy as np
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
-from memora_graph.retrieve.search import DEFAULT_RECIPE, RECIPES, Bm25, SearchConfig, VectorTable
+from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, Bm25, SearchConfig, VectorTable
 
 if TYPE_CHECKING:
     from memora_graph.retrieve.persist import PersistedStores
@@ -63,19 +63,32 @@ def _config(config: SearchConfig | str) -> SearchConfig:
     return RECIPES[config] if isinstance(config, str) else config
 
 
+def _recipe_by_size(entry: dict) -> str:
+    """`MemoryView.auto_recipe` from a manifest entry, without opening the database."""
+    from memora_graph.store import index_names
+
+    indexed = (set(index_names("fts")) | set(index_names("hnsw"))) <= set(entry.get("indexes") or ())
+    big = (entry.get("counts") or {}).get("segments", 0) >= HNSW_MIN_SEGMENTS
+    return "hnsw" if indexed and big else DEFAULT_RECIPE
+
+
 class MemoryView:
     def __init__(self, store: Store | None, participant: str, embedder=None,
-                 config: SearchConfig | str = DEFAULT_RECIPE, owns_store: bool = False,
+                 config: SearchConfig | str | None = None, owns_store: bool = False,
                  persisted: PersistedStores | None = None, open_store=None):
         """`store` is the participant's open database; or None with `persisted` stores (read
         instead of Kùzu for what they hold) and `open_store()` to open the database when a tool
-        needs something else (`MemoryView.open` does that)."""
+        needs something else (`MemoryView.open` does that). `config`: a recipe name (RECIPES) or a
+        SearchConfig; None picks one by the memory's size (`auto_recipe`)."""
         _single_thread_blas()
         self._store = store
         self._open_store = open_store
         self._persisted = persisted
         self.persisted_written: Path | None = None  # where `open(..., persist=True)` wrote the stores
         self.participant = participant
+        if config is None:
+            config = self.auto_recipe() if store is not None else DEFAULT_RECIPE
+        self.recipe = config if isinstance(config, str) else None
         self.config = _config(config)
         self._embedder = embedder
         self._owns = owns_store
@@ -89,6 +102,20 @@ class MemoryView:
             raise BankError(f"{store.path}: built before inferred knowledge existed (schema 002 missing); "
                             "rebuild it with `memora build`")
         self._check_indexes(config)
+
+    def auto_recipe(self) -> str:
+        """The recipe a view opens with when none is asked for: the default ('inprocess', exact
+        numpy top-k and in-process BM25, which load the participant's vectors and texts and scan
+        them per call), or 'hnsw' (Kùzu's HNSW and FTS indexes) for a memory of at least
+        HNSW_MIN_SEGMENTS segments whose database has those indexes: from that size on the
+        indexed recipe measured faster (`memora perf scale`). Without the indexes it stays exact."""
+        from memora_graph.store import index_names
+
+        have = set(self.store.indexes())
+        if not have or not (set(index_names("fts")) | set(index_names("hnsw"))) <= have:
+            return DEFAULT_RECIPE  # most banks: one index listing, no count
+        n = self.fetch("_segment_count")[0]["n"]
+        return "hnsw" if n >= HNSW_MIN_SEGMENTS else DEFAULT_RECIPE
 
     def _check_indexes(self, config: SearchConfig | str) -> None:
         """A recipe that reads Kùzu's optional indexes fails here, saying how to build them,
@@ -114,16 +141,19 @@ class MemoryView:
             f"'{DEFAULT_RECIPE}', which needs none.")
 
     @classmethod
-    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str = DEFAULT_RECIPE,
+    def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str | None = None,
              persist: bool | None = None) -> MemoryView:
         """Open a participant's memory read-only. With `persist` and an in-process recipe, the
         stores persisted next to the bank (memora_graph/retrieve/persist.py) are read when they
         match the database's recorded sha256, and Kùzu is opened only if a tool needs more; when
         they are missing, stale or damaged they are computed from the database and written.
-        `persist` defaults to on unless MEMORA_TOOL_STORES=0."""
+        `persist` defaults to on unless MEMORA_TOOL_STORES=0. With no `config`, the recipe is
+        picked as `auto_recipe` does, from the manifest's record (indexes, segments)."""
         if persist is None:
             persist = os.environ.get(TOOL_STORES_ENV, "1") != "0"
         b = Bank(bank)
+        if config is None:
+            config = _recipe_by_size(b.manifest().get("participants", {}).get(participant, {}))
         cfg = _config(config)
         sha = None
         if persist and cfg.vector == "numpy" and cfg.keyword in ("bm25", "none"):
@@ -307,7 +337,9 @@ def _writable(bank: Path) -> bool:
 
 class ObservationGraph:
     """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
-    the entity co-occurrence counts (segments two entities share) computed once as M @ M.T."""
+    the entity co-occurrence counts (segments two entities share), computed once. The counts are
+    kept sparse (pairs that co-occur, sorted): a dense entity x segment incidence product grows as
+    entities^2 x segments and does not fit a 1,000-hour memory (README "Memory at scale")."""
 
     def __init__(self, rows: list[dict]):
         self.segment_entities: dict[str, set[str]] = defaultdict(set)
@@ -320,17 +352,31 @@ class ObservationGraph:
                 self.entity_places[r["entity"]][r["location"]] += int(r["n"])
         self.entities = sorted(self.entity_segments)
         self._row = {e: i for i, e in enumerate(self.entities)}
-        segs = {s: i for i, s in enumerate(sorted(self.segment_entities))}
-        incidence = np.zeros((len(self.entities), len(segs)), dtype=np.float32)
-        for e, ss in self.entity_segments.items():
-            incidence[self._row[e], [segs[s] for s in ss]] = 1.0
-        self.cooccur = incidence @ incidence.T
+        self._pairs, self._counts = self._cooccurrence()
+
+    def _cooccurrence(self) -> tuple[np.ndarray, np.ndarray]:
+        """(sorted keys i * E + j, segments shared) for every ordered pair i != j seen together."""
+        n = len(self.entities)
+        members = [sorted(self._row[e] for e in es) for es in self.segment_entities.values()]
+        seg = np.repeat(np.arange(len(members)), [len(m) for m in members])
+        ent = np.fromiter((i for m in members for i in m), dtype=np.int64, count=len(seg))
+        a_parts, b_parts = [], []
+        for d in range(1, max((len(m) for m in members), default=0)):
+            same = seg[:-d] == seg[d:]  # edges d apart within one segment (rows are grouped by segment)
+            a_parts += [ent[:-d][same], ent[d:][same]]
+            b_parts += [ent[d:][same], ent[:-d][same]]
+        if not a_parts:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        keys = np.concatenate(a_parts) * n + np.concatenate(b_parts)
+        return np.unique(keys, return_counts=True)
 
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""
         i = self._row.get(entity)
         if i is None:
             return []
-        row = self.cooccur[i]
-        order = sorted((j for j in np.flatnonzero(row) if j != i), key=lambda j: (-row[j], self.entities[j]))[:k]
-        return [(self.entities[j], int(row[j])) for j in order]
+        n = len(self.entities)
+        lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
+        row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
+        order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
+        return [(self.entities[j], int(c)) for j, c in order]
