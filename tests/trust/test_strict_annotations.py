@@ -147,8 +147,10 @@ def test_build_refuses_a_bad_csv_before_touching_the_bank(tmp_path):
     (("--participants", "P01,x"), "'x' is not a participant id"),
 ])
 def test_build_refuses_empty_or_bad_participant_lists(tmp_path, args, says):
+    # A bad option value is a usage error (click's exit code 2), named with the option.
     r = invoke("build", tmp_path / "bank", *args, "--quiet")
-    assert r.exit_code == 1 and says in r.output and not (tmp_path / "bank").exists()
+    assert r.exit_code == 2 and "'--participants'" in r.output and says in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "bank").exists()
 
 
 @pytest.mark.parametrize("bank,says", [
