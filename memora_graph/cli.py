@@ -9,6 +9,7 @@ import click
 import polars as pl
 
 from memora_graph.errors import MemoraError
+from memora_graph.executors.cli import executor_from, executor_options
 from memora_graph.output import output_options, render
 
 
@@ -83,9 +84,10 @@ def main():
               help="Rebuild the participant that owns this video (or a participant id) from scratch, e.g. after "
                    "its annotations changed (memory formation is sequential). Repeatable or comma-separated.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@executor_options
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
-          rebuild, quiet):
+          rebuild, quiet, executor, ray_address, retries, ray_shared):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -102,6 +104,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
           --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
+      memora build banks/epic --executor ray --ray-address auto   # one Ray task per participant (README "Ray")
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -109,6 +112,10 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
                       editor_model=editor_model, editor_base_url=editor_base_url, audio=audio,
                       consolidation=consolidation, consolidation_model=consolidation_model)
     rebuild = [r.strip() for x in rebuild for r in x.split(",") if r.strip()]
+    ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
+    if ex.remote and jobs:
+        raise click.UsageError("--jobs sizes the local executor's process pool; under --executor ray every "
+                               "participant is a task and the cluster's CPUs set how many run at once")
     if video:
         if rebuild:
             raise click.UsageError("--rebuild applies to annotation builds; to rebuild a participant from video, "
@@ -116,6 +123,11 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         if annotations or mode != "edited" or participants != "all" or jobs:
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
                                    "and --jobs")
+        if ex.remote:  # one task per participant: --participant, or a directory of P01/, P02/ ... folders
+            from memora_graph.executors.cli import build_video_ray
+
+            return build_video_ray(bank, video, backend, embed_model, quiet, ex,
+                                   {**video_opts, "episodic": episodic, "fts": fts})
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
         return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts})
@@ -143,7 +155,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     with progress:
         result = build_bank(bank, pids, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
                             episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None, isolate=True,
-                            on_notice=lambda text: click.echo(text, err=True))
+                            on_notice=lambda text: click.echo(text, err=True), executor=ex)
     rows = []
     for r in result.participants:
         shares = decision_shares(r.decisions)

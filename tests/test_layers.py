@@ -18,10 +18,10 @@ RULES = (
     ("cli", lambda m: m == "cli" or m.endswith(".cli") or m.startswith(("perf_", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
-    ("consolidate", lambda m: m.startswith("consolidate") or m == "pipeline"),
+    ("consolidate", lambda m: m.startswith("consolidate") or m in ("pipeline", "executors.build")),
     ("retrieve", lambda m: m.startswith(("retrieve", "baselines", "explore", "transfer"))),
     ("agent", lambda m: m.startswith("agent")),
-    ("bench", lambda m: m.startswith("bench")),
+    ("bench", lambda m: m.startswith("bench") or m == "executors.evaluate"),
     ("base", lambda m: True),
 )
 

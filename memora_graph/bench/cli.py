@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from memora_graph.errors import MemoraError
+from memora_graph.executors.cli import executor_from, executor_options
 
 bench_group = click.Group(
     "bench",
@@ -152,8 +153,9 @@ def _backend_options(base_url, model, api_key, temperature, timeout_s, options) 
               help="Processes to run conditions in (default: 2 under offline on a 2+ core machine, 1 for model "
                    "backends). Results do not depend on it.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@executor_options
 def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
-            temperature, timeout_s, options, limit, workers, quiet):
+            temperature, timeout_s, options, limit, workers, quiet, executor, ray_address, retries, ray_shared):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
 
     \b
@@ -165,11 +167,17 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
       memora bench run banks/cal --raw-bank banks/cal-raw --out runs/qwen --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
       memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
+      memora bench run banks/cal --out runs/ray --executor ray   # one Ray task per (condition, participant)
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from memora_graph.bench.run import run_bench
 
+    ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
+    if ex.remote and workers:
+        raise click.UsageError("--workers sizes the local executor's process pool; under --executor ray every "
+                               "(condition, participant) shard is a task")
+    base_url = ex.base_urls[0] if ex.base_urls else None  # a list is spread over the Ray tasks
     opts = _backend_options(base_url, model, api_key, temperature, timeout_s, options)
     progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                         disable=quiet, transient=True)
@@ -186,7 +194,7 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
             summary = run_bench(bank, out, conditions=conditions, participants=_participants(participants),
                                 tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
-                                on_item=on_item, on_plan=on_plan, workers=workers)
+                                on_item=on_item, on_plan=on_plan, workers=workers, executor=ex)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{summary.done} items run ({summary.failed} failed), {summary.skipped} already done; "

@@ -234,10 +234,13 @@ def run_bench(
     on_item: Callable[[dict[str, Any]], None] | None = None,
     on_plan: Callable[[int], None] | None = None,
     workers: int | None = None,
+    executor=None,
 ) -> RunSummary:
     """Run every (condition, item) not yet recorded in `out`. `limit` caps items per participant
     and task kind (for smoke runs). `workers` > 1 runs the conditions in that many processes
-    (default: 2 under `offline` on a machine with 2+ cores, else 1); results do not depend on it."""
+    (default: 2 under `offline` on a machine with 2+ cores, else 1); results do not depend on it.
+    `executor` (memora_graph.executors.Executor) 'ray' runs one task per (condition, participant)
+    shard instead (executors/evaluate.py); the records are the same."""
     t_start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -277,7 +280,12 @@ def run_bench(
         memories[pid] = scoring_memory(bank, pid)
         _write_json(out / "scoring_memory" / f"{pid}.json", memories[pid], indent=1)
         _write_json(out / "memory_formation" / f"{pid}.json", memory_formation(bank, pid))
-    if workers > 1:
+    if executor is not None and executor.remote:
+        from memora_graph.executors.evaluate import run_shards_on_ray
+
+        run_shards_on_ray(executor, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary,
+                          on_item)
+    elif workers > 1:
         _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary, on_item)
     else:
         with _one_torch_thread():

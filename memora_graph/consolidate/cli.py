@@ -9,6 +9,7 @@ import click
 import polars as pl
 
 from memora_graph.errors import ConsolidationError, MemoraError, StoreError
+from memora_graph.executors.cli import executor_from, executor_options
 from memora_graph.output import output_options, render
 
 _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
@@ -30,9 +31,10 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
               help="With --processor llm: any other backend option (JSON if it parses), e.g. "
                    "-o structured_output json_object for llama-cpp-python's server. Repeatable.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@executor_options
 @output_options
 def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options, quiet,
-                    fmt):
+                    executor, ray_address, retries, ray_shared, fmt):
     """Re-run offline consolidation and enrichment on an existing bank.
 
     Each participant's routines and preferences are replaced in one transaction (a failed or
@@ -61,6 +63,8 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     if processor not in processor_names():
         raise click.BadParameter(f"no consolidation processor {processor!r}; registered: {', '.join(processor_names())}",
                                  param_hint="'--processor'")
+    ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
+    base_url = ex.base_urls[0] if ex.base_urls else None  # a list is spread over the Ray tasks
     given = dict(zip(_MODEL_OPTIONS, (backend, base_url, model, enrichment_model, api_key)))
     if processor != "llm":
         extra = [f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None] + (["-o"] if options else [])
@@ -100,10 +104,22 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
         except StoreError as exc:
             raise MemoraError(f"cannot consolidate {p}: {exc}") from exc
 
-    embedder = get_embedder(data["embed_model"])
     rows, failed = [], []
+    embedder = None if ex.remote else get_embedder(data["embed_model"])
     with progress:
-        for p in pids:
+        if ex.remote:  # one Ray task per participant (memora_graph/executors/build.py)
+            from memora_graph.executors.build import consolidate_on_ray
+
+            llm = {k: v for k, v in _llm_options(given, _backend_options(options), None).items() if k != "on_step"} \
+                if processor == "llm" else None
+            for row, lines, calls in consolidate_on_ray(
+                    ex, b, pids, processor, llm, on_participant=lambda p: progress.advance(task), on_step=on_step,
+                    on_notice=lambda text: click.echo(text, err=True)):
+                rows.append(row)
+                failed += lines
+                if procs.call_log is not None:
+                    procs.call_log.records.extend(calls)
+        for p in pids if not ex.remote else []:
             progress.update(task, description=f"{p} consolidating")
             t0 = time.perf_counter()
             try:

@@ -20,6 +20,7 @@ from typing import Any
 
 from memora_graph.executors import Executor, cpu_count, require_ray
 
+log = logging.getLogger("memora_graph.executors")
 ENV_PREFIXES = ("MEMORA_",)  # settings tasks inherit from the driver (e.g. MEMORA_NO_VERIFY)
 
 
@@ -141,6 +142,8 @@ def run_tasks(ex: Executor, fn: Callable, jobs: list[tuple[str, Callable[[int], 
                     if outcomes[key].attempts <= ex.retries:
                         if on_retry:
                             on_retry(key, outcomes[key].attempts, why)
+                        else:
+                            log.warning("%s: attempt %d failed (%s); trying again", key, outcomes[key].attempts, why)
                         submit(i, key, make)
                     else:
                         outcomes[key].error = why
