@@ -450,6 +450,9 @@ def _register_perf_video() -> None:
 
     perf.add_command(perf_decode)
     perf.add_command(perf_video)
+    from memora_graph.perf_ray import perf_ray
+
+    perf.add_command(perf_ray)  # memora perf ray: the Ray executor's overhead, side by side
 
 
 _register_perf_video()
