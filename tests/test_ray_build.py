@@ -1,7 +1,7 @@
 """The Ray executor on a local Ray instance with 2 CPUs (`pytest -m ray`, after pip install -e '.[dev,ray]'):
 a build of three small participants is the local build (counts, ids, decision mix, manifest
 entries), a failing task is retried then reported with the bank left consistent, a killed driver
-resumes, and `memora consolidate --executor ray` is the local one."""
+resumes, and `memora consolidate --executor ray` (finished files through --ray-shared) is the local one."""
 
 from __future__ import annotations
 
@@ -141,11 +141,13 @@ def test_consolidate_on_ray_is_the_local_consolidate(ray_local, local_three, tmp
     shutil.copytree(want, a)
     shutil.copytree(want, b)
     local = CliRunner().invoke(main, ["consolidate", str(a), "--participants", "P09,P37", "--json", "--quiet"])
+    shared = tmp_path / "shared"  # finished databases come back through a shared path instead of the object store
     on_ray = CliRunner().invoke(main, ["consolidate", str(b), "--participants", "P09,P37", "--json", "--quiet",
-                                       "--executor", "ray"])
+                                       "--executor", "ray", "--ray-shared", str(shared)])
     assert local.exit_code == 0 and on_ray.exit_code == 0, on_ray.output
     strip = lambda out: [{k: v for k, v in r.items() if k != "seconds"} for r in json.loads(out)]  # noqa: E731
     assert strip(on_ray.output) == strip(local.output)
+    assert shared.is_dir() and not list(shared.iterdir())  # each file was moved into the bank
     for p in ("P09", "P37"):
         assert _entry(b, p) == _entry(a, p) and _ids(b, p) == _ids(a, p)
     assert CliRunner().invoke(main, ["verify", str(b)]).exit_code == 0
