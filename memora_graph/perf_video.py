@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -104,12 +103,8 @@ def perf_decode(seconds, size, fps, video_path, repeat, fast):
 
 
 def _support_server():
-    """The scripted OpenAI-compatible server of the test suite (tests/support), from a checkout."""
-    root = Path(__file__).resolve().parents[1] / "tests"
-    if not (root / "support" / "scripted_server.py").exists():
-        raise click.ClickException("`memora perf video` needs the repository checkout (tests/support/scripted_server.py)")
-    sys.path.insert(0, str(root))
-    from support.scripted_server import ScriptedServer, Turn
+    """The scripted OpenAI-compatible server (memora_graph.testing): real HTTP, scripted words."""
+    from memora_graph.testing.scripted_server import ScriptedServer, Turn
 
     return ScriptedServer, Turn
 

@@ -19,7 +19,9 @@ scored against typed evidence, answered with the evidence ids, or "not in memory
    when the evidence does not separate the options (the best is weak or barely ahead). `Decision`
    says which.
 
-Deterministic, no model, no embedding: a few thousand dictionary lookups per question.
+Deterministic, no language model: a few thousand dictionary lookups per question, plus one
+closeness term in meaning (MiniLM cosine between each option and up to `MAX_TEXTS` evidence
+records, `SEMANTIC`) that the class-level match outweighs.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 from click.testing import CliRunner
-from support.scripted_server import ScriptedServer, Turn
+from memora_graph.testing.scripted_server import ScriptedServer, Turn
 
 from memora_graph.bank import Bank
 from memora_graph.cli import main
