@@ -14,6 +14,7 @@ import click
 from memora_graph.cli_options import (
     BACKEND, EDITOR_POLICY, LazyGroup, participants_option, progress_bar, quiet_option,
 )
+from memora_graph.executors.cli import executor_from, executor_options
 from memora_graph.output import output_options, render
 
 
@@ -76,6 +77,8 @@ PERF_COMMANDS = {
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
     "model": ("memora_graph.perf_model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
+    "ray": ("memora_graph.perf_ray:perf_ray",
+            "Ray's overhead against the local executor on a full build, measured side by side."),
     "scale": ("memora_graph.perf_scale:perf_scale_cmd",
               "Build 10, 100 and 1,000 hours of one participant and print, per size: build seconds per hour, bank size, open time, peak resident memory, p50/p95 per tool for the in-process and the K\u00f9zu HNSW recipes, and the size at which HNSW becomes faster."),
     "serve": ("memora_graph.serve.cli:perf_serve_cmd",
@@ -149,9 +152,10 @@ def main():
               help="With --video: videos perceived at once (each video's clips in order; the editor takes the "
                    "videos one after another) and consolidation calls in flight (default 8; 1: one call at a time).")
 @quiet_option
+@executor_options
 def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
-          rebuild, concurrency, quiet):
+          rebuild, concurrency, quiet, executor, ray_address, retries, ray_shared):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
 
     Re-running the same command continues where a killed build stopped: finished videos
@@ -168,11 +172,16 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
           --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
+      memora build banks/epic --executor ray --ray-address auto   # one Ray task per participant (README "Ray")
     """
     video_opts = dict(participant=participant, video_id=video_id, base_url=base_url, perception_model=perception_model,
                       editor_model=editor_model, editor_base_url=editor_base_url, audio=audio,
                       consolidation=consolidation, consolidation_model=consolidation_model)
     rebuild = [r.strip() for x in rebuild for r in x.split(",") if r.strip()]
+    ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
+    if ex.remote and jobs:
+        raise click.UsageError("--jobs sizes the local executor's process pool; under --executor ray every "
+                               "participant is a task and the cluster's CPUs set how many run at once")
     if video:
         if rebuild:
             raise click.UsageError("--rebuild applies to annotation builds; to rebuild a participant from video, "
@@ -180,6 +189,11 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         if annotations or mode != "edited" or participants is not None or jobs:
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
                                    "and --jobs")
+        if ex.remote:  # one task per participant: --participant, or a directory of P01/, P02/ ... folders
+            from memora_graph.executors.cli import build_video_ray
+
+            return build_video_ray(bank, video, backend, embed_model, quiet, ex,
+                                   {**video_opts, "episodic": episodic, "fts": fts})
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
         return _build_video(bank, video, backend, embed_model, quiet, {**video_opts, "episodic": episodic, "fts": fts,
@@ -208,7 +222,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     with progress:
         result = build_bank(bank, participants, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
                             episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None, isolate=True,
-                            on_notice=lambda text: click.echo(text, err=True))
+                            on_notice=lambda text: click.echo(text, err=True), executor=ex)
     stores = persist_bank(bank, [r.participant for r in result.participants])
     frame, lines = build_summary(result, bank, episodic=episodic, mode=mode, fts=fts)
     click.echo(render(frame))

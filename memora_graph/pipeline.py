@@ -209,6 +209,7 @@ def build_bank(
     rebuild: list[str] | None = None,
     isolate: bool = False,
     on_notice: Callable[[str], None] | None = None,
+    executor=None,
 ) -> BankBuild:
     """Build (or resume) a bank. `participants=None` means every participant in the annotations
     (with `rebuild`, only the participants rebuilt). After each participant, offline
@@ -227,7 +228,9 @@ def build_bank(
     database is kept aside until the new one is complete); the free space must cover an
     estimate from the videos to build. A failure (an exception, not a kill) removes the partial
     files of participants new to the bank, and the bank itself if this build created it; a full
-    disk is reported as such. `on_notice(text)` hears what the build decided (rebuilds)."""
+    disk is reported as such. `on_notice(text)` hears what the build decided (rebuilds).
+    `executor` (memora_graph.executors.Executor) 'ray' builds each participant in a Ray task
+    instead (executors/build.py); everything before and after the building is the same."""
     t_start = time.perf_counter()
     if participants is not None and not list(participants):
         raise DataError("no participants given: name some (P01,P02), or pass None for every participant")
@@ -282,7 +285,12 @@ def build_bank(
             if on_notice:
                 on_notice(f"rebuilding {p} from its first video ({', '.join(ids)}): memory formation is sequential, "
                           f"so a video is rebuilt with the participant that owns it")
-        if out.jobs > 1 or isolate:
+        if executor is not None and executor.remote:
+            from memora_graph.executors.build import build_on_ray
+
+            results = build_on_ray(executor, bank, found, df, durations, classes, embed_model, on_video, opts, results,
+                                   on_notice)
+        elif out.jobs > 1 or isolate:
             results = _build_parallel(bank, found, df, durations, classes, embed_model, out.jobs, on_video, opts,
                                       results)
         else:

@@ -31,6 +31,15 @@ def small_bank(tmp_path_factory, embedder):
     return path, result
 
 
+@pytest.fixture(scope="session")
+def ray_local():
+    """A local Ray instance with 2 CPUs for the `ray` tests (skipped, saying so, without the extra)."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed: pip install -e '.[dev,ray]' (the [ray] extra)")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests marked `slow` run only when asked for (`-m slow`)."""
     if "slow" in (config.getoption("markexpr") or ""):

@@ -19,11 +19,11 @@ RULES = (
      or m.startswith(("cli_", "perf_", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
-    ("consolidate", lambda m: m.startswith("consolidate") or m == "pipeline"),
+    ("consolidate", lambda m: m.startswith("consolidate") or m in ("pipeline", "executors.build")),
     ("retrieve", lambda m: m.startswith(("retrieve", "baselines", "explore", "transfer"))),
     ("agent", lambda m: m.startswith("agent")),
     ("serve", lambda m: m.startswith("serve")),  # the MCP server: over retrieve and agent, below the commands
-    ("bench", lambda m: m.startswith("bench")),
+    ("bench", lambda m: m.startswith("bench") or m == "executors.evaluate"),
     ("base", lambda m: True),
 )
 

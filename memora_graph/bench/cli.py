@@ -12,6 +12,7 @@ from memora_graph.cli_options import (
     ANSWER_POLICY, CONDITIONS, backend_option_pairs, backend_options, participants_option, progress_bar, quiet_option,
 )
 from memora_graph.errors import MemoraError
+from memora_graph.executors.cli import executor_from, executor_options
 
 bench_group = click.Group(
     "bench",
@@ -135,8 +136,10 @@ def validate_cmd(directory: Path, participants: list[str] | None, as_json: bool)
               help="Agent loops in flight against the model server (model backends; default 32). Records are the "
                    "same as with --concurrency 1, in the same order (timings aside).")
 @quiet_option
+@executor_options
 def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank, kinds, backend, base_url, model, api_key,
-            temperature, timeout_s, options, limit, workers, concurrency, quiet):
+            temperature, timeout_s, options, limit, workers, concurrency, quiet, executor, ray_address, retries,
+            ray_shared):
     """Run the seven-condition evaluation: every condition on every task, one record per item.
 
     \b
@@ -148,9 +151,15 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
       memora bench run banks/cal --raw-bank banks/cal-raw --out runs/qwen --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B --concurrency 64
       memora bench run banks/cal --out runs/smoke --conditions no_memory,flat_1d_edited --limit 5
+      memora bench run banks/cal --out runs/ray --executor ray   # one Ray task per (condition, participant)
     """
     from memora_graph.bench.run import run_bench
 
+    ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
+    if ex.remote and workers:
+        raise click.UsageError("--workers sizes the local executor's process pool; under --executor ray every "
+                               "(condition, participant) shard is a task")
+    base_url = ex.base_urls[0] if ex.base_urls else None  # a list is spread over the Ray tasks
     opts = backend_options(options, base_url=base_url, model=model, api_key=api_key, temperature=temperature,
                            timeout_s=timeout_s)
     progress = progress_bar(quiet, transient=True)
@@ -167,7 +176,8 @@ def run_cmd(bank, out, conditions, participants, tasks, raw_bank, episodic_bank,
             summary = run_bench(bank, out, conditions=conditions, participants=participants,
                                 tasks=tasks, raw_bank=raw_bank, episodic_bank=episodic_bank, backend=backend, backend_options=opts,
                                 kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()), limit=limit,
-                                on_item=on_item, on_plan=on_plan, workers=workers, concurrency=concurrency)
+                                on_item=on_item, on_plan=on_plan, workers=workers, concurrency=concurrency,
+                                executor=ex)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{summary.done} items run ({summary.failed} failed), {summary.skipped} already done; "

@@ -242,12 +242,15 @@ def run_bench(
     on_plan: Callable[[int], None] | None = None,
     workers: int | None = None,
     concurrency: int | None = None,
+    executor=None,
 ) -> RunSummary:
     """Run every (condition, item) not yet recorded in `out`. `limit` caps items per participant
     and task kind (for smoke runs). `workers` > 1 runs the conditions in that many processes
     (default: 2 under `offline` on a machine with 2+ cores, else 1); results do not depend on it.
     `concurrency` is the number of agent loops in flight for model backends (default 32); records
-    do not depend on it either (content and order, timings aside)."""
+    do not depend on it either (content and order, timings aside). `executor`
+    (memora_graph.executors.Executor) 'ray' runs one task per (condition, participant) shard
+    instead (executors/evaluate.py); the records are the same."""
     t_start = time.perf_counter()
     concurrency = resolve_concurrency(concurrency, backend)  # a bad value fails before anything is written
     out = Path(out)
@@ -289,7 +292,12 @@ def run_bench(
         _write_json(out / "scoring_memory" / f"{pid}.json", memories[pid], indent=1)
         _write_json(out / "memory_formation" / f"{pid}.json", memory_formation(bank, pid))
     t_items = time.perf_counter()
-    if workers > 1:
+    if executor is not None and executor.remote:
+        from memora_graph.executors.evaluate import run_shards_on_ray
+
+        run_shards_on_ray(executor, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary,
+                          on_item)
+    elif workers > 1:
         _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary, on_item)
     elif concurrency > 1:
         with _one_torch_thread():

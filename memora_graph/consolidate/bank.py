@@ -94,3 +94,29 @@ def consolidate_bank(bank: Bank, participants: list[str], processors: Processors
     if processors.call_log is not None:
         out.calls = list(processors.call_log.records)
     return out
+
+
+def consolidate_bank_on_ray(executor, bank: Bank, participants: list[str], processor: str, processors: Processors,
+                            llm_options: dict | None, on_done: Callable[[str], None] | None = None,
+                            on_step: Callable[[str, str], None] | None = None,
+                            on_notice: Callable[[str], None] | None = None) -> BankConsolidation:
+    """`consolidate_bank` with one Ray task per participant (memora_graph/executors/build.py):
+    the same rows and failure lines; the tasks' model calls join `processors.call_log`.
+    `processor` is the registered name the tasks build their own processors from."""
+    from memora_graph.executors.build import consolidate_on_ray
+
+    for p in participants:  # a participant another process holds fails here, before any task starts
+        try:
+            bank.open(p, read_only=False).close()
+        except StoreError as exc:
+            raise MemoraError(f"cannot consolidate {p}: {exc}") from exc
+    out = BankConsolidation()
+    for row, lines, calls in consolidate_on_ray(executor, bank, participants, processor, llm_options,
+                                                on_participant=on_done, on_step=on_step, on_notice=on_notice):
+        out.rows.append(row)
+        out.failed += lines
+        if processors.call_log is not None:
+            processors.call_log.records.extend(calls)
+    if processors.call_log is not None:
+        out.calls = list(processors.call_log.records)
+    return out

@@ -8,6 +8,7 @@ import polars as pl
 from memora_graph.cli_options import (
     BACKEND, PROCESSOR, backend_option_pairs, backend_options, participants_option, progress_bar, quiet_option,
 )
+from memora_graph.executors.cli import executor_from, executor_options
 from memora_graph.output import output_options, render
 
 _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
@@ -29,9 +30,10 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 @click.option("--concurrency", type=int, default=8, show_default=True,
               help="With --processor llm: per-video model calls in flight at once (the bank does not depend on it).")
 @quiet_option
+@executor_options
 @output_options
 def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options,
-                    concurrency, quiet, fmt):
+                    concurrency, quiet, executor, ray_address, retries, ray_shared, fmt):
     """Re-run offline consolidation and enrichment on an existing bank.
 
     Each participant's routines and preferences are replaced in one transaction (a failed or
@@ -56,6 +58,8 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     from memora_graph.consolidate.bank import consolidate_bank, consolidation_targets
     from memora_graph.retrieve.persist import persist_bank
 
+    ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
+    base_url = ex.base_urls[0] if ex.base_urls else None  # a list is spread over the Ray tasks
     given = dict(zip(_MODEL_OPTIONS, (backend, base_url, model, enrichment_model, api_key)))
     if processor != "llm":
         extra = [f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None] + (["-o"] if options else [])
@@ -78,8 +82,16 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
         for warning in check_servers(procs):
             click.echo(f"warning: {warning}", err=True)
     with progress:
-        done = consolidate_bank(b, pids, procs, on_participant=lambda p: on_step(p, "consolidating"),
-                                on_done=lambda p: progress.advance(task))
+        if ex.remote:  # one Ray task per participant (memora_graph/executors/build.py)
+            from memora_graph.consolidate.bank import consolidate_bank_on_ray
+
+            llm = {k: v for k, v in _llm_options(given, backend_options(options), None).items() if k != "on_step"} \
+                if processor == "llm" else None
+            done = consolidate_bank_on_ray(ex, b, pids, processor, procs, llm, on_done=lambda p: progress.advance(task),
+                                           on_step=on_step, on_notice=lambda text: click.echo(text, err=True))
+        else:
+            done = consolidate_bank(b, pids, procs, on_participant=lambda p: on_step(p, "consolidating"),
+                                    on_done=lambda p: progress.advance(task))
         progress.update(task, description="done")
     persist_bank(b.path, [r["participant"] for r in done.rows if r["status"] == "consolidated"])
     click.echo(render(pl.DataFrame(done.rows), fmt))

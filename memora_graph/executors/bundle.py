@@ -1,0 +1,146 @@
+"""Moving one participant's memory between the bank and a task's scratch space.
+
+The driver takes a `snapshot` of what the bank holds of a participant (its database with any
+log or shadow file, its staged videos, its manifest entry and unfinished-write mark); a task
+unpacks it into a scratch bank (`open_scratch`), where the ordinary library code builds or
+consolidates it exactly as it would in the bank (an interrupted build resumes there as it
+would here); `seal` hands back the closed database and the manifest entry the library wrote
+for it (counts, videos, annotation fingerprints, inferred knowledge, indexes, integrity hash);
+the driver `install`s both: the file replaces the bank's atomically, and the entry goes into
+manifest.json under its lock. Until the entry is written, the participant carries an
+unfinished-build mark, so a driver killed between the two steps leaves a participant the next
+build resumes, never a database that disagrees with its record.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import uuid
+from pathlib import Path
+
+from memora_graph.bank import Bank, _now
+from memora_graph.errors import BankError
+from memora_graph.integrity.files import file_sha256, side_files
+
+STAGING = ".staging"
+
+
+def snapshot(bank: Bank, participant: str) -> dict:
+    """What the bank holds of a participant, as plain data a task can receive."""
+    data = bank.manifest()
+    files: dict[str, bytes] = {}
+    for f in sorted(bank.path.glob(f"{participant}.kuzu*")):
+        if f.is_file():
+            files[f.name] = f.read_bytes()
+    staging = bank.path / STAGING / participant
+    if staging.is_dir():
+        for f in sorted(staging.rglob("*")):
+            if f.is_file():
+                files[str(Path(STAGING) / participant / f.relative_to(staging))] = f.read_bytes()
+    manifest = {k: data[k] for k in ("format", "mode", "embed_model") if k in data}
+    manifest.update(consolidated=False, participants={})
+    if participant in data["participants"]:
+        manifest["participants"][participant] = data["participants"][participant]
+    mark = data.get("writing", {}).get(participant)
+    if mark:  # an unfinished write: the scratch build resumes it, as a build in the bank would
+        manifest["writing"] = {participant: {**mark, "pid": None, "failed_in": mark.get("pid")}}
+    return {"participant": participant, "manifest": manifest, "files": files}
+
+
+def open_scratch(snap: dict, root: str | None = None) -> Bank:
+    """A scratch bank holding one participant's snapshot, in a new temporary directory."""
+    import json
+
+    path = Path(tempfile.mkdtemp(prefix=f"memora-{snap['participant']}-", dir=root))
+    for name, blob in snap["files"].items():
+        target = path / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(blob)
+    (path / "manifest.json").write_text(json.dumps(snap["manifest"], indent=2, sort_keys=True))
+    (path / ".build.lock").touch()
+    return Bank(path)
+
+
+def seal(scratch: Bank, participant: str, shared: str | None = None) -> dict:
+    """The finished participant of a scratch bank: its manifest entry and its database file
+    (bytes, or a path under `shared` that the driver can read)."""
+    data = scratch.manifest()
+    db = scratch.db_path(participant)
+    if data.get("writing", {}).get(participant):
+        raise BankError(f"{db}: the task left its write unfinished; not handed back")
+    sides = side_files(db)
+    if sides:
+        raise BankError(f"{sides[0]}: left next to the finished database; not handed back")
+    entry = data["participants"].get(participant)
+    if not entry or not entry.get("integrity"):
+        raise BankError(f"{db}: no manifest entry with an integrity record; not handed back")
+    out = {"participant": participant, "entry": entry}
+    if shared:
+        folder = Path(shared)
+        folder.mkdir(parents=True, exist_ok=True)
+        target = folder / f".{participant}.kuzu.{uuid.uuid4().hex}"
+        shutil.copyfile(db, target)
+        out["path"] = str(target)
+    else:
+        out["bytes"] = db.read_bytes()
+    return out
+
+
+def install(bank: Bank, participant: str, sealed: dict) -> None:
+    """Put a sealed participant into the bank: the file is written next to the database, checked
+    against the hash its entry records, and renamed over it; then the entry is written to the
+    manifest under its lock and the unfinished-build mark cleared, as a local build leaves them.
+    The caller holds the participant's build lock."""
+    entry = sealed["entry"]
+    integ = entry["integrity"]
+    db = bank.db_path(participant)
+    part = bank.path / f".{participant}.kuzu.incoming-{os.getpid()}"
+    try:
+        if "path" in sealed:
+            shutil.copyfile(sealed["path"], part)
+        else:
+            with open(part, "wb") as fh:
+                fh.write(sealed["bytes"])
+                fh.flush()
+                os.fsync(fh.fileno())
+        st = part.stat()
+        if st.st_size != integ.get("bytes") or file_sha256(part, st) != integ.get("sha256"):
+            raise BankError(f"{participant}: the database a task handed back does not match the hash recorded with "
+                            "it (damaged in transfer); the bank was not changed")
+        mark = {"op": "build", "pid": os.getpid(), "since": _now()}
+        bank.update_manifest(lambda data: data.setdefault("writing", {}).__setitem__(participant, mark))
+        for side in side_files(db):  # an interrupted build's log: the new file holds everything it had
+            side.unlink()
+        os.replace(part, db)
+    finally:
+        part.unlink(missing_ok=True)
+        if "path" in sealed:
+            Path(sealed["path"]).unlink(missing_ok=True)
+    shutil.rmtree(bank.path / STAGING / participant, ignore_errors=True)
+    _drop_empty(bank.path / STAGING)
+
+    def change(data: dict) -> None:
+        data["participants"][participant] = entry
+        marks = data.get("writing", {})
+        marks.pop(participant, None)
+        if not marks:
+            data.pop("writing", None)
+        Bank.set_indexes(data, participant, entry.get("indexes", []))
+        if "consolidated" in entry:
+            Bank.set_condition(data)
+
+    bank.update_manifest(change)
+    bank._remember(participant, db.stat(), integ["sha256"])
+
+
+def remove_scratch(scratch: Bank) -> None:
+    shutil.rmtree(scratch.path, ignore_errors=True)
+
+
+def _drop_empty(folder: Path) -> None:
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
