@@ -48,26 +48,6 @@ class ChatReply(BaseModel):
         return out
 
 
-@dataclass
-class _Completion:
-    """One completed request to a model (after transport retries)."""
-
-    content: str
-    tool_calls: list[dict[str, Any]]
-    usage: dict[str, Any] | None
-    finish_reason: str | None
-    model: str | None
-    reasoning: str | None = None
-
-
-@dataclass
-class _CallStats:
-    """What one `chat` call cost so far; filled in as requests happen, so failures count too."""
-
-    retries: int = 0
-    completions: list[_Completion] = field(default_factory=list)
-
-
 
 @dataclass
 class _Request:
