@@ -80,7 +80,7 @@ def call_stats(bank_path: str | Path, participants: list[str] | None = None, by:
 # -- what a build reports (`memora build`) ------------------------------------------------------
 def build_summary(result, bank: str | Path, *, episodic: bool = False, mode: str = "edited",
                   fts: bool = False) -> tuple[pl.DataFrame, list[str]]:
-    """One row per participant of an annotation build (`pipeline.BuildResult`), and the lines
+    """One row per participant of an annotation build (`pipeline.BankBuild`), and the lines
     that say where the time went."""
     rows = []
     for r in result.participants:
@@ -106,7 +106,7 @@ def build_summary(result, bank: str | Path, *, episodic: bool = False, mode: str
 
 
 def video_build_summary(res, bank: str | Path) -> tuple[pl.DataFrame, list[str], list[str]]:
-    """One row per video of a video build (`pipeline.VideoBuildResult`), the summary lines, and
+    """One row per video of a video build (`pipeline.VideoBuild`), the summary lines, and
     warnings (turns not written because the model's reply stayed invalid)."""
     rows = [{"video": v["video"], "turns": v.get("turns", 0), "segments": v.get("segments", 0),
              "failed_turns": len(v.get("perception_failed", [])) + len(v.get("editor_failed", [])),

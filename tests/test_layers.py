@@ -19,7 +19,7 @@ RULES = (
      or m.startswith(("cli_", "perf_", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
-    ("consolidate", lambda m: m.startswith("consolidate") or m in ("pipeline", "executors.build")),
+    ("consolidate", lambda m: m.startswith(("consolidate", "pipeline.")) or m in ("pipeline", "executors.build")),
     ("retrieve", lambda m: m.startswith(("retrieve", "baselines", "explore", "transfer"))),
     ("agent", lambda m: m.startswith("agent")),
     ("serve", lambda m: m.startswith("serve")),  # the MCP server: over retrieve and agent, below the commands
@@ -78,3 +78,4 @@ def test_the_layer_check_sees_a_violation(tmp_path):
     assert _imports(bad) == [(2, "memora_graph.bench.run")]
     assert ORDER.index(layer_of("bench.run")) > ORDER.index(layer_of("form.editor"))
     assert layer_of("consolidate.cli") == "cli" and layer_of("baselines.flat1d") == "retrieve"
+    assert layer_of("pipeline") == layer_of("pipeline.workers") == "consolidate"

@@ -1,7 +1,7 @@
 """Builds and consolidation on Ray: one task per participant.
 
 Each task unpacks the participant's snapshot into the worker's scratch space, runs the same
-library code a local build runs there (`pipeline._build_one`, `build_from_video`,
+library code a local build runs there (`pipeline.participant._build_one`, `build_from_video`,
 `finish_participant`), and hands back the closed database with the manifest entry it recorded
 (`bundle.seal`). The driver installs each one as it arrives (`bundle.install`), holding every
 planned participant's build lock for the whole run, so no other build can touch them meanwhile.
@@ -67,7 +67,7 @@ def build_task(snap: dict, actions, durations: dict, classes, opts: dict, embed_
                shared: str | None, *, progress: Callable) -> dict:
     """On a worker: build one participant in scratch space; its sealed database and _Built."""
     from memora_graph.embed import ThreadGovernor
-    from memora_graph.pipeline import _build_one
+    from memora_graph.pipeline.participant import _build_one
 
     p = snap["participant"]
     scratch = bundle.open_scratch(snap)

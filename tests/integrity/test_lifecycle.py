@@ -153,7 +153,7 @@ def test_changed_annotations_of_a_built_video_point_to_rebuild(bank, tmp_path):
 
 
 def test_a_failed_rebuild_puts_the_old_database_back(bank, tmp_path, monkeypatch):
-    import memora_graph.pipeline as pipeline
+    import memora_graph.pipeline.annotations as annotations
 
     before = (bank / "P09.kuzu").read_bytes()
     entry = Bank(bank).manifest()["participants"]["P09"]
@@ -161,7 +161,7 @@ def test_a_failed_rebuild_puts_the_old_database_back(bank, tmp_path, monkeypatch
     def boom(*a, **k):
         raise RuntimeError("simulated failure in the middle of the rebuild")
 
-    monkeypatch.setattr(pipeline, "_build_one", boom)
+    monkeypatch.setattr(annotations, "_build_one", boom)  # where build_bank looks it up
     with pytest.raises(RuntimeError, match="simulated"):
         build_bank(bank, rebuild=["P09"])
     assert (bank / "P09.kuzu").read_bytes() == before
