@@ -13,6 +13,7 @@ from memora_graph.cli_options import (
 )
 from memora_graph.errors import MemoraError
 from memora_graph.executors.cli import executor_from, executor_options
+from memora_graph.output import output_options, render
 
 bench_group = click.Group(
     "bench",
@@ -203,6 +204,48 @@ def report_cmd(run_dir, show):
     if show:
         click.echo(paths["markdown"].read_text())
     click.echo("Wrote " + ", ".join(str(p) for p in paths.values()))
+
+
+@bench_group.command("compare")
+@click.argument("run_a", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("run_b", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--show", type=click.IntRange(min=0), default=10, show_default=True,
+              help="List this many differing items (kind, condition, item id, fields that differ).")
+@click.option("--check", is_flag=True, help="Exit with status 1 when any record differs or is missing from one run.")
+@output_options
+def compare_cmd(run_a, run_b, show, check, fmt):
+    """Compare two runs record by record, timings set aside: per task kind and condition, the
+    records that differ, the answers or plans that changed, the fields that differ, and EAM-QA
+    accuracy of each run.
+
+    Use it to show that a change left the evaluation alone (a refactor, another executor, more
+    concurrency), or to count what a reader change did.
+
+    \b
+    Examples:
+      memora bench compare runs/before runs/after
+      memora bench compare runs/local runs/ray --check     # exit 1 if anything differs
+      memora bench compare runs/before runs/after --json --show 0
+    """
+    import polars as pl
+
+    from memora_graph.bench.compare import compare_runs
+
+    try:
+        result = compare_runs(run_a, run_b)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    click.echo(render(pl.DataFrame(result.rows), fmt))
+    if fmt == "table":
+        for d in result.differences[:show]:
+            click.echo(f"differs: {d.kind} {d.condition} {d.item_id}: {', '.join(d.fields)}")
+        if len(result.differences) > show:
+            click.echo(f"... and {len(result.differences) - show} more (--show N)")
+        total = sum(r["records_a"] for r in result.rows)
+        click.echo("identical (timings aside)" if result.identical else
+                   f"{len(result.differences)} of {total} records differ (timings aside)")
+    if check and not result.identical:
+        raise SystemExit(1)
 
 
 @bench_group.command("synth")
