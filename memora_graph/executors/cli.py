@@ -56,9 +56,9 @@ def build_video_ray(bank: str, video: str, backend: str, embed_model: str | None
                     opts: dict) -> None:
     """`memora build --video ... --executor ray`: one task per participant, one progress bar."""
     import polars as pl
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from memora_graph.bank import Bank, check_writable
+    from memora_graph.cli_options import progress_bar
     from memora_graph.executors.build import video_on_ray
     from memora_graph.output import render
     from memora_graph.stats import decision_shares
@@ -67,8 +67,7 @@ def build_video_ray(bank: str, video: str, backend: str, embed_model: str | None
     if opts.get("video_id") and len(jobs) > 1:
         raise click.UsageError("--video-id names one video of one participant")
     kwargs = {**opts, "backend": backend, "embed_model": embed_model}
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                        disable=quiet, transient=False)
+    progress = progress_bar(quiet)
     task = progress.add_task("video clips", total=0)
 
     def on_event(ev: tuple) -> None:
