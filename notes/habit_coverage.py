@@ -4,12 +4,11 @@ option? Analysis only (it reads gold answers, which the reader never does):
 
     python notes/habit_coverage.py BANK    # BANK: memora build BANK --participants P01,P02,P03,P04
 """
-import json, sys
+import sys
 from collections import Counter
-from pathlib import Path
 from memora_graph.retrieve.view import MemoryView
 from memora_graph.retrieve.tools import _preference_record
-from memora_graph.agent.reading import parse_question, option_items, _is_trigger, _items_of
+from memora_graph.agent.reading import parse_question, option_items, _is_trigger
 from memora_graph.agent.evidence import _preference_events
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.bench.tasks import load_suite
