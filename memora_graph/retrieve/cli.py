@@ -131,7 +131,8 @@ def tools_cmd(family, fmt):
               help="A tool argument (see `memora tools`). Repeatable.")
 @click.option("--recipe", type=RECIPE, default=None,
               help="Retrieval variant of the MEMORA tools (see memora_graph/retrieve/search.py). Default: "
-                   "'inprocess', or 'hnsw' for a memory of HNSW_MIN_SEGMENTS segments or more that has its indexes.")
+                   "'inprocess'; 'hnsw' from HNSW_MIN_SEGMENTS segments on, for a memory that has its indexes, once a "
+                   "measured size sets it (none yet).")
 @click.option("--memory", "family", type=FAMILY, default="memora", show_default=True,
               help="Which memory the tool reads: memora, or a baseline's representation (flat1d, graph2d).")
 @output_options

@@ -54,11 +54,14 @@ RECIPES: dict[str, SearchConfig] = {
 }
 DEFAULT_RECIPE = "inprocess"
 # From this many segments on, a participant whose database has the FTS and HNSW indexes opens with
-# the "hnsw" recipe when no recipe is asked for. `memora perf scale` (README "Memory at scale"): at
-# 3,612 and 10,801 segments (10 and 30 h of P01) the in-process recipe was cheaper (median tool p95
-# 11.5 / 18.8 ms CPU against 16.7 / 23.6), at 36,003 (100 h) HNSW was (45.0 against 64.4); this is
-# the smallest size measured faster.
-HNSW_MIN_SEGMENTS = 36_000
+# the "hnsw" recipe when no recipe is asked for; None: never (ask for it with --recipe hnsw).
+# `memora perf scale` (README "Memory at scale"): at 3,612 and 10,801 segments (10 and 30 h of P01)
+# the in-process recipe was cheaper. A first 100 h run (36,003 segments, on code since improved:
+# persisted stores, one BLAS thread) had HNSW cheaper (median tool p95 45.0 against 64.4 ms CPU)
+# and set 36,000 here; re-measured on this code, the in-process recipe is as cheap or cheaper at
+# 100 h (47.8 against 51.0) and at 300 h (108,005 segments: 110.5 against 124.3, and cheaper in CPU
+# p50 on all 8 tools). No measured size has HNSW faster, so the switch is off until one does.
+HNSW_MIN_SEGMENTS: int | None = None
 
 
 # -- vectors ---------------------------------------------------------------------------------

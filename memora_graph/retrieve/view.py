@@ -68,7 +68,7 @@ def _recipe_by_size(entry: dict) -> str:
     from memora_graph.store import index_names
 
     indexed = (set(index_names("fts")) | set(index_names("hnsw"))) <= set(entry.get("indexes") or ())
-    big = (entry.get("counts") or {}).get("segments", 0) >= HNSW_MIN_SEGMENTS
+    big = HNSW_MIN_SEGMENTS is not None and (entry.get("counts") or {}).get("segments", 0) >= HNSW_MIN_SEGMENTS
     return "hnsw" if indexed and big else DEFAULT_RECIPE
 
 
@@ -111,6 +111,8 @@ class MemoryView:
         indexed recipe measured faster (`memora perf scale`). Without the indexes it stays exact."""
         from memora_graph.store import index_names
 
+        if HNSW_MIN_SEGMENTS is None:
+            return DEFAULT_RECIPE  # no measured size has HNSW faster (retrieve/search.py)
         have = set(self.store.indexes())
         if not have or not (set(index_names("fts")) | set(index_names("hnsw"))) <= have:
             return DEFAULT_RECIPE  # most banks: one index listing, no count

@@ -121,3 +121,10 @@ def test_default_recipe_switches_to_hnsw_at_the_threshold(scaled, small_bank, mo
     monkeypatch.setattr(view_module, "HNSW_MIN_SEGMENTS", 0)
     with MemoryView.open(small_bank[0], "P37") as view:  # no indexes: stays exact, whatever its size
         assert view.recipe == "inprocess"
+    monkeypatch.setattr(view_module, "HNSW_MIN_SEGMENTS", None)  # no size measured HNSW faster: never switch
+    with MemoryView.open(bank, "P37") as view:
+        assert view.recipe == "inprocess"
+    from memora_graph.store import index_names
+
+    assert view_module._recipe_by_size({"indexes": list(index_names("fts")) + list(index_names("hnsw")),
+                                        "counts": {"segments": 10**9}}) == "inprocess"
