@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from memora_graph.bench.aggregate import eam_scores
 from memora_graph.bench.run import load_run
 from memora_graph.errors import MemoraError
 
@@ -52,8 +53,9 @@ class RunComparison:
 
 
 def _accuracy(records: list[dict]) -> float | None:
-    scored = [r for r in records if r.get("status") == "ok" and "is_correct" in r]
-    return round(100 * sum(bool(r["is_correct"]) for r in scored) / len(scored), 1) if scored else None
+    """EAM-QA accuracy in percent as the report computes it (a failed item counts as wrong)."""
+    acc = eam_scores(records)["accuracy"]
+    return None if acc is None else round(100 * acc, 1)
 
 
 def compare_runs(a: str | Path, b: str | Path) -> RunComparison:

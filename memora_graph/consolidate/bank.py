@@ -52,6 +52,16 @@ def consolidation_targets(bank: Bank, participants: list[str] | None) -> list[st
     return pids
 
 
+def _check_writable(bank: Bank, participants: list[str]) -> None:
+    """Open every participant's database for writing once, so that one another process holds
+    fails before any model call or task."""
+    for p in participants:
+        try:
+            bank.open(p, read_only=False).close()
+        except StoreError as exc:
+            raise MemoraError(f"cannot consolidate {p}: {exc}") from exc
+
+
 def consolidate_bank(bank: Bank, participants: list[str], processors: Processors, embedder=None,
                      on_participant: Callable[[str], None] | None = None,
                      on_done: Callable[[str], None] | None = None) -> BankConsolidation:
@@ -60,11 +70,7 @@ def consolidate_bank(bank: Bank, participants: list[str], processors: Processors
     Every participant's database is first opened for writing once, so that one another process
     holds fails before any model call. A participant whose every model step failed keeps its
     previous knowledge and gets an "unchanged" row; failed steps are listed in `failed`."""
-    for p in participants:
-        try:
-            bank.open(p, read_only=False).close()
-        except StoreError as exc:
-            raise MemoraError(f"cannot consolidate {p}: {exc}") from exc
+    _check_writable(bank, participants)
     if embedder is None:
         from memora_graph.embed import get_embedder
 
@@ -105,11 +111,7 @@ def consolidate_bank_on_ray(executor, bank: Bank, participants: list[str], proce
     `processor` is the registered name the tasks build their own processors from."""
     from memora_graph.executors.build import consolidate_on_ray
 
-    for p in participants:  # a participant another process holds fails here, before any task starts
-        try:
-            bank.open(p, read_only=False).close()
-        except StoreError as exc:
-            raise MemoraError(f"cannot consolidate {p}: {exc}") from exc
+    _check_writable(bank, participants)
     out = BankConsolidation()
     for row, lines, calls in consolidate_on_ray(executor, bank, participants, processor, llm_options,
                                                 on_participant=on_done, on_step=on_step, on_notice=on_notice):

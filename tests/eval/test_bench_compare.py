@@ -44,7 +44,8 @@ def test_compare_two_runs(small_bank, tiny_tasks, tmp_path):
     first_id = recs[0]["item_id"]
 
     def flip(rs):
-        rs[0]["predicted"] = "D" if rs[0]["predicted"] != "D" else "A"
+        gold = rs[0]["correct_answer"]  # right becomes wrong, wrong becomes right: accuracy moves
+        rs[0]["predicted"] = gold if rs[0]["predicted"] != gold else ("A" if gold != "A" else "B")
         rs[0]["is_correct"] = not rs[0]["is_correct"]
         rs[1]["tool_calls"][0]["arguments"] = {"query": "something else"}
         return rs
