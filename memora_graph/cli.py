@@ -280,10 +280,14 @@ def index(bank, fts, hnsw, participants, fmt):
 
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
+    from memora_graph.retrieve.persist import persist_bank
+
     done = Bank(bank).build_indexes(participants, fts=fts, hnsw=hnsw)
     rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),
              "seconds": round(r["seconds"], 1)} for p, r in done.items()]
     click.echo(render(pl.DataFrame(rows), fmt))
+    stores = persist_bank(bank, list(done))  # an index is a write: the tool stores are stale until written again
+    click.echo(f"tool stores written again: {len(stores.written)} participants in {stores.seconds:.1f} s", err=True)
 
 
 @main.command()

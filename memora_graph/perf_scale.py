@@ -106,17 +106,21 @@ def run_scale(participant: str, sizes: list[float], work: Path, seed: int = 0, n
             shutil.rmtree(bank)  # a build this folder did not record as finished starts again
         build = _step(work, f"build-{tag}", ["_build", str(bank), str(synth_dir / "annotations.csv"), participant], echo)
         index = _step(work, f"index-{tag}", ["_index", str(bank), participant], echo)
+        stores = _step(work, f"stores-{tag}", ["_stores", str(bank), participant], echo)
         row = {"hours": hours, "segments": build["segments"], "entities": build["entities"],
                "entity_records": build.get("entity_records"),
                "state_events": build["state_events"], "build_s": build["wall_s"], "build_cpu_s": build["cpu_s"],
                "build_s_per_hour": round(build["wall_s"] / hours, 2),
                "build_cpu_s_per_hour": round(build["cpu_s"] / hours, 2), "build_rss_mb": build["peak_rss_mb"],
                "bank_mb": round(build["bank_bytes"] / 1e6, 1), "index_s": index["wall_s"],
-               "bank_indexed_mb": round(index["bank_bytes"] / 1e6, 1)}
+               "bank_indexed_mb": round(index["bank_bytes"] / 1e6, 1), "stores_s": stores["wall_s"],
+               "stores_cpu_s": stores["cpu_s"], "stores_rss_mb": stores["peak_rss_mb"],
+               "stores_mb": round(stores["stores_bytes"] / 1e6, 1)}
         for recipe in recipes:
             q = _step(work, f"tools-{tag}-{recipe}", ["_tools", str(bank), participant, recipe, str(n_queries)], echo)
             row[f"{recipe}_open_s"] = q["open_s"]
             row[f"{recipe}_open_cpu_s"] = q.get("open_cpu_s")
+            row[f"{recipe}_first_calls_s"] = q.get("first_calls_s")
             row[f"{recipe}_rss_mb"] = q["peak_rss_mb"]
             for tool, t in q["tools"].items():
                 tool_rows.append({"hours": hours, "segments": build["segments"], "recipe": recipe, "tool": tool, **t})
@@ -166,6 +170,14 @@ def _index_step(bank: str, participant: str) -> dict:
     return {"bank_bytes": _dir_bytes(Path(bank))}
 
 
+def _stores_step(bank: str, participant: str) -> dict:
+    """The tool stores persisted next to the bank (as `memora build` and `memora index` write them)."""
+    from memora_graph.retrieve.persist import persist_bank
+
+    done = persist_bank(bank, [participant])
+    return {"stores_bytes": sum(_dir_bytes(Path(d)) for d in done.written)}
+
+
 def _tools_step(bank: str, participant: str, recipe: str, n_queries: int) -> dict:
     from memora_graph.embed import get_embedder
     from memora_graph.retrieve.perf import TOOLS, _pct, _queries, _timed
@@ -178,9 +190,11 @@ def _tools_step(bank: str, participant: str, recipe: str, n_queries: int) -> dic
     view = MemoryView.open(bank, participant, embedder, config=recipe)
     try:
         view.warm()
+        open_s, open_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+        t1 = time.perf_counter()
         for tool in TOOLS:  # one untimed call each: prepared statements, lazily loaded tables
             call_tool(view, tool, _queries(tool, view, 1)[0])
-        open_s, open_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+        first_calls_s = time.perf_counter() - t1
         out = {}
         for tool in TOOLS:
             cold, cold_cpu, warm = [], [], []
@@ -194,7 +208,8 @@ def _tools_step(bank: str, participant: str, recipe: str, n_queries: int) -> dic
                          "warm_p95_ms": round(_pct(warm, .95), 2)}
     finally:
         view.close()
-    return {"open_s": round(open_s, 3), "open_cpu_s": round(open_cpu_s, 3), "tools": out}
+    return {"open_s": round(open_s, 3), "open_cpu_s": round(open_cpu_s, 3), "first_calls_s": round(first_calls_s, 3),
+            "tools": out}
 
 
 @click.command("scale")
@@ -254,6 +269,8 @@ def _main(argv: list[str]) -> None:
         result = _build_step(*args)
     elif step == "_index":
         result = _index_step(*args)
+    elif step == "_stores":
+        result = _stores_step(*args)
     elif step == "_tools":
         result = _tools_step(args[0], args[1], args[2], int(args[3]))
     else:

@@ -55,6 +55,8 @@ def test_index_command_builds_fts_indexes_and_the_fts_recipe_works(bank_copy, em
     manifest = Bank(bank_copy).manifest()
     assert set(manifest["participants"]["P37"]["indexes"]) == FTS
     assert manifest["indexes"]["fts"] is False  # P09 has none yet
+    with MemoryView.open(bank_copy, "P37", embedder) as view:  # the index wrote the tool stores again: current
+        assert view._persisted is not None
     for recipe in ("fts", "kuzu"):
         with MemoryView.open(bank_copy, "P37", embedder, config=recipe) as view:
             out = call_tool(view, "search_objects", {"query": "knife"})

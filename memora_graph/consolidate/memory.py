@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import polars as pl
+
 from memora_graph.consolidate import vocab
 from memora_graph.store import Store
 
@@ -102,8 +104,10 @@ class ParticipantMemory:
 
 def load_memory(store: Store, participant: str) -> ParticipantMemory:
     segments = store.run("_consolidate_segments", participant=participant).to_dicts()
-    events = store.run("_consolidate_events", participant=participant).to_dicts()
-    merged = {e["entity"]: e["merged_into"] for e in events if e["status"] == "merged" and e["merged_into"]}
+    events = store.run("_consolidate_events", participant=participant)  # read row by row: at 1,000 h a
+    # participant has over a million state events, and a dict per row at once would cost gigabytes
+    merged = dict(events.filter((pl.col("status") == "merged") & (pl.col("merged_into").fill_null("") != ""))
+                  .select("entity", "merged_into").iter_rows())
 
     def resolve(entity: str) -> str:
         seen = set()
@@ -115,7 +119,7 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
     steps: list[Step] = []
     current: Step | None = None
     key = None
-    for e in events:  # ordered by video, t, ord: one narration's entries are adjacent
+    for e in events.iter_rows(named=True):  # ordered by video, t, ord: one narration's entries are adjacent
         k = (e["video"], e["t"], e["narration"])
         obj = Obj(e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
         if k != key:

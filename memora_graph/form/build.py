@@ -293,7 +293,6 @@ class ParticipantBuilder:
         if not self.staged:
             return 0.0
         t0 = time.perf_counter()
-        staged = [st.frames() for st in self.staged]
         p, dim = self.participant, self.embedder.dim
         ents = self.editor.entities
         new_ents = [ents[i] for i in sorted(ents) if i not in self.db_entities]
@@ -320,7 +319,7 @@ class ParticipantBuilder:
             if not s.run("_participant_exists", participant=p)["n"][0]:
                 s.copy("Participant", pl.DataFrame({"id": [p], "participant": [p]}))
             for table in NODE_ORDER:
-                frames = [st[table] for st in staged if st.get(table) is not None]
+                frames = self._staged_frames(table)
                 if table == "Place" and new_places:
                     s.copy("Place", schema.frame("Place", [_place_row(pp) for pp in new_places]).with_columns(
                         _emb_series(list(place_vecs[: len(new_places)]), dim)))
@@ -329,6 +328,7 @@ class ParticipantBuilder:
                         _emb_series([e.emb if e.emb is not None else np.zeros(dim) for e in new_ents], dim)))
                 elif frames:
                     s.copy(table, pl.concat(frames, how="vertical_relaxed"))
+                del frames
             if changed:
                 s.run("_entity_update", participant=p, rows=[_entity_row(e) for e in changed])
             if changed_places:
@@ -341,15 +341,20 @@ class ParticipantBuilder:
             if located:
                 s.copy("LOCATED_AT", pl.DataFrame(located))
             for table in REL_ORDER:
-                frames = [st[table] for st in staged if st.get(table) is not None]
+                frames = self._staged_frames(table)
                 if frames:
                     s.copy(table, pl.concat(frames, how="vertical_relaxed"))
+                del frames
         self.store.close()  # checkpoint: the staged videos are in the database file now
         self.store = None
         self.staging.clear(self.staged)
         self.in_db |= self.done
         self.staged, self.staged_now = [], []
         return time.perf_counter() - t0
+
+    def _staged_frames(self, table: str) -> list[pl.DataFrame]:
+        """The staged videos' rows of one table, read from disk when the table is loaded."""
+        return [f for st in self.staged if (f := st.frame(table)) is not None]
 
     def _read(self, name: str) -> list[dict]:
         if self.store is not None:

@@ -65,6 +65,13 @@ class StagedVideo:
         """The video's graph rows per table (snapshot tables excluded)."""
         return {f.stem: self._frame(f.name) for f in sorted(self.path.glob("*.arrow")) if f.stem not in SNAPSHOT_TABLES}
 
+    def frame(self, table: str) -> pl.DataFrame | None:
+        """One table's rows of the video (None when it has none): a bulk load reads a table at a
+        time, so a long build never holds every staged row at once."""
+        if table in SNAPSHOT_TABLES or not (self.path / f"{table}.arrow").exists():
+            return None
+        return self._frame(f"{table}.arrow")
+
     def snapshot(self) -> tuple[pl.DataFrame, pl.DataFrame, dict]:
         """(entities, places, counters) of the editor after this video."""
         counters = json.loads(self._bytes(COUNTERS))

@@ -79,6 +79,7 @@ def test_perf_scale_end_to_end(scaled):
     (size,) = res["sizes"]
     assert size["hours"] == 1.0 and size["segments"] > 300 and size["build_s_per_hour"] > 0
     assert size["bank_mb"] > 0 and size["bank_indexed_mb"] > size["bank_mb"]
+    assert size["stores_mb"] > 0 and size["stores_rss_mb"] > 50  # measured as a user's bank has them: current
     for recipe in ("inprocess", "hnsw"):
         assert size[f"{recipe}_open_s"] > 0 and size[f"{recipe}_rss_mb"] > 50
         tools = {t["tool"] for t in res["tools"] if t["recipe"] == recipe}
@@ -90,6 +91,7 @@ def test_perf_scale_end_to_end(scaled):
     from memora_graph.retrieve.view import MemoryView
 
     with MemoryView.open(work / "bank-1h", "P37") as view:
+        assert view._persisted is not None  # the stores step left them current after the index step
         assert set(view.videos) == {"P37_104", "P37_105"}
         names = {e["name"] for e in view.entities.values()}
     assert any(" ".join(n.split()[:2]).replace(" ", ":") in QUALIFIERS for n in names)  # "red small plate"
