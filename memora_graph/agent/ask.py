@@ -51,10 +51,9 @@ class AskResult:
 
 
 def _embedder():
-    from memora_graph.embed import get_embedder
+    from memora_graph.vector_store import query_vectors
 
-    e = get_embedder()
-    return lambda texts: e.encode(texts, kind="query")
+    return query_vectors().encode  # the reader's vectors, as the benchmark's offline policy has them
 
 
 def _cite(ids: list[str], events: list[Event], limit: int = 8) -> list[dict]:

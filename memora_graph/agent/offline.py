@@ -141,7 +141,11 @@ class OfflinePolicy:
         return Lexicon.load()
 
     def embed(self, texts: list[str]):
-        return self.embedder.encode(texts, kind="query")
+        """Query-encoder vectors of the reader's texts, each encoded alone and kept between runs
+        (memora_graph/vector_store.py): the same vectors in every process, run and worker split."""
+        from memora_graph.vector_store import query_vectors
+
+        return query_vectors(self.embedder).encode(texts)
 
     def decide(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> Decision:
         """The typed reader's decision over the tool results of the calls made."""
@@ -151,8 +155,8 @@ class OfflinePolicy:
     def choose(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> tuple[str, str]:
         choices = view["choices"][:4]
         if not calls:  # closed-book prior (Parametric)
-            q = self.embedder.encode([_stem(view["question"])], kind="query")[0]
-            c = self.embedder.encode(choices, kind="query")
+            q = self.embed([_stem(view["question"])])[0]
+            c = self.embed(choices)
             best = int(np.argmax(c @ q))
             return "ABCD"[best], "Closed-book prior: no memory available."
         d = self.decide(view, calls)

@@ -67,3 +67,28 @@ def test_compare_two_runs(small_bank, tiny_tasks, tmp_path):
     assert res.exit_code == 0 and {r["condition"] for r in json.loads(res.output)} == {"no_memory", "memora_full"}
     res = CliRunner().invoke(main, ["bench", "compare", str(a), str(tmp_path)])
     assert res.exit_code == 1 and f"{tmp_path}: not a run directory" in res.output and "Traceback" not in res.output
+
+
+def test_the_readers_vector_cache_changes_speed_not_records(small_bank, tiny_tasks, tmp_path, monkeypatch):
+    """The offline reader's text vectors (memora_graph/vector_store.py) kept on disk: a run with
+    them in memory only, a run that fills the file, and a later run that reads every vector
+    from it give the same records."""
+    from memora_graph import vector_store
+    from memora_graph.embed import get_embedder
+    from memora_graph.vector_store import TextVectors
+
+    bank, _ = small_bank
+    encoder = get_embedder().inner.query
+    runs = {}
+    for name, tv in (("memory", TextVectors(encoder, persist=False)), ("cold", TextVectors(encoder, root=tmp_path)),
+                     ("warm", TextVectors(encoder, root=tmp_path))):
+        monkeypatch.setattr(vector_store, "_QUERY", {id(encoder): tv})
+        res = run_bench(bank, tmp_path / name, conditions="no_memory,flat_1d_edited,memora_full", participants=["P37"],
+                        tasks=tiny_tasks, workers=1)
+        assert res.failed == 0
+        runs[name] = tv
+    assert runs["memory"].encoded > 10 and runs["memory"].path is None
+    assert runs["cold"].encoded == runs["memory"].encoded and runs["cold"].from_disk == 0
+    assert runs["warm"].encoded == 0 and runs["warm"].from_disk == runs["cold"].encoded
+    for other in ("cold", "warm"):
+        assert compare_runs(tmp_path / "memory", tmp_path / other).identical
