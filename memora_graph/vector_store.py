@@ -198,21 +198,24 @@ class TextVectors:
             self._disk = None
 
 
-_QUERY: dict[int, TextVectors] = {}
+_QUERY: dict[tuple[int, str], TextVectors] = {}
 
 
-def query_vectors(embedder=None) -> TextVectors:
+def query_vectors(embedder=None, kind: str = "query") -> TextVectors:
     """The process-wide `TextVectors` of `embedder`'s query encoder (default: `get_embedder()`'s),
-    which the offline reader and `memora ask` compare texts with."""
+    which the offline reader, its planner and `memora ask` compare texts with. `kind` 'passage'
+    embeds the texts compared with a query (e5 models prefix them differently; MiniLM does not),
+    in a file of their own."""
     if embedder is None:
         from memora_graph.embed import get_embedder
 
         embedder = get_embedder()
     inner = getattr(embedder, "inner", embedder)
     encoder = getattr(inner, "query", inner)  # SplitEmbedder: its query side (ONNX by default)
-    if id(encoder) not in _QUERY:
-        _QUERY[id(encoder)] = TextVectors(encoder, kind="query")
-    return _QUERY[id(encoder)]
+    key = (id(encoder), kind)
+    if key not in _QUERY:
+        _QUERY[key] = TextVectors(encoder, kind=kind)
+    return _QUERY[key]
 
 
 __all__ = ["ENV", "TextVectors", "encoder_identity", "query_vectors"]

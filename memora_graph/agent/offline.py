@@ -281,7 +281,10 @@ class OfflinePolicy:
         if not acts:
             return []
         texts = [it["text"] for it, _ in acts]
-        sims = self.embedder.encode(texts, kind="passage") @ self.embedder.encode([query], kind="query")[0]
+        from memora_graph.vector_store import query_vectors
+
+        # the reader's own encoder on both sides (no torch in an evaluation whose caches are warm)
+        sims = query_vectors(self.embedder, kind="passage").encode(texts) @ self.embed([query])[0]
         ranked = [acts[i][1] for i in np.argsort(-sims, kind="stable")[:2]]
         steps: list[tuple[str, str]] = []
         for text, place in ranked:

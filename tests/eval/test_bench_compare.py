@@ -82,7 +82,7 @@ def test_the_readers_vector_cache_changes_speed_not_records(small_bank, tiny_tas
     runs = {}
     for name, tv in (("memory", TextVectors(encoder, persist=False)), ("cold", TextVectors(encoder, root=tmp_path)),
                      ("warm", TextVectors(encoder, root=tmp_path))):
-        monkeypatch.setattr(vector_store, "_QUERY", {id(encoder): tv})
+        monkeypatch.setattr(vector_store, "_QUERY", {(id(encoder), "query"): tv})
         res = run_bench(bank, tmp_path / name, conditions="no_memory,flat_1d_edited,memora_full", participants=["P37"],
                         tasks=tiny_tasks, workers=1)
         assert res.failed == 0
