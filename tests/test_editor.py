@@ -90,9 +90,7 @@ def test_prompt_budget_prefilters_by_embedding_but_keeps_exact_names(embedder):
     ed = EntityEditor("P01", embed=lambda s: embedder.encode([s])[0], prompt_budget=5)
     ed.edit(seg(0, *[obs(f"thing_{i}", "idle", "counter_area", kind=f"thing_{i}") for i in range(12)]))
     ed.edit(seg(1, obs("plate", "idle", "counter_area")))
-    live = ed.live()
-    matrix = np.stack([e.emb for e in live])
-    cands = ed.candidates(obs("plate", "held", "counter_area"), live, matrix)
+    cands = ed.candidates(obs("plate", "held", "counter_area"))
     assert len(cands) <= 6 and any(e.kind == "plate" for e in cands)
     r = ed.edit(seg(2, obs("plate", "held", "counter_area")))
     assert r.ops[0][0].op == "UPDATE"
@@ -114,3 +112,51 @@ def test_stale_merge_in_the_same_turn_is_dropped_not_readded():
     assert len(ed.live()) == 1
     assert [op.op for op, _ in r.ops].count("DELETE") == 2
     assert len(r.events) == 3  # every observation still lands in the history
+
+
+def _reference_slice(entities, q, k, kind):
+    """The candidate slice as first written: a stable sort of every live entity's similarity."""
+    live = [e for e in entities.values() if e.status == "active"]
+    if len(live) <= k:
+        return live
+    sims = np.stack([e.emb for e in live]) @ q
+    top = set(np.argsort(-sims, kind="stable")[:k].tolist())
+    return [e for i, e in enumerate(live) if i in top or e.kind == kind]
+
+
+def test_live_index_slices_as_the_stable_sort_does_through_adds_and_deletes():
+    """The registry's live index (kept up to date per edit, not rebuilt per segment) gives the
+    slice a stable sort over every live entity gives: ties by registry order, deleted entities
+    never, every entity of the observed kind."""
+    from memora_graph.form.editor import EntityState, _LiveIndex
+
+    rng = np.random.default_rng(0)
+    # few distinct small-integer vectors: many exact ties, and dot products exact in float32
+    # whatever the summation order (BLAS may sum a row differently with its position)
+    basis = rng.integers(-3, 4, size=(6, 8)).astype(np.float32)
+    entities = {}
+
+    def new(i):
+        e = EntityState(id=f"e{i}", participant="P01", object_id=f"o{i}", kind=f"k{i % 7}", name=f"o{i}")
+        e.emb = basis[rng.integers(len(basis))].copy()
+        return e
+
+    for i in range(40):
+        entities[f"e{i}"] = new(i)
+    index = _LiveIndex(entities, lambda e: e.emb)
+    for step in range(200):
+        if rng.random() < 0.6:
+            e = new(40 + step)
+            entities[e.id] = e
+            index.add(e)
+        else:
+            alive = [e for e in entities.values() if e.status == "active"]
+            victim = alive[rng.integers(len(alive))]
+            index.remove(victim.id)
+            victim.status = "merged"
+        q = basis[rng.integers(len(basis))] + (0 if step % 2 else rng.integers(-2, 3, size=8).astype(np.float32))
+        k, kind = int(rng.integers(1, 30)), f"k{rng.integers(8)}"
+        want = [e.id for e in _reference_slice(entities, q, k, kind)]
+        got = index.live() if index.count <= k else index.nearest(q, k, kind)
+        assert [e.id for e in got] == want, step
+    assert index.count == sum(e.status == "active" for e in entities.values())

@@ -223,21 +223,30 @@ class EntityEditor:
     def live(self) -> list[EntityState]:
         return [e for e in self.entities.values() if e.status == "active"]
 
-    def candidates(self, obs: ObjectObservation, live: list[EntityState], matrix: np.ndarray | None) -> list[EntityState]:
+    def _live_index(self) -> _LiveIndex:
+        """The registry's live rows, kept up to date by `_apply` (rebuilt when `entities` was
+        replaced or grew behind the editor's back, as a resumed build does)."""
+        index = getattr(self, "_index", None)
+        if index is None or index.source is not self.entities or index.seen != len(self.entities):
+            index = self._index = _LiveIndex(self.entities, self._vector if self._embed is not None else None)
+        return index
+
+    def _vector(self, e: EntityState) -> np.ndarray:
+        return e.emb if e.emb is not None else self.embed(e.identity_text())
+
+    def candidates(self, obs: ObjectObservation, live: list[EntityState] | None = None,
+                   matrix: np.ndarray | None = None) -> list[EntityState]:
         """The registry slice a decision may use: all of it within the prompt budget, else the
-        `prompt_budget` nearest by embedding plus every entity with the same normalized name."""
-        if len(live) <= self.prompt_budget or matrix is None:
-            return live
-        sims = matrix @ self.embed(identity_text(obs.name, obs.category))
-        top = set(np.argsort(-sims, kind="stable")[: self.prompt_budget].tolist())
-        return [e for i, e in enumerate(live) if i in top or e.kind == obs.kind]
+        `prompt_budget` nearest by embedding plus every entity with the same normalized name
+        (`live` order, i.e. the registry's). Costs numpy work over the live rows, not Python work
+        per entity: a 1,000-hour memory holds tens of thousands of entities."""
+        index = self._live_index()
+        if index.count <= self.prompt_budget or self._embed is None:
+            return index.live()
+        return index.nearest(self.embed(identity_text(obs.name, obs.category)), self.prompt_budget, obs.kind)
 
     def edit(self, segment: LayeredSegment) -> EditResult:
-        live = self.live()
-        matrix = None
-        if len(live) > self.prompt_budget and self._embed is not None and segment.objects:
-            matrix = np.stack([e.emb if e.emb is not None else self.embed(e.identity_text()) for e in live])
-        cands = [self.candidates(o, live, matrix) for o in segment.objects]
+        cands = [self.candidates(o) for o in segment.objects]
         decisions = self.policy.decide(segment, segment.objects, cands, self.embed if self._embed else None)
         if len(decisions) != len(segment.objects):
             raise ValueError(f"policy {self.policy.name} returned {len(decisions)} decisions for {len(segment.objects)} observations")
@@ -295,7 +304,9 @@ class EntityEditor:
             )
             if self._embed is not None:
                 e.emb = self.embed(e.identity_text())
+            index = self._live_index()
             self.entities[eid] = e
+            index.add(e)
             result.added.append(eid)
             added_here.setdefault(obs.kind, []).append(eid)
             op = op.model_copy(update={"entity_id": eid})
@@ -308,6 +319,8 @@ class EntityEditor:
                     if k in ("state", "location", "held_by") or k in ATTRS:
                         setattr(e, k, v)
             elif op.op == "DELETE":
+                if e.status == "active":
+                    self._live_index().remove(e.id)
                 e.status = "merged" if op.merged_into else "deleted"
                 e.merged_into = op.merged_into or ""
                 e.state = op.changes.get("state", e.state)
@@ -329,3 +342,79 @@ class EntityEditor:
             "relative_to": obs.relative_to, "relation": obs.relation, "action": obs.action,
             "narration": obs.narration, "op": op.op, "segment": seg.segment_id,
         })
+
+
+class _LiveIndex:
+    """The live entities as rows, in registry order: their identity vectors in one growing
+    matrix, their kinds as codes and a live mask, so a candidate slice is a few numpy passes
+    instead of a Python loop and a fresh stack of every vector for each segment (which made a
+    build's cost per hour grow with the number of entities)."""
+
+    def __init__(self, entities: dict[str, EntityState], vector: Callable[[EntityState], np.ndarray] | None):
+        self.source, self.seen = entities, 0
+        self._vector = vector
+        self._rows: list[EntityState] = []
+        self._row_of: dict[str, int] = {}
+        self._kinds: dict[str, int] = {}
+        self._kind = np.zeros(64, dtype=np.int32)
+        self._alive = np.zeros(64, dtype=bool)
+        self._matrix: np.ndarray | None = None
+        self.count = 0
+        for e in entities.values():
+            self.seen += 1
+            if e.status == "active":
+                self._append(e)
+
+    def _append(self, e: EntityState) -> None:
+        n = len(self._rows)
+        if n == len(self._alive):  # grow by doubling
+            self._kind = np.concatenate([self._kind, np.zeros(n, dtype=np.int32)])
+            self._alive = np.concatenate([self._alive, np.zeros(n, dtype=bool)])
+            if self._matrix is not None:
+                self._matrix = np.concatenate([self._matrix, np.zeros_like(self._matrix)])
+        if self._vector is not None:
+            v = np.asarray(self._vector(e), dtype=np.float32)
+            if self._matrix is None:
+                self._matrix = np.zeros((len(self._alive), v.shape[0]), dtype=np.float32)
+            self._matrix[n] = v
+        self._kind[n] = self._kinds.setdefault(e.kind, len(self._kinds))
+        self._alive[n] = True
+        self._rows.append(e)
+        self._row_of[e.id] = n
+        self.count += 1
+
+    def add(self, e: EntityState) -> None:
+        self.seen += 1
+        if e.status == "active":
+            self._append(e)
+
+    def remove(self, entity_id: str) -> None:
+        row = self._row_of.pop(entity_id, None)
+        if row is not None and self._alive[row]:
+            self._alive[row] = False
+            self.count -= 1
+
+    def live(self) -> list[EntityState]:
+        n = len(self._rows)
+        return [self._rows[i] for i in np.flatnonzero(self._alive[:n])]
+
+    def nearest(self, q: np.ndarray, k: int, kind: str) -> list[EntityState]:
+        """The `k` live rows nearest to `q` (ties by registry order, as a stable sort takes them)
+        and every live row of `kind`, in registry order."""
+        n = len(self._rows)
+        alive = self._alive[:n]
+        sims = np.where(alive, self._matrix[:n] @ np.asarray(q, dtype=np.float32), -np.inf)
+        keep = np.zeros(n, dtype=bool)
+        if k >= self.count:
+            keep[alive] = True
+        else:
+            neg = -sims
+            kth = np.partition(neg, k - 1)[k - 1]
+            above = np.flatnonzero(neg < kth)
+            ties = np.flatnonzero(neg == kth)
+            keep[above] = True
+            keep[ties[: k - len(above)]] = True
+        code = self._kinds.get(kind)
+        if code is not None:
+            keep |= alive & (self._kind[:n] == code)
+        return [self._rows[i] for i in np.flatnonzero(keep & alive)]
