@@ -86,12 +86,20 @@ def test_raw_policy_keeps_one_record_per_observation():
     assert len(ed.live()) == 3
 
 
+class _SlicePolicy(DeterministicPolicy):
+    same_kind_only = False  # reads the registry slice as a model's prompt does
+
+
 def test_prompt_budget_prefilters_by_embedding_but_keeps_exact_names(embedder):
-    ed = EntityEditor("P01", embed=lambda s: embedder.encode([s])[0], prompt_budget=5)
+    ed = EntityEditor("P01", policy=_SlicePolicy(), embed=lambda s: embedder.encode([s])[0], prompt_budget=5)
     ed.edit(seg(0, *[obs(f"thing_{i}", "idle", "counter_area", kind=f"thing_{i}") for i in range(12)]))
     ed.edit(seg(1, obs("plate", "idle", "counter_area")))
     cands = ed.candidates(obs("plate", "held", "counter_area"))
-    assert len(cands) <= 6 and any(e.kind == "plate" for e in cands)
+    assert len(cands) <= 6 < len(ed.live()) and any(e.kind == "plate" for e in cands)
+    # a policy that reads only its own kind gets exactly that, with no top-k over the registry
+    ed.policy = DeterministicPolicy()
+    assert [e.kind for e in ed.candidates(obs("plate", "held", "counter_area"))] == ["plate"]
+    assert ed.candidates(obs("cup", "held", "counter_area")) == []
     r = ed.edit(seg(2, obs("plate", "held", "counter_area")))
     assert r.ops[0][0].op == "UPDATE"
 

@@ -79,6 +79,11 @@ class Decision:
 
 class EditPolicy(Protocol):
     name: str
+    # True where `decide` reads only the live entities of each observation's own kind (by name):
+    # the editor then hands it exactly those, and skips the embedding top-k over the whole registry
+    # that a model's prompt needs (a matrix-vector product over every live entity per observation,
+    # which made a long build's cost per hour grow with its entity count). Absent: False.
+    same_kind_only: bool
 
     def decide(
         self, segment: LayeredSegment, observations: list[ObjectObservation],
@@ -91,6 +96,7 @@ class DeterministicPolicy:
     """Identity by normalized name and attributes; embedding similarity breaks ties."""
 
     name = "deterministic"
+    same_kind_only = True  # `_decide_one` keeps only candidates of the observation's kind
 
     def decide(self, segment, observations, candidates, embed) -> list[list[EditOp]]:
         return [self._decide_one(obs, cands, embed) for obs, cands in zip(observations, candidates)]
@@ -139,6 +145,7 @@ class RawPolicy:
     """No editing: every observation becomes its own record (the compression baseline)."""
 
     name = "raw"
+    same_kind_only = True  # reads no candidate at all
 
     def decide(self, segment, observations, candidates, embed) -> list[list[EditOp]]:
         return [[EditOp(op="ADD", entity_id="", reason="raw mode: one record per observation", changes=_add_fields(o))]
@@ -241,6 +248,8 @@ class EntityEditor:
         (`live` order, i.e. the registry's). Costs numpy work over the live rows, not Python work
         per entity: a 1,000-hour memory holds tens of thousands of entities."""
         index = self._live_index()
+        if getattr(self.policy, "same_kind_only", False):
+            return index.of_kind(obs.kind)  # what the wider slice comes to after the policy's own filter
         if index.count <= self.prompt_budget or self._embed is None:
             return index.live()
         return index.nearest(self.embed(identity_text(obs.name, obs.category)), self.prompt_budget, obs.kind)
@@ -397,6 +406,14 @@ class _LiveIndex:
     def live(self) -> list[EntityState]:
         n = len(self._rows)
         return [self._rows[i] for i in np.flatnonzero(self._alive[:n])]
+
+    def of_kind(self, kind: str) -> list[EntityState]:
+        """Every live row of `kind`, in registry order."""
+        code = self._kinds.get(kind)
+        if code is None:
+            return []
+        n = len(self._rows)
+        return [self._rows[i] for i in np.flatnonzero(self._alive[:n] & (self._kind[:n] == code))]
 
     def nearest(self, q: np.ndarray, k: int, kind: str) -> list[EntityState]:
         """The `k` live rows nearest to `q` (ties by registry order, as a stable sort takes them)
