@@ -130,3 +130,17 @@ def test_default_recipe_switches_to_hnsw_at_the_threshold(scaled, small_bank, mo
 
     assert view_module._recipe_by_size({"indexes": list(index_names("fts")) + list(index_names("hnsw")),
                                         "counts": {"segments": 10**9}}) == "inprocess"
+
+
+def test_crossover_needs_hnsw_faster_in_wall_and_in_cpu():
+    from memora_graph.perf_scale import crossover
+
+    def row(h, wall, cpu=(None, None)):
+        return {"hours": h, "segments": h * 360, "inprocess_tool_p50_median_ms": wall[0], "hnsw_tool_p50_median_ms": wall[1],
+                "inprocess_tool_cpu_p50_median_ms": cpu[0], "hnsw_tool_cpu_p50_median_ms": cpu[1]}
+
+    # 1,000 h as measured: HNSW ahead in wall time (Kùzu's threads on an idle core), behind in CPU
+    assert crossover([row(100, (21.3, 27.3), (20.0, 26.0)), row(1000, (101.6, 90.8), (128.8, 134.8))]) is None
+    x = crossover([row(10, (5, 9), (5, 9)), row(100, (30, 20), (30, 25)), row(1000, (100, 50), (120, 60))])
+    assert x == {"hours": 100, "segments": 36000, "slower_below": {"hours": 10, "segments": 3600}}
+    assert crossover([row(100, (30, 20))])["hours"] == 100  # runs saved before CPU was measured: wall alone
