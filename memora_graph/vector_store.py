@@ -170,6 +170,9 @@ class TextVectors:
         if todo and self._disk is not None:
             try:
                 got = self._disk.get(list(todo))
+            except sqlite3.OperationalError as exc:  # a lock held past the timeout: the file is fine, encode
+                log.warning("memora: could not read text vectors from %s (%s)", self._disk.path, exc)
+                got = {}
             except sqlite3.DatabaseError as exc:
                 self._disk, got = self._start_again(self._disk.path, exc), {}
             self._memory.update(got)

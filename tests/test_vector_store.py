@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sqlite3
 import subprocess
 import sys
 
@@ -96,3 +97,24 @@ def test_memory_only_when_switched_off_or_unwritable(query_encoder, tmp_path, mo
         got = tv.encode(TEXTS)
     assert tv.path is None and "kept in memory only" in caplog.text
     assert np.array_equal(got, want)
+
+
+def test_a_busy_file_is_not_taken_for_damaged(query_encoder, tmp_path, monkeypatch, caplog):
+    """A read that SQLite refuses as locked (another process held it past the timeout) costs an
+    encode, not the file."""
+    from memora_graph import vector_store
+
+    tv = TextVectors(query_encoder, root=tmp_path)
+    want = tv.encode(TEXTS)
+    tv.close()
+
+    def busy(self, keys):
+        raise sqlite3.OperationalError("database is locked")
+
+    monkeypatch.setattr(vector_store._Disk, "get", busy)
+    with caplog.at_level(logging.WARNING, logger="memora_graph"):
+        later = TextVectors(query_encoder, root=tmp_path)
+        got = later.encode(TEXTS)
+    assert np.array_equal(got, want) and later.encoded == len(TEXTS) and later.path is not None
+    assert "could not read" in caplog.text and "damaged" not in caplog.text
+    assert not any(".damaged-" in p.name for p in (tmp_path / "vectors").iterdir())

@@ -241,11 +241,10 @@ class EntityEditor:
     def _vector(self, e: EntityState) -> np.ndarray:
         return e.emb if e.emb is not None else self.embed(e.identity_text())
 
-    def candidates(self, obs: ObjectObservation, live: list[EntityState] | None = None,
-                   matrix: np.ndarray | None = None) -> list[EntityState]:
+    def candidates(self, obs: ObjectObservation) -> list[EntityState]:
         """The registry slice a decision may use: all of it within the prompt budget, else the
         `prompt_budget` nearest by embedding plus every entity with the same normalized name
-        (`live` order, i.e. the registry's). Costs numpy work over the live rows, not Python work
+        (in registry order). Costs numpy work over the live rows, not Python work
         per entity: a 1,000-hour memory holds tens of thousands of entities."""
         index = self._live_index()
         if getattr(self.policy, "same_kind_only", False):

@@ -61,10 +61,6 @@ class StagedVideo:
     def _frame(self, name: str) -> pl.DataFrame:
         return pl.read_ipc(io.BytesIO(self._bytes(name)))
 
-    def frames(self) -> dict[str, pl.DataFrame]:
-        """The video's graph rows per table (snapshot tables excluded)."""
-        return {f.stem: self._frame(f.name) for f in sorted(self.path.glob("*.arrow")) if f.stem not in SNAPSHOT_TABLES}
-
     def frame(self, table: str) -> pl.DataFrame | None:
         """One table's rows of the video (None when it has none): a bulk load reads a table at a
         time, so a long build never holds every staged row at once."""
