@@ -44,3 +44,42 @@ def test_executor_ray_without_ray_says_how_to_install_it(monkeypatch, tmp_path, 
     assert r.exit_code != 0
     assert "pip install -e '.[ray]'" in r.output and "--executor ray needs Ray" in r.output
     assert not (bank / "manifest.json").exists()
+
+
+def test_install_names_the_incoming_database_only_once_it_is_whole(small_bank, tmp_path, monkeypatch):
+    """The driver's install of a handed-back database (executors/bundle.py, no Ray needed): a
+    killed earlier driver's leftover is removed, the file being written has no name in the bank
+    (Linux O_TMPFILE) until it is complete and hashed, and a damaged transfer changes nothing."""
+    import hashlib
+    import os
+    import shutil
+
+    from memora_graph.bank import Bank
+    from memora_graph.errors import BankError
+    from memora_graph.executors import bundle
+
+    path = tmp_path / "bank"
+    shutil.copytree(small_bank[0], path)
+    bank = Bank(path)
+    sealed = bundle.seal(bank, "P37")  # the bank's own finished participant, as a task would hand it back
+    before = bank.db_path("P37").read_bytes()
+    (path / ".P37.kuzu.incoming-999999").write_bytes(b"half a database from a killed driver")
+    seen = []
+    digest = hashlib.file_digest
+
+    def watching(fh, name):  # hashing happens after the whole file is written: is it named yet?
+        seen.append(sorted(p.name for p in path.glob(".*incoming*")))
+        return digest(fh, name)
+
+    monkeypatch.setattr(hashlib, "file_digest", watching)
+    with pytest.raises(BankError, match="does not match the hash"):
+        blob = bytearray(sealed["bytes"])
+        blob[len(blob) // 2] ^= 0xFF  # one byte damaged in transfer
+        bundle.install(bank, "P37", {**sealed, "bytes": bytes(blob)})
+    assert bank.db_path("P37").read_bytes() == before and not list(path.glob(".*incoming*"))
+    bundle.install(bank, "P37", sealed)
+    assert bank.db_path("P37").read_bytes() == before and not list(path.glob(".*incoming*"))
+    if getattr(os, "O_TMPFILE", 0):
+        assert seen == [[], []]  # unnamed while written and hashed
+    r = CliRunner().invoke(main, ["verify", str(path)])
+    assert r.exit_code == 0, r.output

@@ -14,6 +14,7 @@ build resumes, never a database that disagrees with its record.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
@@ -22,7 +23,7 @@ from pathlib import Path
 
 from memora_graph.bank import Bank, _now
 from memora_graph.errors import BankError
-from memora_graph.integrity.files import file_sha256, side_files
+from memora_graph.integrity.files import side_files
 
 STAGING = ".staging"
 
@@ -96,17 +97,12 @@ def install(bank: Bank, participant: str, sealed: dict) -> None:
     entry = sealed["entry"]
     integ = entry["integrity"]
     db = bank.db_path(participant)
+    for stale in bank.path.glob(f".{participant}.kuzu.incoming-*"):  # a killed driver's: we hold the lock
+        stale.unlink(missing_ok=True)
     part = bank.path / f".{participant}.kuzu.incoming-{os.getpid()}"
     try:
-        if "path" in sealed:
-            shutil.copyfile(sealed["path"], part)
-        else:
-            with open(part, "wb") as fh:
-                fh.write(sealed["bytes"])
-                fh.flush()
-                os.fsync(fh.fileno())
-        st = part.stat()
-        if st.st_size != integ.get("bytes") or file_sha256(part, st) != integ.get("sha256"):
+        size, digest = _write_incoming(bank.path, part, sealed)
+        if size != integ.get("bytes") or digest != integ.get("sha256"):
             raise BankError(f"{participant}: the database a task handed back does not match the hash recorded with "
                             "it (damaged in transfer); the bank was not changed")
         mark = {"op": "build", "pid": os.getpid(), "since": _now()}
@@ -133,6 +129,40 @@ def install(bank: Bank, participant: str, sealed: dict) -> None:
 
     bank.update_manifest(change)
     bank._remember(participant, db.stat(), integ["sha256"])
+
+
+def _write_incoming(directory: Path, part: Path, sealed: dict) -> tuple[int, str]:
+    """Write the handed-back database to `part` (same directory as the database, for an atomic
+    rename), synced, and return its size and sha256. Where the system allows it (Linux
+    O_TMPFILE) the file is written unnamed and gets its name only once complete and hashed, so a
+    driver killed meanwhile leaves nothing in the bank; elsewhere it is written under `part`
+    (a later install of the participant removes a killed one's leftover)."""
+    flag = getattr(os, "O_TMPFILE", 0)
+    try:
+        fd = os.open(directory, flag | os.O_RDWR, 0o644) if flag else None
+    except OSError:  # a filesystem without unnamed files
+        fd = None
+    named = fd is None
+    fh = open(part, "w+b") if named else os.fdopen(fd, "w+b")
+    with fh:
+        if "path" in sealed:
+            with open(sealed["path"], "rb") as src:
+                shutil.copyfileobj(src, fh, 1 << 20)
+        else:
+            fh.write(sealed["bytes"])
+        fh.flush()
+        os.fsync(fh.fileno())
+        size = os.fstat(fh.fileno()).st_size
+        fh.seek(0)
+        digest = hashlib.file_digest(fh, "sha256").hexdigest()
+        if not named:  # named only now, complete and hashed (a directory fd makes Python call linkat,
+            # which follows the /proc link to the open file; plain link() would not)
+            dfd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+            try:
+                os.link(f"/proc/self/fd/{fh.fileno()}", part.name, dst_dir_fd=dfd, follow_symlinks=True)
+            finally:
+                os.close(dfd)
+    return size, digest
 
 
 def remove_scratch(scratch: Bank) -> None:
