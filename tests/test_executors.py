@@ -72,6 +72,13 @@ def test_install_names_the_incoming_database_only_once_it_is_whole(small_bank, t
         return digest(fh, name)
 
     monkeypatch.setattr(hashlib, "file_digest", watching)
+    update = bank.update_manifest
+
+    def recording(change):  # the unfinished-build mark is written before the rename: named yet?
+        seen.append(sorted(p.name for p in path.glob(".*incoming*")))
+        return update(change)
+
+    monkeypatch.setattr(bank, "update_manifest", recording)
     with pytest.raises(BankError, match="does not match the hash"):
         blob = bytearray(sealed["bytes"])
         blob[len(blob) // 2] ^= 0xFF  # one byte damaged in transfer
@@ -80,6 +87,6 @@ def test_install_names_the_incoming_database_only_once_it_is_whole(small_bank, t
     bundle.install(bank, "P37", sealed)
     assert bank.db_path("P37").read_bytes() == before and not list(path.glob(".*incoming*"))
     if getattr(os, "O_TMPFILE", 0):
-        assert seen == [[], []]  # unnamed while written and hashed
+        assert seen[:3] == [[], [], []]  # unnamed while written, hashed and marked in the manifest
     r = CliRunner().invoke(main, ["verify", str(path)])
     assert r.exit_code == 0, r.output

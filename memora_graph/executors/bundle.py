@@ -14,6 +14,7 @@ build resumes, never a database that disagrees with its record.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
@@ -101,15 +102,16 @@ def install(bank: Bank, participant: str, sealed: dict) -> None:
         stale.unlink(missing_ok=True)
     part = bank.path / f".{participant}.kuzu.incoming-{os.getpid()}"
     try:
-        size, digest = _write_incoming(bank.path, part, sealed)
-        if size != integ.get("bytes") or digest != integ.get("sha256"):
-            raise BankError(f"{participant}: the database a task handed back does not match the hash recorded with "
-                            "it (damaged in transfer); the bank was not changed")
-        mark = {"op": "build", "pid": os.getpid(), "since": _now()}
-        bank.update_manifest(lambda data: data.setdefault("writing", {}).__setitem__(participant, mark))
-        for side in side_files(db):  # an interrupted build's log: the new file holds everything it had
-            side.unlink()
-        os.replace(part, db)
+        with _incoming(bank.path, part, sealed) as (size, digest, name_it):
+            if size != integ.get("bytes") or digest != integ.get("sha256"):
+                raise BankError(f"{participant}: the database a task handed back does not match the hash recorded "
+                                "with it (damaged in transfer); the bank was not changed")
+            mark = {"op": "build", "pid": os.getpid(), "since": _now()}
+            bank.update_manifest(lambda data: data.setdefault("writing", {}).__setitem__(participant, mark))
+            for side in side_files(db):  # an interrupted build's log: the new file holds everything it had
+                side.unlink()
+            name_it()
+            os.replace(part, db)
     finally:
         part.unlink(missing_ok=True)
         if "path" in sealed:
@@ -131,20 +133,21 @@ def install(bank: Bank, participant: str, sealed: dict) -> None:
     bank._remember(participant, db.stat(), integ["sha256"])
 
 
-def _write_incoming(directory: Path, part: Path, sealed: dict) -> tuple[int, str]:
-    """Write the handed-back database to `part` (same directory as the database, for an atomic
-    rename), synced, and return its size and sha256. Where the system allows it (Linux
-    O_TMPFILE) the file is written unnamed and gets its name only once complete and hashed, so a
-    driver killed meanwhile leaves nothing in the bank; elsewhere it is written under `part`
-    (a later install of the participant removes a killed one's leftover)."""
+@contextlib.contextmanager
+def _incoming(directory: Path, part: Path, sealed: dict):
+    """Write the handed-back database for `part` (same directory as the database, for an atomic
+    rename), synced; yields its size, its sha256 and `name_it()`, which gives it the name `part`.
+    Where the system allows it (Linux O_TMPFILE) the file has no name until `name_it()`, called
+    right before the rename, so a driver killed while it is written, hashed or recorded leaves
+    nothing in the bank; elsewhere it is written under `part` from the start (a later install of
+    the participant removes a killed one's leftover)."""
     flag = getattr(os, "O_TMPFILE", 0)
     try:
         fd = os.open(directory, flag | os.O_RDWR, 0o644) if flag else None
     except OSError:  # a filesystem without unnamed files
         fd = None
     named = fd is None
-    fh = open(part, "w+b") if named else os.fdopen(fd, "w+b")
-    with fh:
+    with open(part, "w+b") if named else os.fdopen(fd, "w+b") as fh:
         if "path" in sealed:
             with open(sealed["path"], "rb") as src:
                 shutil.copyfileobj(src, fh, 1 << 20)
@@ -155,14 +158,19 @@ def _write_incoming(directory: Path, part: Path, sealed: dict) -> tuple[int, str
         size = os.fstat(fh.fileno()).st_size
         fh.seek(0)
         digest = hashlib.file_digest(fh, "sha256").hexdigest()
-        if not named:  # named only now, complete and hashed (a directory fd makes Python call linkat,
-            # which follows the /proc link to the open file; plain link() would not)
+
+        def name_it() -> None:
+            if named:
+                return
+            # a directory fd makes Python call linkat, which follows the /proc link to the open
+            # file (plain link() would not)
             dfd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
             try:
                 os.link(f"/proc/self/fd/{fh.fileno()}", part.name, dst_dir_fd=dfd, follow_symlinks=True)
             finally:
                 os.close(dfd)
-    return size, digest
+
+        yield size, digest, name_it
 
 
 def remove_scratch(scratch: Bank) -> None:
