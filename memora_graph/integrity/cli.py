@@ -60,32 +60,44 @@ def verify_cmd(bank, participants, accept_, fmt):
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--participant", required=True, help="Whose memory to remove (P01).")
 @click.option("--dry-run", is_flag=True, help="Only list what would be removed.")
-def forget_cmd(bank, participant, dry_run):
+@click.option("--yes", "-y", "yes", is_flag=True, help="Remove without asking (needed when stdin is not a terminal).")
+def forget_cmd(bank, participant, dry_run, yes):
     """Remove every trace of one person from a bank: their database (with its write-ahead log and
     shadow files, and so its indexes), staged videos of an unfinished build, rebuild leftovers,
     their baseline caches under BANK/.cache/ (and the embedding cache all participants share,
     which holds vectors of their texts; it is rebuilt on demand), and their manifest entry.
-    Prints what it removed. Run records written elsewhere (`memora bench run --out DIR`) are not
-    in the bank: delete those yourself.
+    Lists what it will remove and asks first (`--yes` skips the question). Exit status 1 when the
+    participant is not in the bank. Run records written elsewhere (`memora bench run --out DIR`)
+    are not in the bank: delete those yourself.
 
     \b
     Examples:
-      memora forget banks/epic --participant P05 --dry-run
-      memora forget banks/epic --participant P05
+      memora forget banks/epic --participant P02 --dry-run
+      memora forget banks/epic --participant P02
+      memora forget banks/epic --participant P02 --yes    # no question (scripts)
     """
+    import sys
+
     from memora_graph.bank import Bank
 
     b = Bank(bank)
+    found = [str(p) for p in b.traces(participant)]
+    if b.exists() and participant in b.manifest()["participants"]:
+        found.append(f"{b.manifest_path}: entry {participant}")
+    if not found:
+        known = ", ".join(sorted(b.manifest()["participants"])) if b.exists() else "none"
+        raise click.ClickException(f"nothing of {participant} in {bank} (the bank has: {known or 'none'})")
+    if dry_run or not yes:
+        for line in found:
+            click.echo(f"would remove {line}")
     if dry_run:
-        found = b.traces(participant)
-        for p in found:
-            click.echo(f"would remove {p}")
-        listed = b.exists() and participant in b.manifest()["participants"]
-        if listed:
-            click.echo(f"would remove {b.manifest_path}: entry {participant}")
-        if not found and not listed:
-            click.echo(f"nothing of {participant} in {bank}")
         return
+    if not yes:
+        if not sys.stdin.isatty():
+            raise click.ClickException(f"not removing {participant}: stdin is not a terminal, so there is no one to "
+                                       "confirm; pass --yes to remove without asking")
+        if not click.confirm(f"Remove every trace of {participant} from {bank}? This cannot be undone", default=False):
+            raise click.ClickException(f"not confirmed: nothing of {participant} was removed")
     for line in b.forget(participant):
         click.echo(f"removed {line}")
 

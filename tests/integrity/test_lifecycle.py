@@ -95,7 +95,7 @@ def test_forget_removes_every_trace_of_one_person(bank):
         (cache / name).write_bytes(b"x")
     (bank / ".staging" / "P09" / "0000_P09_103").mkdir(parents=True)
     (bank / "P09.kuzu.wal").write_bytes(b"x")
-    r = memora("forget", bank, "--participant", "P09")
+    r = memora("forget", bank, "--participant", "P09", "--yes")
     assert r.returncode == 0, r.stdout + r.stderr
     for what in ("P09.kuzu", "P09.kuzu.wal", ".staging/P09", "graph2d-P09-1a2b.json", "graph2d-P09-1a2b.npy",
                  "embeddings-MiniLM.npz", "manifest.json: entry P09"):
@@ -106,14 +106,48 @@ def test_forget_removes_every_trace_of_one_person(bank):
     data = json.loads((bank / "manifest.json").read_text())
     assert list(data["participants"]) == ["P37"] and "P09" not in json.dumps(data["participants"])
     assert memora("verify", bank).returncode == 0  # what remains is whole
-    again = memora("forget", bank, "--participant", "P09")
+    again = memora("forget", bank, "--participant", "P09", "--yes")
     assert again.returncode == 1 and "nothing of P09" in again.stdout + again.stderr
+    dry = memora("forget", bank, "--participant", "P09", "--dry-run")  # a dry run of nobody says so too
+    assert dry.returncode == 1 and "nothing of P09 in" in dry.stderr and "(the bank has: P37)" in dry.stderr
+
+
+def test_forget_asks_first_and_refuses_without_a_terminal(bank):
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    from support.corrupt import ROOT
+
+    piped = memora("forget", bank, "--participant", "P09")  # stdin is not a terminal: nobody to ask
+    assert piped.returncode == 1 and "stdin is not a terminal" in piped.stderr and "--yes" in piped.stderr
+    assert (bank / "P09.kuzu").exists()
+
+    def answer(reply: str) -> tuple[int, str]:
+        """The command on a terminal (a pseudo-terminal), answering its question with `reply`."""
+        main, child = pty.openpty()
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        env.pop("MEMORA_NO_VERIFY", None)
+        proc = subprocess.Popen([sys.executable, "-m", "memora_graph.cli", "forget", str(bank), "--participant", "P09"],
+                                stdin=child, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+        os.close(child)
+        os.write(main, reply.encode())
+        out = proc.communicate(timeout=120)[0].decode()
+        os.close(main)
+        return proc.returncode, out
+
+    code, out = answer("n\n")
+    assert code == 1 and "would remove" in out and "Remove every trace of P09" in out and "nothing of P09 was removed" in out
+    assert (bank / "P09.kuzu").exists()
+    code, out = answer("y\n")
+    assert code == 0 and "removed " in out and not (bank / "P09.kuzu").exists()
 
 
 def test_forget_waits_for_no_build(bank):
     b = Bank(bank)
     with b.participant_lock("P09"):
-        r = memora("forget", bank, "--participant", "P09")  # waits 10 s for the lock, then says why not
+        r = memora("forget", bank, "--participant", "P09", "--yes")  # waits 10 s for the lock, then says why not
     assert r.returncode == 1 and "being built (or forgotten) by another process" in r.stdout + r.stderr
     assert (bank / "P09.kuzu").exists()
 
