@@ -209,6 +209,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     from memora_graph.pipeline import build_bank
     from memora_graph.retrieve.persist import persist_bank
     from memora_graph.stats import build_summary
+    from memora_graph.text import counted
 
     progress = progress_bar(quiet)
     task = {}
@@ -228,7 +229,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     click.echo(render(frame))
     for line in lines:
         click.echo(line)
-    click.echo(f"tool stores (what one-shot tools map instead of querying Kùzu): {len(stores.written)} participants "
+    click.echo(f"tool stores (what one-shot tools map instead of querying Kùzu): {counted(len(stores.written), 'participant')} "
                f"in {stores.seconds:.1f} s")
 
 
@@ -281,13 +282,14 @@ def index(bank, fts, hnsw, participants, fmt):
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
     from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.text import counted
 
     done = Bank(bank).build_indexes(participants, fts=fts, hnsw=hnsw)
     rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),
              "seconds": round(r["seconds"], 1)} for p, r in done.items()]
     click.echo(render(pl.DataFrame(rows), fmt))
     stores = persist_bank(bank, list(done))  # an index is a write: the tool stores are stale until written again
-    click.echo(f"tool stores written again: {len(stores.written)} participants in {stores.seconds:.1f} s", err=True)
+    click.echo(f"tool stores written again: {counted(len(stores.written), 'participant')} in {stores.seconds:.1f} s", err=True)
 
 
 @main.command()

@@ -15,11 +15,17 @@ if TYPE_CHECKING:
 FORMATS = ("table", "csv", "json", "nl")
 
 
-def output_options(f):
-    """--table (default) / --csv / --json / --nl, as one `fmt` argument."""
+ROWS_JSON = "A JSON array of objects, one per row."
+
+
+def output_options(f=None, *, json_help: str = ROWS_JSON):
+    """--table (default) / --csv / --json / --nl, as one `fmt` argument. A command whose --json prints
+    something else than rows (one object) says so in `json_help`: `@output_options(json_help=...)`."""
+    if f is None:
+        return functools.partial(output_options, json_help=json_help)
     for name, help_ in reversed([
         ("table", "Render a table (default)."), ("csv", "Comma-separated values."),
-        ("json", "A JSON array of objects."), ("nl", "Newline-delimited JSON, one object per line."),
+        ("json", json_help), ("nl", "Newline-delimited JSON, one object per line."),
     ]):
         f = click.option(f"--{name}", "fmt", flag_value=name, help=help_)(f)
 

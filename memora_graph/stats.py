@@ -7,6 +7,7 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.bank import Bank
+from memora_graph.text import counted
 
 
 def decision_shares(decisions: dict) -> dict[str, float]:
@@ -95,10 +96,11 @@ def build_summary(result, bank: str | Path, *, episodic: bool = False, mode: str
             "preferences": inferred.get("preferences"), "seconds": round(r.timings.total, 1),
         })
     across = f" (seconds summed over {result.jobs} worker processes)" if result.jobs > 1 else ""
-    lines = [f"bank {bank}: {len(rows)} participants, {result.segments} new segments in {result.wall_seconds:.1f} s: "
+    lines = [f"bank {bank}: {counted(len(rows), 'participant')}, {counted(result.segments, 'new segment')} in {result.wall_seconds:.1f} s: "
              f"embedding {result.embedding_seconds:.1f} s, model load {result.model_seconds:.1f} s, graph work "
              f"{result.graph_seconds:.1f} s{across}; `memora perf build` splits it",
-             "inferred knowledge: none (MEMORA-Episodic)" if episodic or mode == "raw" else
+             "inferred knowledge: none (a raw build keeps one record per observation)" if mode == "raw" else
+             "inferred knowledge: none (MEMORA-Episodic)" if episodic else
              f"inferred knowledge (consolidation + enrichment): {result.finish.get('consolidation', 0.0):.1f} s"]
     if fts:
         lines.append(f"full-text indexes: {result.finish.get('indexes', 0.0):.1f} s")

@@ -84,3 +84,8 @@ def index_stem(word: str) -> str:
 def index_tokens(text: str) -> list[str]:
     """Lower-case words without digits (as Kùzu's FTS indexes them), stopwords dropped, stemmed."""
     return [index_stem(w) for w in _WORD.findall(text.lower()) if w not in INDEX_STOPWORDS]
+
+
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """`1 participant`, `2 participants`: a count with its noun in the right number."""
+    return f"{n:,} {noun if n == 1 else plural or noun + 's'}"

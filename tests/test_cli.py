@@ -83,3 +83,17 @@ def test_csv_flattens_list_columns(small_bank):
     rows = list(csv.DictReader(io.StringIO(r.output)))
     js = json.loads(invoke("query", path, q, "-p", "participant", "P37", "--json").output)
     assert [row["zones"] for row in rows] == ["; ".join(x["zones"]) for x in js]
+
+
+def test_a_one_participant_raw_build_reads_right_and_stderr_has_no_model_loading_bars(tmp_path):
+    """What a newcomer saw: '1 participants', 'inferred knowledge: none (MEMORA-Episodic)' on a raw
+    build, and transformers' 'Loading weights' progress bar on stderr. A real process, so stderr is real."""
+    from support.corrupt import memora
+
+    r = memora("build", tmp_path / "raw", "--mode", "raw", "--participants", "P09", "--quiet", timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "1 participant," in r.stdout and "1 participants" not in r.stdout
+    assert "tool stores (what one-shot tools map instead of querying Kùzu): 1 participant in" in r.stdout
+    assert "inferred knowledge: none (a raw build keeps one record per observation)" in r.stdout
+    assert "MEMORA-Episodic" not in r.stdout
+    assert "Loading weights" not in r.stderr and "it/s]" not in r.stderr, r.stderr

@@ -36,7 +36,7 @@ class AskResult:
     letter: str | None  # with choices: A-D, or E
     kind: str  # the question's kind (habit, preference, routine, recall)
     reason: str
-    scores: list[float] = field(default_factory=list)
+    scores: list[float] = field(default_factory=list)  # with choices: one per choice, in order (A, B, ...)
     evidence: list[dict] = field(default_factory=list)  # {id, text} of the records behind the answer
     calls: list[dict] = field(default_factory=list)  # {tool, arguments}
 
@@ -47,7 +47,7 @@ class AskResult:
     def as_dict(self) -> dict:
         return {"question": self.question, "participant": self.participant, "answer": self.answer,
                 "letter": self.letter, "in_memory": self.in_memory, "kind": self.kind, "reason": self.reason,
-                "scores": [round(s, 4) for s in self.scores], "evidence": self.evidence, "calls": self.calls}
+                "scores": {letter: round(s, 4) for letter, s in zip("ABCD", self.scores)}, "evidence": self.evidence, "calls": self.calls}
 
 
 def _embedder():
@@ -119,10 +119,11 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
         opts = list(choices[:4])
         d = score(question, opts + [""] * (4 - len(opts)), events, lex, embed=embed or _embedder())
         if d.letter == OPTION_E:
-            return AskResult(question, participant, NOT_IN_MEMORY, OPTION_E, intent.kind, d.reason, d.scores,
+            return AskResult(question, participant, NOT_IN_MEMORY, OPTION_E, intent.kind, d.reason, d.scores[:len(opts)],
                              _cite([i for s in d.support for i in s], events), calls)
         i = "ABCD".index(d.letter)
-        return AskResult(question, participant, f"{d.letter}) {opts[i]}", d.letter, intent.kind, d.reason, d.scores,
+        return AskResult(question, participant, f"{d.letter}) {opts[i]}", d.letter, intent.kind, d.reason,
+                         d.scores[:len(opts)],
                          _cite(d.support[i], events), calls)
     subject = set(intent.subject_nouns)
     if subject and not any(subject & set(e.nouns) for e in events):

@@ -19,7 +19,8 @@ from memora_graph.output import output_options, render
                    "'not in memory'; without, an answer in words.")
 @click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
               help="The memory the lookups read: memora, or a baseline's representation (flat1d, graph2d).")
-@output_options
+@output_options(json_help="One JSON object: the answer, its letter, the reason, each choice's score by letter, the "
+                          "evidence and the lookups made.")
 def ask_cmd(bank, question, participant, choices, family, fmt):
     """Ask one person's memory a question, answered by the typed reader (deterministic, no model).
 

@@ -89,7 +89,7 @@ def records_frame(result, compact: bool = False) -> pl.DataFrame:
 @click.command("tools")
 @click.option("--memory", "family", type=FAMILY, default=None,
               help="Only the tools of one memory representation: memora (default for --json), flat1d, graph2d.")
-@output_options
+@output_options(json_help="A JSON array: the OpenAI function schema of every tool of the family.")
 def tools_cmd(family, fmt):
     """List the retrieval tools with their arguments, the store each reads, and the memory
     representation (family) they belong to: MEMORA's typed stores, or a baseline's.
@@ -135,7 +135,7 @@ def tools_cmd(family, fmt):
                    "measured size sets it (none yet).")
 @click.option("--memory", "family", type=FAMILY, default="memora", show_default=True,
               help="Which memory the tool reads: memora, or a baseline's representation (flat1d, graph2d).")
-@output_options
+@output_options(json_help="One JSON object: the whole result (records, evidence ids, score breakdown).")
 def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
     """Call one retrieval tool on one participant's memory.
 

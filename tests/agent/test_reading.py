@@ -4,6 +4,8 @@ class-level meeting of paraphrases, and no gold field ever read."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 from click.testing import CliRunner
 
@@ -129,7 +131,10 @@ def test_memora_ask_command(small_bank):
                              "--participant", "P37", "--choice", "breaks the chicken apart",
                              "--choice", "puts the chicken in the fridge", "--json"])
     assert r.exit_code == 0, r.output
-    assert '"letter": "A"' in r.output and '"evidence"' in r.output
+    out = json.loads(r.output)  # one object, each choice's score under its letter (no padding to four)
+    assert out["letter"] == "A" and out["evidence"] and list(out["scores"]) == ["A", "B"]
+    assert out["scores"]["A"] == max(out["scores"].values())
+    assert "One JSON object" in runner.invoke(main, ["ask", "--help"]).output
     r = runner.invoke(main, ["ask", str(bank), "When P37 peels a pineapple, what next?", "--participant", "P37"])
     assert r.exit_code == 0 and r.output.startswith("not in memory")
     r = runner.invoke(main, ["ask", str(bank), "What next?", "--participant", "P37"] + sum((["--choice", "x"] for _ in range(5)), []))
