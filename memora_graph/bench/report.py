@@ -13,8 +13,6 @@ against the best baseline; the compression curve; the editor's decision mix.
 
 from __future__ import annotations
 
-import html
-import re
 import json
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -27,6 +25,7 @@ from memora_graph.bench.run import load_run, write_results_table
 from memora_graph.bench.tasks import QA_TYPES
 from memora_graph.errors import MemoraError
 from memora_graph.retrieve.registry import store_of
+from memora_graph.text import counted
 
 MEMORA, EPISODIC, PARAMETRIC = "memora_full", "memora_episodic", "no_memory"
 BASELINES = ("flat_1d_raw", "flat_1d_edited", "graph_2d_raw", "graph_2d_edited")
@@ -45,6 +44,13 @@ def _label(c: str) -> str:
         return get_condition(c).label
     except MemoraError:
         return c
+
+
+def _description(c: str) -> str:
+    try:
+        return get_condition(c).description
+    except MemoraError:
+        return ""
 
 
 def _type_acc(records: list[dict], ids: set[str] | None = None) -> dict[str, float | None]:
@@ -115,6 +121,7 @@ def build_report(run: str | Path) -> dict[str, Any]:
 
 # the store each tool reads (the paper's per-store tool-use figure) comes from its ToolSpec: a
 # baseline's tools read its one representation, MEMORA's `search` fans out over every store
+CURVE_SEGMENTS = 150  # compression.png draws the first segments only (the curves part early; the rest is straight)
 STORES = ("Entity", "Activity", "Environment", "Inferred", "unified search", "Flat-1D records", "Graph-2D graph")
 
 
@@ -208,6 +215,47 @@ def _plan_vs_best(planning: dict) -> dict:
 # -- rendering --------------------------------------------------------------------------------------
 
 
+# What the report's names and columns mean, printed with every report (the reader of a report looks
+# there, not in the repository's docs; docs/evaluation.md says the same at more length).
+LEGEND = [
+    ("Condition", "the memory the questions and tasks were answered with; the label is the paper's name, the name "
+                  "in backticks is the one `--conditions` and the records use (`_edited` = built from the processed "
+                  "bank, `_raw` = from the raw bank)"),
+    ("n", "questions scored"),
+    ("Acc %", "share of questions answered with the correct letter"),
+    ("E-rate %", "share of questions answered E (\"not in memory\" / none of the options); the E-controls are "
+                 "questions whose right answer is E"),
+    ("SPref, SHabit, SRoutine, ERecall", "accuracy per question type: a stated preference, a habit (what follows an "
+                                          "action), a routine (how a goal is done), recall of one named video"),
+    ("failed", "questions whose run failed (scored as wrong)"),
+    ("full", "every question all conditions answered"),
+    ("memora_committed", "of those, the questions MEMORA answered with A-D (it committed to an option, not E)"),
+    ("parametric_missed_memora_committed", "of those, the questions the Parametric condition (no memory) got wrong: "
+                                           "what memory has to supply (the headline view)"),
+    ("pooled (macro)", "pooled: right answers over all items of the view; macro, in parentheses: the mean of the "
+                       "per-participant accuracies"),
+    ("MEMORA - best baseline (pp)", "MEMORA's accuracy minus the best Flat-1D / Graph-2D condition's, in "
+                                    "percentage points"),
+    ("Consolidation lift (pp)", "MEMORA minus MEMORA-Episodic (the same typed stores without routines and "
+                                "preferences)"),
+    ("plans, empty", "plans scored, and empty plans (excluded from the means)"),
+    ("OrderExec", "order of the plan's actions against the reference's: longest common subsequence of verbs / "
+                  "reference verbs"),
+    ("KeyObj", "share of the reference's key objects the plan mentions"),
+    ("PrefAdh", "how far the plan follows the participant's relevant preferences"),
+    ("RGP", "routine-grounded planning score: the mean of OrderExec, KeyObj and PrefAdh (those defined)"),
+    ("Exec", "share of steps with an action, an object and a location"),
+    ("KBGround", "share of the plan's objects that exist in the memory"),
+    ("ObjGT-F1, GF1", "F1 of the plan's objects against the reference's; GF1 counts only objects the memory also has"),
+    ("repeated", "tool calls that repeat an earlier call of the same item with the same arguments"),
+    ("Compression", "object observations per live entity after the editor (raw memory: one record per observation)"),
+]
+
+
+def _legend() -> str:
+    return _table(["Column", "Meaning"], [[f"`{k}`" if "_" in k else k, v] for k, v in LEGEND], text=True)
+
+
 def _pct(v) -> str:
     return "-" if v is None else f"{100 * v:.1f}"
 
@@ -216,8 +264,9 @@ def _num(v) -> str:
     return "-" if v is None else f"{v:.3f}"
 
 
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+def _table(header: list[str], rows: list[list[str]], text: bool = False) -> str:
+    """A markdown table; `text`: every column is words, aligned left (numbers are aligned right)."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(":---" if text else "---" for _ in header) + "|"]
     lines += ["| " + " | ".join(str(x) for x in r) + " |" for r in rows]
     return "\n".join(lines)
 
@@ -231,6 +280,14 @@ def render_markdown(rep: dict[str, Any]) -> str:
     if m.get("backend") == "offline":
         parts.append("\n> The `offline` backend is a deterministic retrieval-and-scoring policy, **not an LLM**: "
                      "these numbers measure the memories through a fixed simple reader.")
+    conds = _order({c for key in ("planning", "tool_calls", "latency_s") for c in rep.get(key) or {}}
+                   | set((rep.get("eam_qa") or {}).get("conditions") or {}))
+    if conds:
+        parts += ["", "## Conditions", "",
+                  "Tables name conditions by their label; runs, records and `--conditions` by their name. "
+                  "What each column means: *Reading this report*, at the end.", ""]
+        parts.append(_table(["Condition", "name", "memory"], [[_label(c), f"`{c}`", _description(c)] for c in conds],
+                            text=True))
     eam = rep.get("eam_qa") or {}
     if eam.get("conditions"):
         parts += ["", "## EAM-QA: full benchmark", ""]
@@ -315,40 +372,19 @@ def render_markdown(rep: dict[str, Any]) -> str:
         parts.append(_table(["Condition", "items", "model", "tools", "other", "total"],
                             [[_label(c), v.get("items", 0), _num(v.get("model_s")), _num(v.get("tools_s")),
                               _num(v.get("other_s")), _num(v.get("total_s"))] for c, v in rep["latency_s"].items()]))
-    parts.append("")
+    parts += ["", "## Reading this report", "", _legend(), ""]
     return "\n".join(parts)
 
 
 def render_html(markdown: str) -> str:
-    """A dependency-free rendering of the report's markdown (headings, paragraphs, tables)."""
-    body, table = [], []
+    """The report's markdown as one HTML page (CommonMark with tables, by markdown-it-py)."""
+    from markdown_it import MarkdownIt
 
-    def flush():
-        if table:
-            rows = [r for r in table if not set(r.replace("|", "").strip()) <= {"-"}]
-            cells = [[html.escape(c.strip()) for c in r.strip().strip("|").split("|")] for r in rows]
-            head = "".join(f"<th>{c}</th>" for c in cells[0])
-            rest = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in cells[1:])
-            body.append(f"<table><thead><tr>{head}</tr></thead><tbody>{rest}</tbody></table>")
-            table.clear()
-
-    for line in markdown.splitlines():
-        if line.startswith("|"):
-            table.append(line)
-            continue
-        flush()
-        if line.startswith("## "):
-            body.append(f"<h2>{html.escape(line[3:])}</h2>")
-        elif line.startswith("# "):
-            body.append(f"<h1>{html.escape(line[2:])}</h1>")
-        elif (m := re.fullmatch(r"!\[([^\]]*)\]\(([^)]+)\)", line.strip())):
-            body.append(f"<p><img src='{html.escape(m[2])}' alt='{html.escape(m[1])}'></p>")
-        elif line.strip():
-            body.append(f"<p>{html.escape(line.lstrip('> '))}</p>")
-    flush()
+    body = MarkdownIt("commonmark", {"html": False}).enable("table").render(markdown)
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;margin:1em 0}"
-             "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td:first-child,th:first-child{text-align:left}")
-    return f"<!doctype html><html><head><meta charset='utf-8'><style>{style}</style></head><body>{''.join(body)}</body></html>"
+             "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
+             "blockquote{margin:1em 0;padding:0 1em;border-left:3px solid #ccc}")
+    return f"<!doctype html><html><head><meta charset='utf-8'><style>{style}</style></head><body>{body}</body></html>"
 
 
 def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
@@ -389,7 +425,7 @@ def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
         import numpy as np
 
         per = list(form["participants"].values())
-        n = min(150, max(len(v["without_editor"]) for v in per))
+        n = min(CURVE_SEGMENTS, max(len(v["without_editor"]) for v in per))
         without = np.array([[v["without_editor"][min(i, len(v["without_editor"]) - 1)] for i in range(n)]
                             for v in per if v["without_editor"]])
         edited = np.array([[v["with_editor"][min(i, len(v["with_editor"]) - 1)] for i in range(n)]
@@ -398,10 +434,10 @@ def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
         x = np.arange(1, n + 1)
         ax.plot(x, np.median(without, axis=0), label="without editor (one record per observation)")
         ax.plot(x, np.median(edited, axis=0), label="MEMORA editor (live entities)")
-        ax.set_xlabel("segments with object observations (10 s each)")
+        words = compression_words(form, float(np.median(without[:, -1])), float(np.median(edited[:, -1])))
+        ax.set_xlabel(words["xlabel"])
         ax.set_ylabel("Entity Memory records (median)")
-        ax.set_title(f"Cumulative records, {len(per)} participants; median compression "
-                     f"{form['median_compression']:.1f}x", fontsize=9)
+        ax.set_title(words["title"], fontsize=9)
         ax.legend(fontsize=8)
         fig.tight_layout()
         paths.append(_save(fig, out / "compression.png", plt))
@@ -416,6 +452,21 @@ def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
         fig.tight_layout()
         paths.append(_save(fig, out / "decisions.png", plt))
     return paths
+
+
+def compression_words(form: dict[str, Any], without_at_cut: float, edited_at_cut: float) -> dict[str, str]:
+    """compression.png's axis label and title. The curve shows the first CURVE_SEGMENTS segments; when the
+    memories are longer both say so, with the compression where the curve stops next to the whole memory's."""
+    per = list(form["participants"].values())
+    longest = max(len(v["without_editor"]) for v in per)
+    n = min(CURVE_SEGMENTS, longest)
+    whole = f"{form['median_compression']:.1f}x" if form["median_compression"] else "-"
+    if n < longest:
+        return {"xlabel": f"the first {n} of up to {longest:,} segments with object observations (10 s each)",
+                "title": f"Cumulative records, {counted(len(per), 'participant')}: {without_at_cut / max(edited_at_cut, 1):.1f}x "
+                         f"at segment {n}, {whole} over the whole memory (median)"}
+    return {"xlabel": "segments with object observations (10 s each)",
+            "title": f"Cumulative records, {counted(len(per), 'participant')}; median compression {whole}"}
 
 
 def _save(fig, path: Path, plt) -> Path:

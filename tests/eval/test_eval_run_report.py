@@ -93,7 +93,15 @@ def test_report_numbers_equal_hand_computed_metrics(small_bank, small_raw_bank, 
     # figures: real PNGs, linked from the markdown and the HTML
     for name in ("rgp", "compression", "decisions"):
         assert paths[name].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and f"({name}.png)" in md
-    assert "<img src='rgp.png'" in paths["html"].read_text()
+    page = paths["html"].read_text()
+    assert '<img src="rgp.png"' in page
+    # the page renders the markdown: no literal ** or backticks, emphasis as HTML
+    assert "**" not in page and "`" not in page and "<strong>not an LLM</strong>" in page
+    # names: each condition's label beside the name runs use, and every column explained in the report itself
+    assert "| Flat-1D (raw) | `flat_1d_raw` |" in md and "<code>flat_1d_raw</code>" in page
+    assert "## Reading this report" in md
+    for column in ("E-rate %", "`memora_committed`", "`parametric_missed_memora_committed`", "RGP", "OrderExec"):
+        assert f"| {column} |" in md, column
     # tool calls per store add up to the calls in the records, each tool in its store
     for c, recs in {**run["eam_qa"], **{k: run["eam_qa"].get(k, []) + v for k, v in run["planning"].items()}}.items():
         calls = [t["name"] for r in recs for t in r["tool_calls"]]
@@ -164,3 +172,18 @@ def test_cli_run_and_report(small_bank, tiny_tasks, tmp_path):
     res = runner.invoke(main, ["bench", "run", str(bank), "--out", str(tmp_path / "x"), "--tasks", str(tiny_tasks),
                                "--participants", "P37", "--conditions", "flat_1d_raw", "--quiet"])
     assert res.exit_code == 1 and "--raw-bank" in res.output
+
+
+def test_the_compression_figure_says_where_its_curve_stops():
+    """The curve shows the first CURVE_SEGMENTS segments: a longer memory's axis and title say so, and give
+    the compression at the cut beside the whole memory's (the title once claimed 35.3x over a curve cut at ~14x)."""
+    from memora_graph.bench.report import CURVE_SEGMENTS, compression_words
+
+    long = {"participants": {"P01": {"without_editor": list(range(1, 400))}}, "median_compression": 35.3}
+    words = compression_words(long, without_at_cut=140.0, edited_at_cut=10.0)
+    assert f"the first {CURVE_SEGMENTS} of up to 399 segments" in words["xlabel"]
+    assert words["title"] == (f"Cumulative records, 1 participant: 14.0x at segment {CURVE_SEGMENTS}, "
+                              "35.3x over the whole memory (median)")
+    short = {"participants": {p: {"without_editor": [1, 2, 3]} for p in ("P01", "P02")}, "median_compression": 2.0}
+    words = compression_words(short, 3.0, 1.5)
+    assert words["xlabel"].startswith("segments") and words["title"].endswith("2 participants; median compression 2.0x")
