@@ -1,9 +1,0 @@
-import sys; sys.argv = ["x", "http://127.0.0.1:18432", "/work/wt/realmodel/notes/probe/chatml_function_calling"]
-exec(open("probe.py").read())
-K = {"Authorization": "Bearer sekret"}
-M = "smollm2-135m"
-tools = [{"type": "function", "function": {"name": "search_activities", "description": "Search the person's past activities.", "parameters": {"type": "object", "properties": {"query": {"type": "string"}}, "required": ["query"]}}},
-         {"type": "function", "function": {"name": "get_preferences", "description": "The person's preferences about an object.", "parameters": {"type": "object", "properties": {"object": {"type": "string"}}, "required": ["object"]}}}]
-ex("chat_tools_choice_auto", "POST", "/v1/chat/completions", {"model": M, "messages": [{"role": "system", "content": "Use the tools to answer."}, {"role": "user", "content": "Where does the person keep the plate? Search their activities."}], "tools": tools, "tool_choice": "auto", "temperature": 0, "max_tokens": 128}, headers=K)
-ex("chat_tools_choice_auto_2", "POST", "/v1/chat/completions", {"model": M, "messages": [{"role": "system", "content": "You answer questions about a person's kitchen. Call search_activities first."}, {"role": "user", "content": "Which drawer does P01 keep the knife in?"}], "tools": tools, "tool_choice": "auto", "temperature": 0.6, "max_tokens": 128}, headers=K)
-ex("tool_round_choice_auto", "POST", "/v1/chat/completions", {"model": M, "messages": [{"role": "system", "content": "Use the tools to answer."}, {"role": "user", "content": "Where is the plate?"}, {"role": "assistant", "content": "", "tool_calls": [{"id": "call_1", "type": "function", "function": {"name": "search_activities", "arguments": "{\"query\": \"plate\"}"}}]}, {"role": "tool", "tool_call_id": "call_1", "name": "search_activities", "content": "[{\"text\": \"put plate in cupboard\"}]"}], "tools": tools, "tool_choice": "auto", "temperature": 0, "max_tokens": 64}, headers=K)
