@@ -1,7 +1,7 @@
 """Pydantic records that flow between the stages: perceive -> form -> consolidate -> retrieve.
 
 No I/O here. Field names follow the paper's layered record (environment, activity_narrative,
-object_registry) and METHOD_NOTES section 4.
+object_registry) and the reference implementation's.
 """
 
 from __future__ import annotations

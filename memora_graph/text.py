@@ -2,13 +2,13 @@
 
 Two tokenizers live here because two parts of the method define theirs:
 
-- `tokenize` / `stem` / `STOPWORDS`: MEMORA-Bench's tokens (METHOD_NOTES 1.4), used by the metrics
+- `tokenize` / `stem` / `STOPWORDS`: MEMORA-Bench's tokens, used by the metrics
   (PrefAdh, routine matching) and by the readers that score evidence the way the metrics do;
 - `index_tokens` / `index_stem` / `INDEX_STOPWORDS`: the retrieval tools' keyword tokens, which agree
   with what Kùzu's full-text index keeps (lower-case words without digits, plurals and -ing/-ed
   folded), so the in-process BM25 and the FTS recipes rank the same words.
 
-`KITCHEN_NOUNS` is the benchmark's fallback object vocabulary (METHOD_NOTES 1.5).
+`KITCHEN_NOUNS` is the benchmark's fallback object vocabulary.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import re
 
-# -- MEMORA-Bench tokens (METHOD_NOTES 1.4) ---------------------------------------------------------
+# -- MEMORA-Bench tokens ---------------------------------------------------------------------
 
 STOPWORDS = frozenset(
     "the a an is are was were be to of in on at and or for with by from this that it its person participant "

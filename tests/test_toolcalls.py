@@ -1,4 +1,4 @@
-"""The tool-call parser: every format of METHOD_NOTES 3.2, the cap, de-duplication, rescue."""
+"""The tool-call parser: every format it reads, the cap, de-duplication, rescue."""
 
 from __future__ import annotations
 

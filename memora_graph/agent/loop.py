@@ -1,6 +1,6 @@
 """The ReAct loop shared by every condition and every answer policy (a model or the offline policy).
 
-Budgets (paper, Implementation details; METHOD_NOTES 3.1): EAM-QA at most 5 iterations, planning
+Budgets (paper, Implementation details): EAM-QA at most 5 iterations, planning
 at most 8, one model call per iteration; the last iteration is the forced final answer with tools
 disabled (so 4 / 7 tool rounds at most). At most 3 tool calls per response; a call identical to an
 earlier one is answered from the first result without running the tool again. A reply with no

@@ -2,7 +2,7 @@
 
 The ReAct agent gets either native OpenAI `tool_calls` (a server with a tool parser) or text
 (an in-process engine, a server without one, or a model that ignores the tool protocol). The
-formats, tried in this priority order and the first that yields a call wins (METHOD_NOTES 3.2):
+formats, tried in this priority order and the first that yields a call wins:
 
 1. `<tool_call>{"name": ..., "arguments": {...} or "<json string>"}</tool_call>` (Qwen/Hermes),
    with a rescue of broken JSON and of a corrupted `<function=NAME", "arguments": {...}`;

@@ -1,5 +1,5 @@
-"""Reading a reply: the answer letter of an EAM-QA reply and the steps of a plan (METHOD_NOTES
-1.1), whatever shape the model wrote them in."""
+"""Reading a reply: the answer letter of an EAM-QA reply and the steps of a plan,
+whatever shape the model wrote them in."""
 
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def _dedup_cap(steps: list[str]) -> list[str]:
 
 
 def extract_plan(text: str | None) -> list[str]:
-    """Plan steps from a model reply (METHOD_NOTES 1.1): a numbered block after "Plan:" (the last
+    """Plan steps from a model reply: a numbered block after "Plan:" (the last
     such block wins), else >= 2 numbered lines, else >= 2 bullets; consecutive duplicates
     dropped; at most 15 steps."""
     if not text:

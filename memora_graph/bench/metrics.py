@@ -1,4 +1,4 @@
-"""The MEMORA-Bench metrics of one item, as pure functions (paper definitions; METHOD_NOTES 1-2).
+"""The MEMORA-Bench metrics of one item, as pure functions (paper definitions; docs/evaluation.md).
 
 Planning: Exec; OrderExec (LCS over normalized verbs by default, the reference implementation's
 greedy prefix as an option); KeyObj; PrefAdh; KBGround; ObjGT-R/P/F1; GR/GP/GF1. Undefined values
@@ -19,7 +19,7 @@ from memora_graph.sequences import lcs_length
 from memora_graph.text import COLOR_WORDS, KITCHEN_NOUN_STEMS, jaccard, stem, tokenize
 
 # =============================================================================================
-# Planning: Exec predicates (METHOD_NOTES 1.2)
+# Planning: Exec predicates
 # =============================================================================================
 
 def _alternation(words: Iterable[str]) -> re.Pattern:

@@ -103,8 +103,8 @@ class EamQuestion(_Record):
     def answering_view(self) -> dict[str, Any]:
         """What the answering agent receives: no key, no ground truth, no provenance, no audit.
 
-        qa_type is kept because the runtime's pattern search filters documents by question type
-        (METHOD_NOTES 3.3); video_ids/video_scope set the participant context (3.1).
+        qa_type is kept because the runtime's pattern search filters documents by question type;
+        video_ids/video_scope set the participant context.
         """
         return {
             "question_id": self.question_id, "participant_id": self.participant_id,

@@ -1,4 +1,4 @@
-"""The planning metrics' vocabulary (METHOD_NOTES 1.2-1.3): action verbs, location nouns and
+"""The planning metrics' vocabulary (docs/evaluation.md): action verbs, location nouns and
 prepositions of the Exec predicates, and the verb normalization OrderExec compares plans by."""
 
 from __future__ import annotations

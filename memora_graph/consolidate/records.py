@@ -1,6 +1,6 @@
 """Records of offline consolidation and inferred-knowledge enrichment (no I/O).
 
-Field names follow METHOD_NOTES section 4: the consolidation processor emits storage
+Field names follow the reference implementation: the consolidation processor emits storage
 preferences, organizational habits, workflow patterns and action sequences per completed
 video, merged per participant; the enrichment processor derives routine skills and generated
 preferences (with keywords and supporting evidence ids). An LLM processor returns the same

@@ -1,6 +1,6 @@
 """Word lists of the deterministic consolidation policy (EPIC verb class keys, noun categories).
 
-The verb categories follow METHOD_NOTES section 6 (cleanup / cooking / prep / setup / filler);
+The verb categories follow the reference implementation (cleanup / cooking / prep / setup / filler);
 they decide what an episode is about and which steps are bookkeeping (take, put, open, ...)
 rather than the work itself.
 """
@@ -30,7 +30,7 @@ TAKING = frozenset({"take", "remove", "lift", "gather", "choose", "carry"})
 CATEGORY_OF_VERB = {v: c for c, vs in (("cleanup", CLEANUP), ("cooking", COOKING), ("prep", PREP), ("setup", SETUP))
                     for v in vs}
 
-# Routine activity types (METHOD_NOTES 6, "Typing").
+# Routine activity types (the reference implementation's typing of routines).
 ACTIVITY_TYPE = {
     "cleanup": "cleanup_organization", "cooking": "multi_step_cooking", "prep": "meal_preparation",
     "setup": "object_retrieval_setup", None: "routine_reproduction",

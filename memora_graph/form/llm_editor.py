@@ -4,7 +4,7 @@ One call per segment: the model sees a compact registry (at most `prompt_budget`
 chosen by dense similarity to the new observations, numbered 1..n so it never has to copy
 long ids) and the segment's objects, and answers {"object_operations": [...]}. The answer is
 validated (ADD needs data, UPDATE needs changes; one repair turn in the backend) and mapped
-back onto EditOps with the repairs of METHOD_NOTES section 4: ADD on an existing object
+back onto EditOps with these repairs: ADD on an existing object
 becomes UPDATE, UPDATE on an unknown number becomes ADD, DELETE on an unknown number is
 dropped (DELETE_INVALID), and an observation the model left out still lands in the history
 (FALLBACK_NOOP / FALLBACK_UPDATE / ADD), so the editor's state history stays complete.

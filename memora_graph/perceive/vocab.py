@@ -1,6 +1,6 @@
 """Word lists that turn EPIC verb/noun class keys into places, states and attributes.
 
-These are the rules of the CPU perception path. Location ids follow METHOD_NOTES section 4
+These are the rules of the CPU perception path. Location ids follow the reference implementation's
 (sink/dishwasher/stove/fridge/counter/table/cabinet `_area`, default `kitchen_general`); we add
 `bin_area` because EPIC narrates throwing things away often enough to matter.
 """

@@ -7,7 +7,7 @@ schemas, tool-call parsing, the tool sets of the evaluation, the report's store 
 the tool name, the participant, the arguments, the records, and for every record the ids of the
 bank nodes that support it (`evidence`) and a per-signal score breakdown (`score`: vector,
 keyword, graph, fused) that says why it was returned. Records whose embeddings have cosine >= 0.95
-with a better-ranked one collapse into it (`duplicates`). Field names follow METHOD_NOTES 3.3.
+with a better-ranked one collapse into it (`duplicates`). Field names follow the reference implementation's tool results.
 
 "How to do it" lives in `get_routine_skill` / `search_activities` / `search_patterns`; "which
 object and where" in `search_objects` / `get_object_history` / `get_state_at_time`; `search`

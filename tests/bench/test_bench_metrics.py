@@ -1,4 +1,4 @@
-"""The metric panel with worked examples computed by hand (paper definitions, METHOD_NOTES 1-2)."""
+"""The metric panel with worked examples computed by hand (paper definitions)."""
 
 from __future__ import annotations
 

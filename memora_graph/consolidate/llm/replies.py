@@ -112,7 +112,7 @@ class ProcedureItem(_Reply):
 
 
 class ConsolidationReply(_Reply):
-    """What a consolidation step answers, per video and across videos (METHOD_NOTES section 4)."""
+    """What a consolidation step answers, per video and across videos."""
 
     storage_preferences: list[StorageItem]
     organizational_habits: list[HabitItem]
