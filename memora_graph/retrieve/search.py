@@ -11,9 +11,7 @@ tools` measures side by side, so a reader sees every retrieval variant in one pl
 - fusion: reciprocal-rank fusion of the vector and keyword ranks plus a small graph term, so a
   record found by both signals beats one found by either alone.
 
-The default ("inprocess") is the measured fastest: on the 18-participant bank, exact numpy top-k
-takes ~0.1 ms where a Kùzu brute-force or HNSW query takes ~3 ms (HNSW recall@10 ~0.97), and an
-FTS query costs 2-8 ms per store, which alone breaks a 5 ms budget for `search` (five stores).
+The default ("inprocess") is the measured fastest (docs/performance.md, "Retrieval recipes").
 `fts`, `kuzu` and `hnsw` use Kùzu per call and need its FTS (and HNSW) indexes, which a build
 makes only when asked (`memora build --fts`, `memora index BANK --fts --hnsw`).
 """
@@ -55,12 +53,8 @@ RECIPES: dict[str, SearchConfig] = {
 DEFAULT_RECIPE = "inprocess"
 # From this many segments on, a participant whose database has the FTS and HNSW indexes opens with
 # the "hnsw" recipe when no recipe is asked for; None: never (ask for it with --recipe hnsw).
-# `memora perf scale` (README "Memory at scale"): at 3,612 and 10,801 segments (10 and 30 h of P01)
-# the in-process recipe was cheaper. A first 100 h run (36,003 segments, on code since improved:
-# persisted stores, one BLAS thread) had HNSW cheaper (median tool p95 45.0 against 64.4 ms CPU)
-# and set 36,000 here; re-measured on this code, the in-process recipe is as cheap or cheaper at
-# 100 h (47.8 against 51.0) and at 300 h (108,005 segments: 110.5 against 124.3, and cheaper in CPU
-# p50 on all 8 tools). No measured size has HNSW faster, so the switch is off until one does.
+# `memora perf scale` measures the crossover; no measured size has HNSW faster, so the switch is off
+# until one does (docs/performance.md, "Memory at scale").
 HNSW_MIN_SEGMENTS: int | None = None
 
 

@@ -44,8 +44,8 @@ _BLAS_LIMITED = False
 
 def _single_thread_blas() -> None:
     """Tool calls do small matrix products (a query against <= 1.4k rows); on the 2-core
-    machines this project targets, OpenBLAS' worker threads turn a 0.1 ms product into 8 ms
-    (the same spin as torch's). Limit BLAS to one thread, once per process."""
+    machines this project targets, OpenBLAS' worker threads make such a product many times
+    slower (the same spin as torch's; docs/performance.md). Limit BLAS to one thread, once per process."""
     global _BLAS_LIMITED
     if _BLAS_LIMITED:
         return

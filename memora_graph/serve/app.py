@@ -48,8 +48,8 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
     """The MCP server of a service: tools/list and tools/call. Results always carry structured
     content (and the same JSON as text); `output_schemas` also advertises each tool's result
     schema. Off by default: a client that validates results against it (the `mcp` SDK's does, in
-    pure-Python jsonschema) spends 5-40 ms per call on a 10-25 kB result, several times the
-    call itself (`memora perf serve --output-schemas`)."""
+    pure-Python jsonschema) spends several times the call itself on it (`memora perf serve
+    --output-schemas`; docs/performance.md)."""
     tools = [types.Tool(name=e.name, description=e.description, input_schema=e.input_schema,
                         output_schema=e.output_schema if output_schemas else None, annotations=READ_ONLY)
              for e in service.endpoints()]
