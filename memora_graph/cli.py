@@ -172,7 +172,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
           --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
-      memora build banks/epic --executor ray --ray-address auto   # one Ray task per participant (README "Ray")
+      memora build banks/epic --executor ray --ray-address auto   # one Ray task per participant (docs/scaling.md)
     """
     video_opts = dict(participant=participant, video_id=video_id, base_url=base_url, perception_model=perception_model,
                       editor_model=editor_model, editor_base_url=editor_base_url, audio=audio,

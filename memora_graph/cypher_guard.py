@@ -62,6 +62,24 @@ _PROCEDURE_WHY = {
 
 _READ_ONLY = "memora query is read-only (--write allows data writes to one participant, never files)"
 _NEVER = "memora query never does this, not even with --write"
+# The refusals speak to a person at the command line; an agent calling the MCP `cypher` tool has no
+# `memora query` and no --write, so `for_agents` says the same in its terms.
+_FOR_AGENTS = (
+    (_READ_ONLY, "this tool only reads; nothing served can change the memory"),
+    (_NEVER, "this is never allowed"),
+    ("every memora query runs as one statement in a transaction of its own",
+     "each call runs one statement in a transaction of its own"),
+    ("memora query runs exactly one", "a call runs exactly one"),
+    ("the read-only procedures memora query allows", "the read-only procedures allowed here"),
+    ("(pass long lists as a parameter: -p NAME VALUE)", "(pass long lists in `params`)"),
+)
+
+
+def for_agents(message: str) -> str:
+    """A refusal in the words of a tool call rather than of `memora query` (no --write, no -p)."""
+    for cli, agent in _FOR_AGENTS:
+        message = message.replace(cli, agent)
+    return message
 _DATA_WRITES = frozenset({"CREATE", "MERGE", "SET", "DELETE", "REMOVE"})
 # Bare words refused anywhere in a statement (except as a name, see _is_name), with the reason.
 _FORBIDDEN = {

@@ -136,6 +136,10 @@ def test_stdio_lists_and_calls_every_tool(small_bank):
                          "MATCH (e:Entity) RETURN e.id; MATCH (e:Entity) DELETE e"):
                 res = await client.call_tool("cypher", {"participant": "P37", "query": text})
                 assert res.is_error and res.content[0].text.startswith("refused"), (text, res.content)
+                # in an agent's terms: it has no `memora query` command and no --write flag
+                assert "memora query" not in res.content[0].text and "--write" not in res.content[0].text, text
+            res = await client.call_tool("cypher", {"participant": "P37", "query": "MATCH (e:Entity) SET e.name = 'x'"})
+            assert "this tool only reads; nothing served can change the memory" in res.content[0].text
             # the server still serves after all that
             res = await client.call_tool("search_objects", {"participant": "P09", "query": "kettle"})
             assert not res.is_error and all(r["entity_id"].startswith("P09:") for r in res.structured_content["results"])

@@ -341,7 +341,7 @@ class ObservationGraph:
     """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
     the entity co-occurrence counts (segments two entities share), computed once. The counts are
     kept sparse (pairs that co-occur, sorted): a dense entity x segment incidence product grows as
-    entities^2 x segments and does not fit a 1,000-hour memory (README "Memory at scale")."""
+    entities^2 x segments and does not fit a 1,000-hour memory (docs/performance.md, "Memory at scale")."""
 
     def __init__(self, rows: list[dict]):
         self.segment_entities: dict[str, set[str]] = defaultdict(set)

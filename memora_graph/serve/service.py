@@ -264,8 +264,13 @@ class MemoryService:
 
         # the guarded ad-hoc path of `memora query`, read-only, on this participant's database only
         # (a `participant` parameter that names someone else is refused there)
-        frame = run_query(self.bank.path, arguments["query"], arguments["params"], participant=participant,
-                          write=False, timeout=arguments["timeout"])
+        from memora_graph.cypher_guard import for_agents
+
+        try:
+            frame = run_query(self.bank.path, arguments["query"], arguments["params"], participant=participant,
+                              write=False, timeout=arguments["timeout"])
+        except QueryRefused as exc:
+            raise QueryRefused(for_agents(str(exc))) from None
         return _rows(frame, participant, self.max_rows)
 
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:

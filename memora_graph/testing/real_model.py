@@ -18,8 +18,8 @@ tokens and seconds (from the run's model_calls.jsonl and the bank's ModelCall no
 is tiny and its answers are poor; the check is that the protocol works end to end and that a
 bad answer becomes a recorded failure, never a crash or a half-written bank.
 
-What the server is started with, and why (each found against the real server; the README
-section "A real model end to end" has the whole list):
+What the server is started with, and why (each found against the real server;
+docs/findings/real-model-findings.md has the whole list):
 
 - the GGUF's own chat template (no `--chat_format`): it leaves `tools` out of the prompt, so the
   model answers in text and the agent reads any tool call it writes there. The tool-calling
