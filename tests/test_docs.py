@@ -121,6 +121,12 @@ def test_the_checker_catches_what_does_not_parse():
         ["memora", "bench", "run"]
 
 
+def test_code_blocks_are_closed():
+    for page in PAGES:
+        fences = [n for n, line in enumerate(page.read_text().splitlines(), 1) if line.lstrip().startswith("```")]
+        assert len(fences) % 2 == 0, f"{page.relative_to(ROOT)}: a code block opened at line {fences[-1]} is not closed"
+
+
 def test_readme_is_short_and_its_links_exist():
     text = README.read_text()
     assert len(text.splitlines()) <= 200

@@ -106,7 +106,7 @@ class AskAnswer(BaseModel):
     in_memory: bool
     kind: str = Field(description="The question's kind: habit, preference, routine or recall.")
     reason: str
-    scores: list[float]
+    scores: dict[str, float] = Field(description="With choices: each choice's score, by its letter (A, B, ...).")
     evidence: list[EvidenceItem] = Field(description="The records behind the answer.")
     calls: list[ToolCall] = Field(description="The typed lookups the reader made.")
 
