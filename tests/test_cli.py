@@ -97,3 +97,12 @@ def test_a_one_participant_raw_build_reads_right_and_stderr_has_no_model_loading
     assert "inferred knowledge: none (a raw build keeps one record per observation)" in r.stdout
     assert "MEMORA-Episodic" not in r.stdout
     assert "Loading weights" not in r.stderr and "it/s]" not in r.stderr, r.stderr
+
+
+def test_json_help_says_what_json_prints():
+    """`ask` and `tool` print one object with --json; the row commands an array (their --help said so for all)."""
+    for cmd in ("ask", "tool"):
+        out = " ".join(invoke(cmd, "--help").output.split())
+        assert "--json One JSON object" in out and "JSON array" not in out, cmd
+    for cmd in ("stats", "query", "verify"):
+        assert "A JSON array of objects, one per row." in " ".join(invoke(cmd, "--help").output.split()), cmd
