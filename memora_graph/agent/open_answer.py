@@ -32,7 +32,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-from memora_graph.agent.open_parse import OpenQuestion, parse_open
+from memora_graph.agent.open_parse import OpenQuestion, fix_keys, noun_classes, parse_open
 from memora_graph.perceive.lexicon import Lexicon
 
 NOT_IN_MEMORY = "not in memory"
@@ -116,6 +116,8 @@ class OpenAnswer(BaseModel):
         None, description="Why not in memory: general knowledge, or a subject absent from this person's memory.")
     detail: str = Field("", description="What the answer rests on, in words.")
     evidence: list[str] = Field(default_factory=list, description="Ids of the records behind the answer.")
+    records: list[LogLine] = Field(default_factory=list, description="The narrated steps behind the answer (for a "
+                                                                    "count, the records counted; at most 20).")
     support: int = Field(0, description="How many records support the answer.")
     confidence: float = Field(0.0, description="Probability that the answer is right (open_calibration.json).")
     features: dict[str, float] = Field(default_factory=dict, description="The evidence features the confidence reads.")
@@ -163,11 +165,11 @@ def action_log(view, lex: Lexicon) -> list[LogStep]:
         for s in steps:
             narration = str(s.get("narration") or "")
             obj = str(s.get("object") or "")
-            objects = lex.noun_classes(obj.replace("_", " ").replace(":", " ")) if obj else []
+            objects = noun_classes(lex, obj.replace("_", " ").replace(":", " ")) if obj else []
             clauses = lex.parse(narration) if narration else []
             nouns = list(objects)
             for c in clauses:
-                nouns += [n for n in c.nouns if n not in nouns]
+                nouns += [n for n in fix_keys(lex, narration, c.nouns) if n not in nouns]
             if not objects and nouns:
                 objects = nouns[:1]
             verb = lex.verb(str(s.get("action") or "")) or next((c.verb for c in clauses if c.verb), None)
@@ -236,6 +238,15 @@ def _matches(s: LogStep, q: OpenQuestion, loose: bool = False) -> bool:
     return True
 
 
+def _records(log: list[LogStep], q: OpenQuestion, ids: list[str]) -> list[LogLine]:
+    """The steps of the cited segments that the question is about (else the segment's steps)."""
+    wanted = set(ids)
+    steps = [s for s in log if s.segment in wanted]
+    about = [s for s in steps if _matches(s, q, loose=True)] or [s for s in steps if set(_subject(q)) & set(s.nouns)]
+    return [LogLine(video=s.video, time_seconds=round(s.t, 2), text=s.text, segment_id=s.segment)
+            for s in (about or steps)][:MAX_EVIDENCE]
+
+
 def _ids(steps: list[LogStep]) -> list[str]:
     return list(dict.fromkeys(s.segment for s in steps))[:MAX_EVIDENCE]
 
@@ -250,6 +261,8 @@ def answer_open(view, participant: str, question: str, lex: Lexicon | None = Non
             "subject": {"verbs": list(q.verbs), "nouns": list(q.nouns)}}
     log = action_log(view, lex)
     answer = _not_in_memory(view, participant, q, log, base) or _ANSWER[q.kind](view, q, log, lex, base)
+    if answer.in_memory and not answer.records and answer.evidence:
+        answer.records = _records(log, q, answer.evidence)
     from memora_graph.agent.open_calibration import calibrate
 
     answer.confidence = calibrate(answer)
@@ -275,7 +288,7 @@ def _not_in_memory(view, participant: str, q: OpenQuestion, log: list[LogStep], 
     nouns = {n for s in log for n in s.nouns}
     verbs = {s.verb for s in log if s.verb}
     subject = _subject(q)
-    if not q.has_subject:
+    if not subject and (not q.verbs or set(q.verbs) <= GENERIC_VERBS):
         what = ", ".join(q.unknown) if q.unknown else "what the question names"
         return _nim(base, "absent_subject", f"{what}: no such action or object in {participant}'s memory")
     if subject and subject[0] not in nouns:

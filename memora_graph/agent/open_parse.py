@@ -40,7 +40,7 @@ _PERSON_WORDS = frozenset("""they them their theirs themselves he him his she he
     participant i me my mine myself we us our user wearer cook individual subject someone somebody""".split())
 _AUX = frozenset({"have", "do", "be", "can", "could", "will", "would", "should", "may", "might", "shall", "must"})
 _WH = frozenset({"what", "which", "where", "how", "who", "whom", "whose", "why", "when"})
-_VIDEO_WORDS = frozenset({"video", "recording", "record", "session", "clip", "footage", "episode", "film", "day",
+_VIDEO_WORDS = frozenset({"video", "recording", "record", "session", "footage", "episode", "day",
                           "occasion", "visit"})
 _TIME_WORDS = frozenset({"time", "moment", "point", "timestamp", "minute", "second"})
 _PLACE_WORDS = frozenset({"place", "location", "spot", "surface", "area", "container", "appliance", "position",
@@ -59,7 +59,8 @@ _USUAL = frozenset({"usually", "typically", "normally", "generally", "often", "a
 _FROM = frozenset({"from", "out"})
 # words that frame a question rather than name its action or objects (dropped before the
 # action is parsed, so "in which recording did P01 first cut the onion" reads as "cut the onion")
-_SCAFFOLD = _WH | _USUAL | _LAST | _FIRST | _VIDEO_WORDS | _TIME_WORDS | _STATE_WORDS | _AUX | frozenset(
+_SCAFFOLD = _WH | _USUAL | _LAST | _FIRST | _VIDEO_WORDS | _TIME_WORDS | _STATE_WORDS | _AUX | \
+    (_PLACE_WORDS - {"container", "appliance", "storage"}) | frozenset(
     """ever many much often times number count tally any record evidence sign trace there show shows
     instance occasion happen ago far so""".split())
 # words a question is made of that name neither an action nor an object
@@ -128,18 +129,20 @@ def _kind(toks: list[str], words: set[str], videos: list[str], time: float | Non
     head = [t for t in toks if t.isalpha()][:1]
     opens_aux = bool(head) and head[0] in _AUX
     wh = [t for t in toks if t in _WH]
-    if re.search(r"\bhow (many|much)\b", joined) or re.search(r"\bhow often\b", joined) or \
+    if re.search(r"\bhow (many|much)\b", joined) or re.search(r"\bhow (often|frequently)\b", joined) or \
             re.search(r"\bnumber of\b", joined) or (words & {"count", "tally"} and not opens_aux):
         m = re.search(r"\bhow many (\w+)", joined) or re.search(r"\bnumber of (\w+)", joined)
         unit = "videos" if m and m.group(1) in _VIDEO_WORDS - {"occasion", "visit", "day"} else "times"
         return "count", unit
     if not videos and ("when" in wh and not re.search(r"\bwhen (they|he|she|p\d+|the person|someone)\b", joined)
                        or re.search(r"\b(which|what)\b( \w+){0,3} (" + "|".join(sorted(_VIDEO_WORDS | _TIME_WORDS)) +
-                                    r")\b", joined)):
+                                    r")\b", joined)
+                       or re.search(r"\b(" + "|".join(sorted(_LAST | _FIRST)) + r")( \w+){0,1} (" +
+                                    "|".join(sorted(_VIDEO_WORDS - {"day", "occasion", "visit"})) + r")\b", joined)):
         if "when" in wh or not re.search(r"\bin (which|what)( \w+)? (" + "|".join(sorted(_VIDEO_WORDS)) +
                                          r")\b.*\b(what|which|where|how)\b", joined):
             return "time", ""
-    if "where" in wh or re.search(r"\b(which|what)( \w+)? (" + "|".join(_PLACE_WORDS) + r")\b", joined):
+    if "where" in wh or re.search(r"\b(which|what)\b( \w+){0,3} (" + "|".join(_PLACE_WORDS) + r")\b", joined):
         return "place", ""
     if words & _STATE_WORDS and (nouns or videos) and not opens_aux:
         return "state", ""
@@ -165,18 +168,20 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     videos = list(dict.fromkeys(v.upper() for v in _VIDEO.findall(text)))
     persons = list(dict.fromkeys(f"P{m}" for m in _PERSON.findall(text)))
     time = _seconds(_VIDEO.sub(" ", text))
-    clean = _verb_forms(_VIDEO.sub(" ", text).replace("-", " ").replace("'s", ""), lex)
+    clean = _verb_forms(_FILLER_PHRASES.sub(" ", _VIDEO.sub(" ", text).replace("-", " ").replace("'s", "")), lex)
     toks = lex.lemmas(_drop_gerunds(clean, lex, keep_verbs=True))
     raw = re.findall(r"[a-z]+", _VIDEO.sub(" ", low))
     words = set(toks) | set(raw)
     about = bool(persons) or _refers_to_person(raw)
     # the action and objects: the question without its question words, parsed into clauses
-    body = [t for t in toks if not (t in _SCAFFOLD or re.fullmatch(r"p\d+", t))]
-    clauses = lex.parse(" ".join(body))
+    body = [t for t in toks if not (t in _SCAFFOLD or re.fullmatch(r"p\d+", t)
+                                    or (t.endswith("ly") and len(t) > 4 and not lex.noun_classes(t)
+                                        and not lex.verb_class(t)))]
+    clauses = _clauses(body, lex)
     nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
-    for n in lex.noun_classes(_drop_gerunds(clean, lex, keep_verbs=False)):
-        if n not in nouns:
-            nouns.append(n)
+    if not nouns:  # objects the clauses missed (a question that names no action)
+        rest = re.sub(r"^\s*(can|will|could|would|may|must)\b", " ", clean, flags=re.I)
+        nouns = list(dict.fromkeys(noun_classes(lex, _drop_gerunds(rest, lex, keep_verbs=False))))
     verbs = list(dict.fromkeys(c.verb for c in clauses if c.verb))
     kind, unit = _kind(toks, words, videos, time, nouns)
     place = next((c.place for c in clauses if c.place and c.place in c.nouns[1:]), None)
@@ -216,6 +221,88 @@ def _refers_to_person(raw: list[str]) -> bool:
         if w in _REFERENCE_NOUNS and i and raw[i - 1] in ("the", "this", "that", "our"):
             return True
     return False
+
+
+_FILLER_PHRASES = re.compile(r"\b(in total|in all|all together|altogether|overall|so far|to date|at all|at any point|"
+                             r"at some point|give a count|name the video|before now)\b", re.I)
+_DETERMINERS = frozenset({"the", "a", "an", "their", "his", "her", "its", "some", "any", "that", "this", "my", "your",
+                          "our"})
+
+
+def noun_classes(lex: Lexicon, text: str) -> list[str]:
+    """`lex.noun_classes`, except that a word which is itself a class key reads as that class
+    ("top" is the worktop class, though EPIC also lists it under another class's words)."""
+    out = lex.noun_classes(text)
+    return [_KEY_FIX(lex).get(n, {}).get(w, n) for n, w in _pairs(lex, text, out)]
+
+
+def _pairs(lex: Lexicon, text: str, classes: list[str]) -> list[tuple[str, str]]:
+    """Each class with the key word it should read as ('' to keep it): a one-word class key
+    standing alone, not inside a compound ("the top" is the top; "plastic wrap" stays a compound)."""
+    toks = lex.lemmas(text)
+    fix = _KEY_FIX(lex)
+    out = []
+    for n in classes:
+        hit = ""
+        for i, w in enumerate(toks):
+            if w in fix.get(n, {}):
+                prev = toks[i - 1] if i else ""
+                if not (prev.isalpha() and prev not in _FUNCTION and lex.noun_classes(f"{prev} {w}") == [n]):
+                    hit = w
+                    break
+        out.append((n, hit))
+    return out
+
+
+def fix_keys(lex: Lexicon, text: str, classes) -> list[str]:
+    """Classes of `text` (from `lex.parse`) with the class-key reading of `noun_classes`."""
+    return [_KEY_FIX(lex).get(n, {}).get(w, n) for n, w in _pairs(lex, text, list(classes))]
+
+
+_KEY_CACHE: dict[int, dict[str, dict[str, str]]] = {}
+
+
+def _KEY_FIX(lex: Lexicon) -> dict[str, dict[str, str]]:
+    """class read -> {word: the class that word names as a key} for one-word class keys that the
+    lexicon reads as another class."""
+    got = _KEY_CACHE.get(id(lex))
+    if got is None:
+        got = {}
+        for key in lex.noun_keys:
+            if ":" in key or not key.isalpha():
+                continue
+            read = lex.noun_classes(key)
+            if read and read[0] != key and len(read) == 1:
+                got.setdefault(read[0], {})[key] = key
+        _KEY_CACHE[id(lex)] = got
+    return got
+
+
+def _clauses(body: list[str], lex: Lexicon):
+    """The body's clauses; a passive ("the water was last poured by P01") or a verb the lexicon
+    also reads as an object ("brushing the brush", "peel the onion") found by its position."""
+    clauses = lex.parse(" ".join(body))
+    if "by" in body:
+        j = body.index("by")
+        if j > 0 and lex.verb_class(body[j - 1]) and all(t in _DETERMINERS or t in _PERSON_WORDS or not t.isalpha()
+                                                      for t in body[j + 1:]):
+            verb = lex.verb_class(body[j - 1])
+            nouns = noun_classes(lex, " ".join(body[:j - 1]))
+            if nouns:
+                from memora_graph.perceive.lexicon import Clause
+
+                return [Clause(verb, nouns)]
+    if not any(c.verb for c in clauses):
+        for i, t in enumerate(body[:-1]):
+            if lex.verb_class(t) and body[i + 1] in _DETERMINERS:
+                again = lex.parse(" ".join(body[i:]))
+                if any(c.verb for c in again):
+                    return again
+    for c in clauses:
+        c.nouns = fix_keys(lex, " ".join(body), c.nouns)
+        if c.place:
+            c.place = fix_keys(lex, " ".join(body), [c.place])[0]
+    return clauses
 
 
 def _verb_forms(text: str, lex: Lexicon) -> str:

@@ -101,14 +101,15 @@ def _generate_open(out: Path, participants: list[str] | None, seed: int, annotat
 @click.option("--questions", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A folder of open questions (OUT/open from `bench generate --kind open`); default: generated "
                    "now from the bundled annotations with --seed.")
-@click.option("--seed", default=42, show_default=True, type=int, help="Seed when generating the questions now.")
+@click.option("--seed", "seeds", default="42", show_default=True,
+              help="Seed(s) when generating the questions now: one, or a comma list whose questions are pooled.")
 @click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write every scored item and the summary to this JSON file.")
 @click.option("--fit-calibration", "fit_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Fit the answer probability on these participants and write it here (the package's file is "
                    "memora_graph/agent/open_calibration.json).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None, seed: int, out: Path | None,
+def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None, seeds: str, out: Path | None,
              fit_path: Path | None, as_json: bool) -> None:
     """Score the open-question reader: answers in the type asked, scored per kind.
 
@@ -133,12 +134,18 @@ def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None,
     try:
         if participants is None:
             raise click.BadParameter("name the participants to score (develop on P01-P03)", param_hint="'--participants'")
+        try:
+            seed = [int(x) for x in seeds.split(",") if x.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{seeds!r}: seeds are integers, comma-separated", param_hint="'--seed'") from None
+        if not seed:
+            raise click.BadParameter("give at least one seed", param_hint="'--seed'")
         items = load_items(questions, participants) if questions else generate_open_items(participants, seed)
         records = evaluate_open(bank, items)
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     if fit_path is not None:
-        cmd = f"memora bench open {bank} --participants {','.join(participants)} --seed {seed} --fit-calibration {fit_path}"
+        cmd = f"memora bench open {bank} --participants {','.join(participants)} --seed {seeds} --fit-calibration {fit_path}"
         fitted = fit_calibration(records, fit_path, participants, cmd)
         from memora_graph.agent.open_calibration import probability
 

@@ -16,8 +16,9 @@ annotations, never against a memory bank:
 
 Each kind has several wordings in three splits (`SPLITS`): `dev`, the ones the reader was
 developed against; `heldout`, written with them and read only after the first scored run;
-`fresh`, written after that run and never read before scoring. A figure on `fresh` says how the
-parser does on wording it was not tuned to. `score_item` scores an `OpenAnswer`.
+`fresh`, written after that run and read after the calibration run; `final`, written before
+`fresh` was read and never read before the P04 run. A figure on `final` says how the parser does
+on wording it was not tuned to. `score_item` scores an `OpenAnswer`.
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ PER_KIND = {"place_last": 6, "place_usual": 6, "time_last": 5, "time_first": 5, 
             "next": 8, "absent": 8, "general": 8}
 COUNT_TOLERANCE = 0.2
 # wordings: dev (the reader was developed against them), heldout (written with dev, scored, and
-# read once after the first run), fresh (written after that run, never read before scoring)
-SPLITS = ("dev", "heldout", "fresh")
+# read once after the first run), fresh (written after that run, read after the calibration run),
+# final (written before fresh was read, never read before the P04 run)
+SPLITS = ("dev", "heldout", "fresh", "final")
 
 # {P} person, {o} object, {b} base verb, {p} past, {g} gerund, {s} present (3rd person), {n} past participle
 TEMPLATES: dict[str, dict[str, list[str]]] = {
@@ -48,6 +50,7 @@ TEMPLATES: dict[str, dict[str, list[str]]] = {
                     "Where did the {o} end up after {P} last put it somewhere?",
                     "In which place did {P} put the {o} most recently?"],
         "fresh": ['Where has {P} most recently placed the {o}?', 'Tell me where {P} put the {o} the last time.', 'What was the last location {P} left the {o} at?'],
+        "final": ['{P} put the {o} somewhere most recently - where was that?', 'Most recently, where did {P} set down the {o}?', 'Where was the {o} left by {P} the final time they put it down?'],
     },
     "place_usual": {
         "dev": ["Where does {P} usually keep the {o}?", "Where does {P} typically put the {o}?",
@@ -55,6 +58,7 @@ TEMPLATES: dict[str, dict[str, list[str]]] = {
         "heldout": ["Which place does {P} normally put the {o} in?", "When {P} puts the {o} away, where does it usually go?",
                     "In what spot does {P} tend to leave the {o}?"],
         "fresh": ["Where would I normally find the {o} in {P}'s kitchen?", 'Where does the {o} usually go when {P} is done with it?', "What is {P}'s usual spot for the {o}?"],
+        "final": ['Where does {P} generally put the {o} away?', "If I were looking for the {o} in {P}'s kitchen, where would it usually be kept?", "Where is {P}'s {o} normally stored?"],
     },
     "time_last": {
         "dev": ["In which video did {P} last {b} the {o}?", "When did {P} most recently {b} the {o}?",
@@ -62,6 +66,7 @@ TEMPLATES: dict[str, dict[str, list[str]]] = {
         "heldout": ["What was the last video in which {P} {p} the {o}?", "When was the latest time {P} {p} the {o}?",
                     "In what session did {P} {b} the {o} most recently?"],
         "fresh": ['Which video is the most recent one where {P} {p} the {o}?', 'Tell me the last recording in which {P} {p} the {o}.', 'When was the {o} last {n} by {P}?'],
+        "final": ['In which video was the {o} most recently {n} by {P}?', 'What is the latest recording of {P} {g} the {o}?', 'When was the final time {P} {p} the {o}? Name the video.'],
     },
     "time_first": {
         "dev": ["In which video did {P} first {b} the {o}?", "When did {P} {b} the {o} for the first time?",
@@ -69,6 +74,7 @@ TEMPLATES: dict[str, dict[str, list[str]]] = {
         "heldout": ["What was the earliest video in which {P} {p} the {o}?", "When was the first time {P} {p} the {o}?",
                     "In what session did {P} first {b} the {o}?"],
         "fresh": ['Which video shows the earliest time {P} {p} the {o}?', 'Tell me the first recording where {P} {p} the {o}.', 'When did {P} start to {b} the {o} - which video was the first?'],
+        "final": ['In which video was the {o} first {n} by {P}?', 'What is the earliest recording of {P} {g} the {o}?', 'When did {P} {b} the {o} for the very first time? Name the video.'],
     },
     "count": {
         "dev": ["How many times did {P} {b} the {o}?", "How often did {P} {b} the {o} across all videos?",
@@ -76,12 +82,14 @@ TEMPLATES: dict[str, dict[str, list[str]]] = {
         "heldout": ["What is the number of times {P} {p} the {o}?", "How many times in total has {P} {n} the {o}?",
                     "On how many occasions did {P} {b} the {o}?"],
         "fresh": ['How many times has {P} {n} the {o} in total?', 'Give the number of times {P} {p} the {o}.', 'How frequently did {P} {b} the {o}? Give a count.'],
+        "final": ["Across all of {P}'s videos, how many times was the {o} {n}?", "What's the total count of {P} {g} the {o}?", 'How many separate times did {P} {b} the {o}?'],
     },
     "yes": {
         "dev": ["Has {P} ever {n} the {o}?", "Did {P} ever {b} the {o}?", "Does {P} {b} the {o}?"],
         "heldout": ["Is there any record of {P} {g} the {o}?", "Was {P} ever seen {g} the {o}?",
                     "Can memory show {P} {g} the {o}?"],
         "fresh": ['Have you ever seen {P} {b} the {o}?', 'Did {P} {b} the {o} at any point?', 'Has the {o} ever been {n} by {P}?'],
+        "final": ['Has {P} {n} the {o} before?', 'Is it true that {P} {p} the {o} at some point?', "Do {P}'s videos show them {g} the {o}?"],
     },
     "next": {
         "dev": ["What does {P} usually do after {g} the {o}?", "After {P} {s} the {o}, what do they typically do next?",
@@ -89,17 +97,19 @@ TEMPLATES: dict[str, dict[str, list[str]]] = {
         "heldout": ["Once {P} has {n} the {o}, what usually follows?", "What is {P}'s usual next action after {g} the {o}?",
                     "Right after {g} the {o}, what does {P} normally do?"],
         "fresh": ["Following {g} the {o}, what is {P}'s next move usually?", 'What usually comes next after {P} {p} the {o}?', 'Typically, what does {P} do immediately after they {b} the {o}?'],
+        "final": ['Whenever {P} {s} the {o}, what is the usual next thing they do?', "What's the most common action by {P} right after {g} the {o}?", '{P} has just {n} the {o}. What will they most likely do next?'],
     },
     "absent": {
         "dev": ["Where does {P} keep the {o}?", "How many times did {P} use the {o}?", "Has {P} ever used a {o}?"],
         "heldout": ["When did {P} last touch the {o}?", "Is there any record of {P} handling the {o}?",
                     "What does {P} usually do with the {o}?"],
         "fresh": ['Where did {P} last leave the {o}?', 'How often does {P} use the {o}?', 'Did {P} ever pick up the {o}?'],
+        "final": ['Where did {P} put the {o} the last time?', 'Has {P} ever {n} the {o}?', 'How many times has {P} picked up the {o}?'],
     },
 }
 TEMPLATES["no"] = TEMPLATES["yes"]
 OTHER_PERSON = {"dev": ["Where did {Q} last put the {o}?"], "heldout": ["How many times did {Q} {b} the {o}?"],
-                "fresh": ["Has {Q} ever {n} the {o}?"]}
+                "fresh": ["Has {Q} ever {n} the {o}?"], "final": ["When did {Q} last {b} the {o}?"]}
 GENERAL = {
     "dev": ["What is the capital of France?", "How many legs does a spider have?", "At what temperature does water boil?",
             "Who wrote Romeo and Juliet?", "What is the boiling point of water?", "Is a tomato a fruit?",
@@ -116,6 +126,11 @@ GENERAL = {
               "How hot does an oven get?", "Does bread contain gluten?", "What colour is a ripe banana?",
               "How many cups of flour go in a cake?", "Which metal is a frying pan usually made of?",
               "What does a whisk do?"],
+    "final": ["How many continents are there?", "Who discovered penicillin?", "What is the freezing point of water in "
+              "Fahrenheit?", "Which animal produces milk for most cheese?", "Where is the Great Wall?",
+              "How many calories are in an apple?", "Is a cucumber a vegetable or a fruit?",
+              "What language is spoken in Brazil?", "When did the Second World War end?",
+              "Why does bread go stale?", "What is the capital city of Japan?", "How do you make mayonnaise?"],
 }
 _PAST = {"take": "took", "put": "put", "cut": "cut", "throw": "threw", "eat": "ate", "drink": "drank", "hold": "held",
          "shake": "shook", "break": "broke", "set": "set", "spread": "spread", "let-go": "let go of", "stir": "stirred",
@@ -358,9 +373,10 @@ def score_item(item: OpenItem, answer) -> dict[str, Any]:
     return {"correct": bool(ok), "reason_ok": reason_ok}
 
 
-def generate_open_items(participants: list[str] | None, seed: int = 42, annotations=None,
+def generate_open_items(participants: list[str] | None, seed: int | list[int] = 42, annotations=None,
                         split: str | None = None) -> dict[str, list[OpenItem]]:
-    """Open questions for each participant of the annotations (default: the bundled subset)."""
+    """Open questions for each participant of the annotations (default: the bundled subset); with
+    several seeds, the union of their questions (each question once)."""
     from memora_graph.bench.behaviour import build_behaviours
     from memora_graph.errors import DataError
     from memora_graph.perceive.annotations import load_annotations
@@ -371,8 +387,16 @@ def generate_open_items(participants: list[str] | None, seed: int = 42, annotati
     missing = [p for p in wanted if p not in behaviours]
     if missing:
         raise DataError(f"no annotations for {', '.join(missing)} (have: {', '.join(sorted(behaviours))})")
-    return {pid: generate_open(behaviours[pid], {k: v for k, v in behaviours.items() if k != pid}, seed, split)
-            for pid in wanted}
+    seeds = [seed] if isinstance(seed, int) else list(seed)
+    out: dict[str, list[OpenItem]] = {}
+    for pid in wanted:
+        others = {k: v for k, v in behaviours.items() if k != pid}
+        seen: dict[str, OpenItem] = {}
+        for sd in seeds:
+            for it in generate_open(behaviours[pid], others, sd, split):
+                seen.setdefault(it.question, it)
+        out[pid] = [it.model_copy(update={"question_id": f"{pid}_open_{i:03d}"}) for i, it in enumerate(seen.values())]
+    return out
 
 
 def generate_open_files(out, participants: list[str] | None, seed: int = 42, annotations=None) -> dict[str, dict]:

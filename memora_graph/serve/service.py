@@ -104,11 +104,17 @@ class AskAnswer(BaseModel):
     answer: str = Field(description="An option's letter and text, the answer in words, or 'not in memory'.")
     letter: str | None
     in_memory: bool
-    kind: str = Field(description="The question's kind: habit, preference, routine or recall.")
+    kind: str = Field(description="With choices, the question's kind (habit, preference, routine or recall); "
+                                  "without, the answer's type (place, time, count, yesno, next, routine, state, "
+                                  "activity, actions, not_in_memory).")
     reason: str
     scores: list[float]
     evidence: list[EvidenceItem] = Field(description="The records behind the answer.")
     calls: list[ToolCall] = Field(description="The typed lookups the reader made.")
+    confidence: float | None = Field(None, description="Without choices: the probability that the answer is right.")
+    typed: dict[str, Any] | None = Field(None, description="Without choices: the answer in the type asked (a place, "
+                                                           "a video and time, a count, yes/no, next actions with "
+                                                           "their share, steps, states; or the not-in-memory reason).")
 
 
 class Rows(BaseModel):
