@@ -60,9 +60,9 @@ _FROM = frozenset({"from", "out"})
 # words that frame a question rather than name its action or objects (dropped before the
 # action is parsed, so "in which recording did P01 first cut the onion" reads as "cut the onion")
 _SCAFFOLD = _WH | _USUAL | _LAST | _FIRST | _VIDEO_WORDS | _TIME_WORDS | _STATE_WORDS | _AUX | \
-    (_PLACE_WORDS - {"container", "appliance", "storage"}) | frozenset(
+    (_PLACE_WORDS - {"container", "appliance", "storage"}) | (_ROUTINE_WORDS - {"recipe"}) | frozenset(
     """ever many much often times number count tally any record evidence sign trace there show shows
-    instance occasion happen ago far so""".split())
+    instance occasion happen ago far so go""".split())
 # words a question is made of that name neither an action nor an object
 _FUNCTION = frozenset("""a an the of to in on at for with by from into onto out up down off over under about as
     and or but if so than that this these those there here it its is be do have not no any some all each every
@@ -129,10 +129,14 @@ def _kind(toks: list[str], words: set[str], videos: list[str], time: float | Non
     head = [t for t in toks if t.isalpha()][:1]
     opens_aux = bool(head) and head[0] in _AUX
     wh = [t for t in toks if t in _WH]
+    if "whereabouts" in words or "whereabout" in words:
+        wh.insert(0, "where")
     if re.search(r"\bhow (many|much)\b", joined) or re.search(r"\bhow (often|frequently)\b", joined) or \
             re.search(r"\bnumber of\b", joined) or (words & {"count", "tally"} and not opens_aux):
-        m = re.search(r"\bhow many (\w+)", joined) or re.search(r"\bnumber of (\w+)", joined)
-        unit = "videos" if m and m.group(1) in _VIDEO_WORDS - {"occasion", "visit", "day"} else "times"
+        m = re.search(r"\b(how many|number of) (\w+)(?: (\w+))?", joined)
+        units = _VIDEO_WORDS - {"occasion", "visit", "day"}
+        unit = "videos" if m and (m.group(2) in units or (m.group(3) in units and m.group(2) not in ("time", "times")))\
+            else "times"
         return "count", unit
     if not videos and ("when" in wh and not re.search(r"\bwhen (they|he|she|p\d+|the person|someone)\b", joined)
                        or re.search(r"\b(which|what)\b( \w+){0,3} (" + "|".join(sorted(_VIDEO_WORDS | _TIME_WORDS)) +
@@ -172,7 +176,7 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     toks = lex.lemmas(_drop_gerunds(clean, lex, keep_verbs=True))
     raw = re.findall(r"[a-z]+", _VIDEO.sub(" ", low))
     words = set(toks) | set(raw)
-    about = bool(persons) or _refers_to_person(raw)
+    about = bool(persons) or bool(videos) or _refers_to_person(raw)
     # the action and objects: the question without its question words, parsed into clauses
     body = [t for t in toks if not (t in _SCAFFOLD or re.fullmatch(r"p\d+", t)
                                     or (t.endswith("ly") and len(t) > 4 and not lex.noun_classes(t)
@@ -182,7 +186,7 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     if not nouns:  # objects the clauses missed (a question that names no action)
         rest = re.sub(r"^\s*(can|will|could|would|may|must)\b", " ", clean, flags=re.I)
         nouns = list(dict.fromkeys(noun_classes(lex, _drop_gerunds(rest, lex, keep_verbs=False))))
-    verbs = list(dict.fromkeys(c.verb for c in clauses if c.verb))
+    verbs = list(dict.fromkeys(c.verb for c in clauses if c.verb and c.verb != "transition"))
     kind, unit = _kind(toks, words, videos, time, nouns)
     place = next((c.place for c in clauses if c.place and c.place in c.nouns[1:]), None)
     if kind == "next":
@@ -225,6 +229,7 @@ def _refers_to_person(raw: list[str]) -> bool:
 
 _FILLER_PHRASES = re.compile(r"\b(in total|in all|all together|altogether|overall|so far|to date|at all|at any point|"
                              r"at some point|give a count|name the video|before now)\b", re.I)
+_PARTICLES = frozenset({"on", "off", "up", "down", "out", "away", "over", "in", "back"})
 _DETERMINERS = frozenset({"the", "a", "an", "their", "his", "her", "its", "some", "any", "that", "this", "my", "your",
                           "our"})
 
@@ -292,9 +297,10 @@ def _clauses(body: list[str], lex: Lexicon):
                 from memora_graph.perceive.lexicon import Clause
 
                 return [Clause(verb, nouns)]
-    if not any(c.verb for c in clauses):
+    if not any(c.verb and c.verb != "transition" for c in clauses):
         for i, t in enumerate(body[:-1]):
-            if lex.verb_class(t) and body[i + 1] in _DETERMINERS:
+            after = body[i + 2] if body[i + 1] in _PARTICLES and i + 2 < len(body) else body[i + 1]
+            if lex.verb_class(t) and after in _DETERMINERS:
                 again = lex.parse(" ".join(body[i:]))
                 if any(c.verb for c in again):
                     return again
