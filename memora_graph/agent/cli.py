@@ -51,8 +51,9 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
     if fmt == "table" and result.typed is not None:
         t = result.typed
         click.echo(result.answer)
-        what = f"not in memory ({t.reason.replace('_', ' ')})" if not t.in_memory else f"{t.kind} answer"
-        click.echo(f"({what} to a {t.asked} question; confidence {t.confidence:.2f}; {t.detail})")
+        what = f"not in memory: {t.reason.replace('_', ' ')}" if not t.in_memory else f"{t.kind} answer"
+        detail = f"; {t.detail}" if t.detail else ""
+        click.echo(f"({what}; the question asks: {t.asked}; confidence {t.confidence:.2f}{detail})")
         if result.evidence:
             click.echo(render(pl.DataFrame(result.evidence), fmt))
         return

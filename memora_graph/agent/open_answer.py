@@ -560,8 +560,10 @@ def _state(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
                           features=_features(0, 0.0, 0.0))
     text = "; ".join(f"{s.object}: {s.state} at {s.location.replace('_', ' ')} (since {clock(s.time_seconds)})"
                      for s in states)
+    at = f"at {clock(q.time)}" if q.time is not None else "at its end"
     return OpenAnswer(**base, kind="state", answer=text, in_memory=True, states=states,
-                      evidence=[s.event_id for s in states], support=len(states), features=_features(len(states)))
+                      evidence=[s.event_id for s in states], support=len(states), features=_features(len(states)),
+                      detail=f"the state history of {video} {at}")
 
 
 def _activity(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
@@ -578,8 +580,10 @@ def _activity(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dic
         return OpenAnswer(**base, kind="activity", answer=f"nothing recorded in {video}", in_memory=True,
                           features=_features(0, 0.0, 0.0))
     lines = [LogLine(video=s.video, time_seconds=round(s.t, 2), text=s.text, segment_id=s.segment) for s in steps]
+    around = f" around {clock(q.time)}" if q.time is not None else ""
     return OpenAnswer(**base, kind="activity", answer="; ".join(f"{clock(x.time_seconds)} {x.text}" for x in lines),
-                      in_memory=True, log=lines, evidence=_ids(steps), support=len(steps), features=_features(len(steps)))
+                      in_memory=True, log=lines, evidence=_ids(steps), support=len(steps), features=_features(len(steps)),
+                      detail=f"the activity log of {video}{around}")
 
 
 _ANSWER = {"place": _place, "time": _time, "count": _count, "yesno": _yesno, "next": _next, "routine": _routine,

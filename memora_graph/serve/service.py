@@ -230,7 +230,10 @@ class MemoryService:
         out.append(self._endpoint(
             "ask", "Ask the person's memory a question, answered by the typed reader (deterministic, no model): it "
                    "makes the typed lookups the question needs and answers with the records behind the answer, or "
-                   "'not in memory'.", AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
+                   "'not in memory'. Without choices the answer takes the type asked (a place, a video and time, a "
+                   "count, yes/no, next actions with their share, routine steps, a state) under `typed`, with a "
+                   "confidence; 'not in memory' says why (general knowledge, or a subject absent from this memory).",
+            AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
         out.append(self._endpoint(
             "cypher", "Run one read-only Cypher statement on the person's memory graph (schema: `memora queries`, "
                       "schema/*.cypher). Writes, file access, extensions and other databases are refused.",
