@@ -62,7 +62,7 @@ _FROM = frozenset({"from", "out"})
 _SCAFFOLD = _WH | _USUAL | _LAST | _FIRST | _VIDEO_WORDS | _TIME_WORDS | _STATE_WORDS | _AUX | \
     (_PLACE_WORDS - {"container", "appliance", "storage"}) | (_ROUTINE_WORDS - {"recipe"}) | frozenset(
     """ever many much often times number count tally any record evidence sign trace there show shows
-    instance occasion happen ago far so go""".split())
+    instance occasion happen ago far so go separate different distinct individual total whole entire""".split())
 # words a question is made of that name neither an action nor an object
 _FUNCTION = frozenset("""a an the of to in on at for with by from into onto out up down off over under about as
     and or but if so than that this these those there here it its is be do have not no any some all each every
@@ -181,13 +181,18 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     body = [t for t in toks if not (t in _SCAFFOLD or re.fullmatch(r"p\d+", t)
                                     or (t.endswith("ly") and len(t) > 4 and not lex.noun_classes(t)
                                         and not lex.verb_class(t)))]
-    clauses = _clauses(body, lex)
+    last = [w for w in raw if not re.fullmatch(r"p\d+", w) and w not in ("by",) and w not in _PERSON_WORDS][-1:]
+    participle = bool(last) and (last[0].endswith(("ed", "en", "wn")) or last[0] in ("put", "cut", "set", "shut"))
+    clauses = _clauses(body, lex, passive=participle and bool(set(raw) & {"was", "were", "been", "being"}))
     nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
     if not nouns:  # objects the clauses missed (a question that names no action)
         rest = re.sub(r"^\s*(can|will|could|would|may|must)\b", " ", clean, flags=re.I)
         nouns = list(dict.fromkeys(noun_classes(lex, _drop_gerunds(rest, lex, keep_verbs=False))))
     verbs = list(dict.fromkeys(c.verb for c in clauses if c.verb and c.verb != "transition"))
-    kind, unit = _kind(toks, words, videos, time, nouns)
+    asking = _asking_sentence(clean)
+    ktoks = lex.lemmas(asking) if asking != clean else toks
+    kind, unit = _kind(ktoks, set(ktoks) | set(re.findall(r"[a-z]+", asking.lower())) | (words & {"whereabouts"}),
+                       videos, time, nouns)
     place = next((c.place for c in clauses if c.place and c.place in c.nouns[1:]), None)
     if kind == "next":
         # the trigger is the clause after "after" / "once" / "when", or the first action named
@@ -283,10 +288,18 @@ def _KEY_FIX(lex: Lexicon) -> dict[str, dict[str, str]]:
     return got
 
 
-def _clauses(body: list[str], lex: Lexicon):
-    """The body's clauses; a passive ("the water was last poured by P01") or a verb the lexicon
-    also reads as an object ("brushing the brush", "peel the onion") found by its position."""
+def _clauses(body: list[str], lex: Lexicon, passive: bool = False):
+    """The body's clauses; a passive ("the water was last poured by P01", "how many times was the
+    tap moved") or a verb the lexicon also reads as an object ("brushing the brush", "peel the
+    onion") found by its position."""
     clauses = lex.parse(" ".join(body))
+    words = [t for t in body if t.isalpha()]
+    if passive and len(words) > 1 and words[-1] != "by" and lex.verb_class(words[-1]):
+        nouns = noun_classes(lex, " ".join(words[:-1]))
+        if nouns:
+            from memora_graph.perceive.lexicon import Clause
+
+            return [Clause(lex.verb_class(words[-1]), nouns)]
     if "by" in body:
         j = body.index("by")
         if j > 0 and lex.verb_class(body[j - 1]) and all(t in _DETERMINERS or t in _PERSON_WORDS or not t.isalpha()
@@ -309,6 +322,17 @@ def _clauses(body: list[str], lex: Lexicon):
         if c.place:
             c.place = fix_keys(lex, " ".join(body), [c.place])[0]
     return clauses
+
+
+def _asking_sentence(text: str) -> str:
+    """The sentence that asks ("P04 has just closed the oven. What will they do next?" asks the
+    second; "How often did P01 peel the onion? Give a count." the first); the whole text when it
+    is one sentence."""
+    parts = [p.strip() for p in re.findall(r"[^.?!]+[.?!]?", text) if p.strip(" .?!")]
+    if len(parts) < 2:
+        return text
+    asked = [p for p in parts if p.endswith("?")]
+    return asked[-1] if asked else text
 
 
 def _verb_forms(text: str, lex: Lexicon) -> str:
