@@ -142,9 +142,12 @@ def noun_words(noun: str) -> str:
     return " ".join(parts[1:] + parts[:1]) if parts else noun
 
 
-def _place_of(objects: list[str], nouns: list[str], lex: Lexicon) -> str | None:
-    for n in nouns:
-        if n not in objects and lex.noun_category.get(n, "") in PLACE_CATEGORIES:
+def _place_of(objects: list[str], nouns: list[str], lex: Lexicon, said: list[str | None] = ()) -> str | None:
+    """Where a step's object went (or came from): the place a preposition introduces ("put can of
+    tomatoes in cupboard" -> cupboard), else the first place-like class named after the object."""
+    after = nouns[next((i for i, n in enumerate(nouns) if n in objects), -1) + 1:] if objects else nouns
+    for n in [*said, *after]:
+        if n and n not in objects and lex.noun_category.get(n, "") in PLACE_CATEGORIES:
             return n
     return None
 
@@ -168,8 +171,11 @@ def action_log(view, lex: Lexicon) -> list[LogStep]:
             objects = noun_classes(lex, obj.replace("_", " ").replace(":", " ")) if obj else []
             clauses = lex.parse(narration) if narration else []
             nouns = list(objects)
+            said = []
             for c in clauses:
                 nouns += [n for n in fix_keys(lex, narration, c.nouns) if n not in nouns]
+                if c.place:
+                    said += fix_keys(lex, narration, [c.place])
             if not objects and nouns:
                 objects = nouns[:1]
             verb = lex.verb(str(s.get("action") or "")) or next((c.verb for c in clauses if c.verb), None)
@@ -178,7 +184,7 @@ def action_log(view, lex: Lexicon) -> list[LogStep]:
             except (TypeError, ValueError):
                 t = t0
             out.append(LogStep(seg["video"], t, seg["id"], verb, tuple(dict.fromkeys(objects)), tuple(nouns),
-                               _place_of(objects, nouns, lex), narration or f"{s.get('action', '')} {obj}".strip()))
+                               _place_of(objects, nouns, lex, said), narration or f"{s.get('action', '')} {obj}".strip()))
     out.sort(key=lambda s: (s.video, s.t))
     view.__dict__["_open_action_log"] = out
     return out

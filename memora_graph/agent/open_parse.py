@@ -193,6 +193,8 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     ktoks = lex.lemmas(asking) if asking != clean else toks
     kind, unit = _kind(ktoks, set(ktoks) | set(re.findall(r"[a-z]+", asking.lower())) | (words & {"whereabouts"}),
                        videos, time, nouns)
+    if asking != clean and kind in ("actions", "routine") and verbs and {"what", "do"} <= set(ktoks):
+        kind = "next"  # "P07 has just rinsed the colander. What are they likely to do now?"
     place = next((c.place for c in clauses if c.place and c.place in c.nouns[1:]), None)
     if kind == "next":
         # the trigger is the clause after "after" / "once" / "when", or the first action named
