@@ -464,6 +464,7 @@ def _next(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -
     subject = _subject(q)
     counts: Counter = Counter()
     ids: dict = {}
+    follows: dict = {}
     for a, b in zip(runs, runs[1:]):
         s = a[0]
         if a[0].video != b[0].video or (q.verb and s.verb != q.verb) or (subject and subject[0] not in s.objects):
@@ -471,6 +472,7 @@ def _next(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -
         key = (b[0].verb, b[0].objects[0] if b[0].objects else "")
         counts[key] += 1
         ids.setdefault(key, []).append(b[0].segment)
+        follows.setdefault(key, []).append(b[0])
     if not counts:
         return _never(q, base) if q.verb else _actions(view, q, log, lex, base)
     total = sum(counts.values())
@@ -478,7 +480,9 @@ def _next(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
     trig = action_text(q.verb, subject[0] if subject else None)
     text = "; ".join(f"{a.text} ({a.share:.0%})" for a in acts)
-    return OpenAnswer(**base, kind="next", answer=text, in_memory=True, actions=acts,
+    shown = [st for key, _ in counts.most_common(MAX_ACTIONS) for st in follows[key][:5]]
+    records = [LogLine(video=st.video, time_seconds=round(st.t, 2), text=st.text, segment_id=st.segment) for st in shown]
+    return OpenAnswer(**base, kind="next", answer=text, in_memory=True, actions=acts, records=records,
                       evidence=list(dict.fromkeys(i for a in counts.most_common(MAX_ACTIONS) for i in ids[a[0]][:5])),
                       support=acts[0].count, detail=f"what followed '{trig}' in {total} cases",
                       features=_features(acts[0].count, acts[0].share, margin, exact=False))

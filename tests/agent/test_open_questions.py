@@ -245,3 +245,13 @@ def test_fit_and_ece_behave():
     assert err == 0.0 and table[0]["n"] == 10
     err, _ = ece([1.0] * 4, [True, True, False, False])
     assert err == 0.5
+
+
+def test_the_served_ask_tool_returns_the_typed_answer(small_bank):
+    from memora_graph.serve.service import MemoryService
+
+    bank, _ = small_bank
+    with MemoryService(bank, "P37") as service:
+        out = service.call("ask", {"question": "How many times did P37 open the fridge?"})
+    assert out["typed"]["kind"] == "count" and out["typed"]["count"] == int(out["answer"].split()[0])
+    assert 0 < out["confidence"] < 1 and out["evidence"]
