@@ -425,7 +425,7 @@ def _time(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -
 
 def _never(q: OpenQuestion, base: dict) -> OpenAnswer:
     asked = action_text(q.verb, _subject(q)[0] if _subject(q) else None)
-    return OpenAnswer(**base, kind=q.kind if q.kind != "yesno" else "yesno", answer=f"never recorded: {asked}",
+    return OpenAnswer(**base, kind=q.kind, answer=f"never recorded: {asked}",
                       in_memory=True, yes=False if q.kind == "yesno" else None, count=0 if q.kind == "count" else None,
                       detail=f"its objects are in memory, never with this action ({asked})",
                       features=_features(0, 0.0, 0.0))
@@ -434,7 +434,7 @@ def _never(q: OpenQuestion, base: dict) -> OpenAnswer:
 def _count(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
     hits = [s for s in log if _matches(s, q)]
     if not hits:
-        return _never(q, base) if q.kind == "count" else _never(q, base)
+        return _never(q, base)
     videos = list(dict.fromkeys(h.video for h in hits))
     n = len(videos) if q.unit == "videos" else len(hits)
     unit = "videos" if q.unit == "videos" else "times"
