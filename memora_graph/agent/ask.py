@@ -5,9 +5,13 @@
     result.answer, result.evidence
 
 The same lookups and reader as the `offline` answer policy (`agent.reading`): the tools are
-called directly, not through the agent loop. With choices it picks one (or "not in memory");
-without, it answers in words: the actions memory shows in the question's situation, most
-supported first, each with the records behind it.
+called directly, not through the agent loop. With choices it picks one (or "not in memory").
+Without choices, over MEMORA's typed stores, the answer takes the type the question asks for
+(`agent.open_answer`): a place, a video and time, a number, yes/no, the next actions with their
+share, a routine's steps, a state or an activity log, or "not in memory" with the reason
+(general knowledge, or a subject absent from this person's memory), with a confidence; the
+typed answer is `result.typed`. Over a baseline's representation (flat1d, graph2d) it answers
+in words: the actions memory shows in the question's situation, most supported first.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from memora_graph.agent import lookups
+from memora_graph.agent.open_answer import OpenAnswer, answer_open
 from memora_graph.agent.evidence import events_of
 from memora_graph.agent.reading import (
     OPTION_E, Event, Intent, context_windows, habit_windows, parse_question, score,
@@ -39,6 +44,11 @@ class AskResult:
     scores: list[float] = field(default_factory=list)  # with choices: one per choice, in order (A, B, ...)
     evidence: list[dict] = field(default_factory=list)  # {id, text} of the records behind the answer
     calls: list[dict] = field(default_factory=list)  # {tool, arguments}
+    typed: OpenAnswer | None = None  # without choices, over MEMORA: the answer in the type asked
+
+    @property
+    def confidence(self) -> float | None:
+        return self.typed.confidence if self.typed is not None else None
 
     @property
     def in_memory(self) -> bool:
@@ -47,7 +57,9 @@ class AskResult:
     def as_dict(self) -> dict:
         return {"question": self.question, "participant": self.participant, "answer": self.answer,
                 "letter": self.letter, "in_memory": self.in_memory, "kind": self.kind, "reason": self.reason,
-                "scores": {letter: round(s, 4) for letter, s in zip("ABCD", self.scores)}, "evidence": self.evidence, "calls": self.calls}
+                "scores": {letter: round(s, 4) for letter, s in zip("ABCD", self.scores)}, "evidence": self.evidence, "calls": self.calls,
+                "confidence": self.confidence,
+                "typed": self.typed.model_dump(mode="json") if self.typed is not None else None}
 
 
 def _embedder():
@@ -105,6 +117,8 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
     """`ask` over a memory already open (a `MemoryView` for "memora"), which stays open: a server
     answers many questions from one open bank."""
     lex = Lexicon.load()
+    if not choices and memory == "memora":
+        return _open(store, participant, question, lex)
     intent = parse_question(question, lex)
     names = tool_names(memory, advertised_only=False)
     tools = tool_set(memory, names, participant, store)
@@ -135,3 +149,18 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
                          "no record of the situation asked about", calls=calls)
     return AskResult(question, participant, "; ".join(words), None, intent.kind, "supported", [],
                      _cite(ids, events), calls)
+
+
+def _open(view, participant: str, question: str, lex: Lexicon) -> AskResult:
+    """Without choices: the answer in the type the question asks for (`open_answer`)."""
+    typed = answer_open(view, participant, question, lex)
+    said: dict[str, list[str]] = {}
+    for r in typed.records:
+        said.setdefault(r.segment_id, []).append(f"{r.time_seconds:.1f}s {r.text}")
+    evidence = [{"id": i, "text": "; ".join(said.get(i, []))} for i in typed.evidence[:8]]
+    if not typed.in_memory:
+        reason = f"{typed.reason.replace('_', ' ')}: {typed.detail}" if typed.reason else typed.detail
+        return AskResult(question, participant, NOT_IN_MEMORY, None, typed.kind, reason, typed=typed)
+    return AskResult(question, participant, typed.answer, None, typed.kind, typed.detail or "supported", [],
+                     evidence, [{"tool": "open_answer", "arguments": {"asked": typed.asked, **typed.subject}}],
+                     typed=typed)

@@ -24,9 +24,12 @@ from memora_graph.output import output_options, render
 def ask_cmd(bank, question, participant, choices, family, fmt):
     """Ask one person's memory a question, answered by the typed reader (deterministic, no model).
 
-    The reader parses the question into what it asks (a habit, a preference or method, a routine,
-    or what happened in a named video) and its actions and objects, makes the typed lookups that
-    needs, and answers with the records behind the answer, or says "not in memory".
+    With choices, the reader picks one (or "not in memory"). Without, the answer takes the type
+    the question asks for: a place (where it was last put, or is usually kept), a video and time,
+    a number of times, yes or no, the next actions with their share, a routine's steps, a state
+    or an activity log, or "not in memory" saying why (general knowledge, or a subject absent
+    from this person's memory); with the records behind it and a confidence (a probability,
+    calibrated on P01-P03). --json prints the typed answer under "typed". See docs/asking.md.
 
     \b
     Examples:
@@ -34,6 +37,8 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
       memora ask banks/epic "When P01 picks up a cup, what does that usually lead to?" --participant P01 \\
           --choice "drink water from the cup" --choice "rinse the cup" --choice "put it in the cupboard"
       memora ask banks/epic "In video P01_108, what did P01 do with the purse?" --participant P01 --json
+      memora ask banks/epic "Where did P01 last put the chopping board?" --participant P01
+      memora ask banks/epic "How many times did P01 open the fridge?" --participant P01 --json
     """
     from memora_graph.agent.ask import ask
 
@@ -44,6 +49,15 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
     if fmt == "json":
         click.echo(json.dumps(result.as_dict(), indent=2, ensure_ascii=False))
         return
+    if fmt == "table" and result.typed is not None:
+        t = result.typed
+        click.echo(result.answer)
+        what = f"not in memory: {t.reason.replace('_', ' ')}" if not t.in_memory else f"{t.kind} answer"
+        detail = f"; {t.detail}" if t.detail else ""
+        click.echo(f"({what}; the question asks: {t.asked}; confidence {t.confidence:.2f}{detail})")
+        if result.evidence:
+            click.echo(render(pl.DataFrame(result.evidence), fmt))
+        return
     if fmt == "table":
         click.echo(f"{result.answer}\n({result.kind} question; {result.reason})")
         if result.evidence:
@@ -51,5 +65,6 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
         return
     rows = [{"answer": result.answer, "letter": result.letter or "", "in_memory": result.in_memory,
              "kind": result.kind, "reason": result.reason,
+             "confidence": "" if result.confidence is None else result.confidence,
              "evidence": "; ".join(e["id"] for e in result.evidence)}]
     click.echo(render(pl.DataFrame(rows), fmt))

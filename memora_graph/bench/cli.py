@@ -32,8 +32,11 @@ bench_group = click.Group(
 @click.option("--no-dedup", is_flag=True, help="Skip the embedding near-duplicate check (exact dedup still applies).")
 @click.option("--bank", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="A memory bank whose object registry grounds Replay nouns (enriched_narration, matched_object).")
+@click.option("--kind", "suite_kind", type=click.Choice(["suite", "open"]), default="suite", show_default=True,
+              help="suite: EAM-QA + Planning (the release layout); open: open questions without choices, "
+                   "gold from the annotations, written to OUT/open/pXX.json (see docs/asking.md).")
 def generate_cmd(out: Path, participants: list[str] | None, seed: int, annotations: Path | None, no_dedup: bool,
-                 bank: Path | None) -> None:
+                 bank: Path | None, suite_kind: str) -> None:
     """Generate EAM-QA questions and Planning Replay/Generalize tasks from annotations.
 
     Writes eam_qa/questions/pXX.json and planning/suites/{replay,generalize}/pXX.json (the
@@ -47,7 +50,11 @@ def generate_cmd(out: Path, participants: list[str] | None, seed: int, annotatio
       memora bench generate --out runs/bench-p01 --participants P01,P02 --seed 7
       memora bench generate --out runs/bench --annotations EPIC_100_train_subset.csv
       memora bench generate --out runs/bench --bank banks/epic
+      memora bench generate --out runs/open --kind open --participants P01,P02,P03
     """
+    if suite_kind == "open":
+        _generate_open(out, participants, seed, annotations)
+        return
     from memora_graph.bench.generate import generate_suite, write_generated
     from memora_graph.bench.validate import ValidationReport, check_suite, count_suite, render_table
 
@@ -72,6 +79,93 @@ def generate_cmd(out: Path, participants: list[str] | None, seed: int, annotatio
     table = ValidationReport(str(out), count_suite(suite), check_suite(suite))
     click.echo(render_table(table))
     click.echo(f"\nWrote {out} in {seconds:.1f} s (seed {seed}; near-duplicate check: {report.semantic_dedup}).")
+
+
+def _generate_open(out: Path, participants: list[str] | None, seed: int, annotations: Path | None) -> None:
+    from memora_graph.bench.generate_open import generate_open_files
+
+    try:
+        written = generate_open_files(out, participants, seed, annotations)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    rows = [{"participant": pid, **counts} for pid, counts in written.items()]
+    import polars as pl
+
+    click.echo(render(pl.DataFrame(rows), "table"))
+    click.echo(f"\nWrote {out / 'open'} (seed {seed}).")
+
+
+@bench_group.command("open")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@participants_option(default="P01,P02,P03")
+@click.option("--questions", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="A folder of open questions (OUT/open from `bench generate --kind open`); default: generated "
+                   "now from the bundled annotations with --seed.")
+@click.option("--seed", "seeds", default="42", show_default=True,
+              help="Seed(s) when generating the questions now: one, or a comma list whose questions are pooled.")
+@click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write every scored item and the summary to this JSON file.")
+@click.option("--fit-calibration", "fit_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Fit the answer probability on these participants and write it here (the package's file is "
+                   "memora_graph/agent/open_calibration.json).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None, seeds: str, out: Path | None,
+             fit_path: Path | None, as_json: bool) -> None:
+    """Score the open-question reader: answers in the type asked, scored per kind.
+
+    Answers every open question of the participants from BANK (`memora ask` without choices) and
+    scores it by type: the place class, the video id, the count within max(1, 20%), yes/no, the
+    next action at verb + noun class, "not in memory" for absent subjects and general knowledge.
+    Prints accuracy per kind and per wording split (dev / heldout), the expected calibration error
+    of the confidence, and accuracy at 80% and 50% coverage. Develop on P01-P03; score others once.
+
+    \b
+    Examples:
+      memora bench open banks/epic --participants P01,P02,P03
+      memora bench open banks/epic --participants P04 --out runs/open-p04.json
+      memora bench open banks/epic --participants P01,P02,P03 \\
+          --fit-calibration memora_graph/agent/open_calibration.json
+    """
+    import polars as pl
+
+    from memora_graph.bench.generate_open import generate_open_items
+    from memora_graph.bench.open_eval import evaluate_open, fit_calibration, load_items, summarize
+
+    try:
+        if participants is None:
+            raise click.BadParameter("name the participants to score (develop on P01-P03)", param_hint="'--participants'")
+        try:
+            seed = [int(x) for x in seeds.split(",") if x.strip()]
+        except ValueError:
+            raise click.BadParameter(f"{seeds!r}: seeds are integers, comma-separated", param_hint="'--seed'") from None
+        if not seed:
+            raise click.BadParameter("give at least one seed", param_hint="'--seed'")
+        items = load_items(questions, participants) if questions else generate_open_items(participants, seed)
+        records = evaluate_open(bank, items)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    if fit_path is not None:
+        cmd = f"memora bench open {bank} --participants {','.join(participants)} --seed {seeds} --fit-calibration {fit_path}"
+        fitted = fit_calibration(records, fit_path, participants, cmd)
+        from memora_graph.agent.open_calibration import probability
+
+        for r in records:
+            r["confidence"] = round(probability(r["answer_kind"], r["features"], fitted["weights"]), 4)
+        click.echo(f"Fitted {fit_path} on {len(records)} answers (ECE on the fit cohort {fitted['ece_on_fit']:.3f}).")
+    summary = summarize(records)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"participants": participants, "summary": summary, "items": records}, indent=2,
+                                  ensure_ascii=False) + "\n")
+    if as_json:
+        click.echo(json.dumps(summary, indent=2))
+        return
+    rows = [{"kind": k, **v} for k, v in summary["per_kind"].items()] + \
+        [{"kind": f"{k} wording", **v} for k, v in summary["per_split"].items()] + [{"kind": "ALL", **summary["overall"]}]
+    click.echo(render(pl.DataFrame(rows), "table"))
+    sel = summary["selective"]
+    click.echo(f"not-in-memory reason right: {summary['nim_reason_accuracy']}; ECE {summary['ece']:.3f}; accuracy at "
+               f"100% / 80% / 50% coverage: {sel['100%']} / {sel['80%']} / {sel['50%']}")
 
 
 @bench_group.command("validate")

@@ -104,11 +104,17 @@ class AskAnswer(BaseModel):
     answer: str = Field(description="An option's letter and text, the answer in words, or 'not in memory'.")
     letter: str | None
     in_memory: bool
-    kind: str = Field(description="The question's kind: habit, preference, routine or recall.")
+    kind: str = Field(description="With choices, the question's kind (habit, preference, routine or recall); "
+                                  "without, the answer's type (place, time, count, yesno, next, routine, state, "
+                                  "activity, actions, not_in_memory).")
     reason: str
     scores: dict[str, float] = Field(description="With choices: each choice's score, by its letter (A, B, ...).")
     evidence: list[EvidenceItem] = Field(description="The records behind the answer.")
     calls: list[ToolCall] = Field(description="The typed lookups the reader made.")
+    confidence: float | None = Field(None, description="Without choices: the probability that the answer is right.")
+    typed: dict[str, Any] | None = Field(None, description="Without choices: the answer in the type asked (a place, "
+                                                           "a video and time, a count, yes/no, next actions with "
+                                                           "their share, steps, states; or the not-in-memory reason).")
 
 
 class Rows(BaseModel):
@@ -224,7 +230,10 @@ class MemoryService:
         out.append(self._endpoint(
             "ask", "Ask the person's memory a question, answered by the typed reader (deterministic, no model): it "
                    "makes the typed lookups the question needs and answers with the records behind the answer, or "
-                   "'not in memory'.", AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
+                   "'not in memory'. Without choices the answer takes the type asked (a place, a video and time, a "
+                   "count, yes/no, next actions with their share, routine steps, a state) under `typed`, with a "
+                   "confidence; 'not in memory' says why (general knowledge, or a subject absent from this memory).",
+            AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
         out.append(self._endpoint(
             "cypher", "Run one read-only Cypher statement on the person's memory graph (schema: `memora queries`, "
                       "schema/*.cypher). Writes, file access, extensions and other databases are refused.",
