@@ -122,10 +122,18 @@ def goal_parts(goal: str, lex: Lexicon) -> list[GoalPart]:
         if c.negated:
             continue
         objs = [n for n in c.objects() if _carried(n, lex)] or [n for n in c.objects()]
+        verb = c.verb
+        if c.instrument and objs and all(lex.noun_category.get(n) == lex.noun_category.get(c.instrument) or
+                                         lex.noun_category.get(n) in SET_CATEGORIES and
+                                         lex.noun_category.get(c.instrument) in SET_CATEGORIES for n in objs):
+            objs = [c.instrument, *objs]  # "with plate, bowl and cutlery": one list, not a tool
+        elif c.instrument and (verb in GENERIC_VERBS or not verb) and _carried(c.instrument, lex):
+            # "prepare a salad using vegetables": what memory shows done with the ingredient
+            objs, verb = [c.instrument], None
         places = [n for n in c.nouns if n not in objs and n != c.instrument]
         words = {n: said.get(n, display(n)) for n in c.nouns}
         place = c.place or (places[0] if places else "")
-        parts.append(GoalPart(c.verb, objs, words, c.instrument, words.get(place, display(place)) if place else ""))
+        parts.append(GoalPart(verb, objs, words, c.instrument, words.get(place, display(place)) if place else ""))
     for i, p in enumerate(parts):
         if p.objects:
             continue
@@ -254,6 +262,11 @@ def _same_kind(a: str, b: str, lex: Lexicon) -> bool:
     return bool(cat) and cat == lex.noun_category.get(b)
 
 
+def _general(noun: str, lex: Lexicon) -> bool:
+    """A class that names its whole kind ("vegetable", "fruit", "cutlery"): any of that kind is one."""
+    return bool(noun) and display(noun) in lex.noun_category.get(noun, "")
+
+
 def part_score(proc: Procedure, part: GoalPart, lex: Lexicon) -> tuple[float, str | None]:
     """How well a procedure does a goal part, and the object to substitute (None: as learned).
     0 when it never does the part's action (or, for a part with no action, never its object)."""
@@ -264,7 +277,7 @@ def part_score(proc: Procedure, part: GoalPart, lex: Lexicon) -> tuple[float, st
         return 0.0, None
     if not part.objects:
         return 1.0 + base, None
-    hit = [o for o in part.objects if o in nouns]
+    hit = [o for o in part.objects if o in nouns or (_general(o, lex) and any(_same_kind(o, n, lex) for n in nouns))]
     if hit:
         return 2.0 + len(hit) / len(part.objects) + base, None
     if not part.verb:
@@ -373,14 +386,20 @@ def with_tools(steps: list[dict[str, Any]], part: GoalPart, procs: list[Procedur
     if not part.verb:
         return steps
     counts: dict[str, list[str]] = {}
+    acted_on: dict[str, int] = {}
     for p in procs:
         if part.verb not in [s.verb for s in p.steps]:
             continue
-        for noun in {s.noun for s in p.steps if s.noun}:
+        targets = {s.noun for s in p.steps if s.verb == part.verb}
+        for noun in targets:
+            acted_on[noun] = acted_on.get(noun, 0) + 1
+        for noun in {s.noun for s in p.steps if s.noun} - targets:
             if lex.noun_category.get(noun) in TOOL_CATEGORIES and noun not in part.objects:
                 counts.setdefault(noun, []).append(p.source_id)
     have = {s["noun"] for s in steps}
-    tools = [n for n, ids in sorted(counts.items(), key=lambda x: (-len(x[1]), x[0])) if len(ids) >= 2 and n not in have]
+    # used around the action more often than it is itself what the action is done to
+    tools = [n for n, ids in sorted(counts.items(), key=lambda x: (-len(x[1]), x[0]))
+             if len(ids) >= 2 and len(ids) > acted_on.get(n, 0) and n not in have]
     if not tools:
         return steps
     at = next((i for i, s in enumerate(steps) if s["verb_class"] == part.verb), len(steps))
