@@ -15,13 +15,15 @@ option is supported well enough. At most 3 calls per response, four tool rounds.
 Parametric (no tools) is a closed-book prior: the content option closest to the question stem,
 never E.
 
-Planning: it retrieves a routine first (get_routine_skill, else search_activities, else search),
-grounds up to two objects through the entity tools (search_objects, else get_object_history,
-else search), and writes numbered steps "Verb the object at the place" from the routine's steps
-or, without a routine, from the best-matching remembered activity sequence. Where the condition
-has preferences (MEMORA's get_preferences), the plan honours the ones about its objects: it puts
-an object back where the person keeps it, adds a habitual next action, follows a workflow
-(`apply_preferences`).
+Planning: `agent.planner` and `agent.compose`. It looks up routines for the goal, the person's
+preferences about it and the episodes most like it; for a goal of several actions, routines (or
+episodes) for each; then the objects the draft plan needs (search_objects, else
+get_object_history, else search). It composes: per action of the goal, a remembered procedure
+used as learned or transferred to the goal's object (order kept), procedures chained in the
+goal's order, the object fetched first and the tools the person handles for that action taken
+up; objects grounded in the person's names and places, or said to be "not in memory"; retrieved
+preferences inserted at the steps they govern (`apply_preferences`). Every step keeps the
+evidence ids it came from; the answer lists them under the numbered plan.
 
 The policy reads only the task view and its own tool results; never gold answers or references.
 """
@@ -38,28 +40,16 @@ import numpy as np
 from memora_graph.agent import lookups
 from memora_graph.agent.evidence import events_of
 from memora_graph.agent.loop import AgentState, PolicyReply
-from memora_graph.agent.planner import (  # noqa: F401  (the planner's names, as this module has always offered them)
+from memora_graph.agent.planner import (  # noqa: F401  (_step, apply_preferences, generic_plan: kept importable here)
     _step, _task_text, apply_preferences, compose_structured, generic_plan, plan_lookups, plan_text,
 )
 from memora_graph.agent.reading import Decision, parse_question, score
-from memora_graph.baselines.flat1d import FlatHit
-from memora_graph.baselines.graph2d import GraphNode
-from memora_graph.consolidate.vocab import past_tense
 from memora_graph.embed import get_embedder
-from memora_graph.retrieve.results import (
-    ActivityRecord, ObjectRecord, OtherMatch, PlaceRecord, PreferenceRecord, Record, RoutineRecord, RoutinesResult,
-    ToolResult, VisibleObject,
-)
+from memora_graph.retrieve.results import ToolResult
 from memora_graph.perceive.lexicon import Lexicon
-from memora_graph.text import KITCHEN_NOUNS, tokenize
 
-ROUTINE_ADOPT = 0.5
-MAX_STEPS = 12
-MAX_PREFERENCES = 4  # retrieved preferences considered for one plan
-MAX_PREFERENCE_STEPS = 3  # steps a plan may gain from them
 EVIDENCE_PER_CALL = 6  # the best results of each call are read
 EVIDENCE_CHARS = 240
-_KITCHEN = frozenset(KITCHEN_NOUNS)
 
 
 def _call(name: str, **arguments: Any) -> dict[str, Any]:

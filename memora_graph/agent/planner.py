@@ -233,17 +233,6 @@ def task_text(task_query: str) -> str:
 _task_text = task_text
 
 
-def _split_narration(text: str) -> tuple[str, str]:
-    words = re.sub(r"[^a-z\s-]", " ", text.lower()).split()
-    words = [w for w in words if w not in ("person", "the", "a", "an", "they", "he", "she")]
-    if not words:
-        return "", ""
-    two = " ".join(words[:2])
-    if two in ("pick up", "put down", "turn on", "turn off", "put in", "put into", "put on", "take out"):
-        return two, " ".join(words[2:])
-    return words[0].replace("-", " "), " ".join(words[1:])
-
-
 def generic_plan(task_query: str) -> list[dict[str, Any]]:
     """A plan from the request alone (Parametric, or nothing retrieved): locate, take, act, put back."""
     query = _task_text(task_query).lower()
