@@ -121,7 +121,8 @@ def goal_parts(goal: str, lex: Lexicon) -> list[GoalPart]:
     for c in lex.parse(goal):
         if c.negated:
             continue
-        objs = [n for n in c.objects() if _carried(n, lex)] or [n for n in c.objects()]
+        # things carried; failing those, the fixtures, head noun first ("the kitchen countertop")
+        objs = [n for n in c.objects() if _carried(n, lex)] or list(reversed(c.objects()))
         verb = c.verb
         if c.instrument and objs and all(lex.noun_category.get(n) == lex.noun_category.get(c.instrument) or
                                          lex.noun_category.get(n) in SET_CATEGORIES and
@@ -414,7 +415,7 @@ def _fetch(part: GoalPart, proc: Procedure | None, theme: str | None, lex: Lexic
     procedure does not take the object before its first step that acts on it (and the object is
     something carried, not a fixture or a place), the plan first fetches it from where memory keeps it."""
     obj = part.objects[0] if part.objects else ""
-    if not _carried(obj, lex):
+    if not _carried(obj, lex) or _general(obj, lex):  # "vegetables": the procedure takes the person's own
         return []
     if part.verb and lex.verb_category.get(part.verb) == "retrieve":
         return []
@@ -501,7 +502,7 @@ def render(verb: str, obj: str, place: str, note: str | None = None, preposition
 
 
 def ground(draft: list[dict[str, Any]], found: dict[str, Grounding], goal_objects: set[str],
-           memory: bool) -> list[dict[str, Any]]:
+           memory: bool, general: Any = lambda noun: False) -> list[dict[str, Any]]:
     """Structured steps: the person's object names and places; an object the goal names that memory
     has no record of is kept in the goal's words and the step says so; a place carries on from the
     step before when the procedure recorded none."""
@@ -514,7 +515,8 @@ def ground(draft: list[dict[str, Any]], found: dict[str, Grounding], goal_object
         obj = g.label if g else d["name"]
         notes = [d["note"]] if d.get("note") else []
         grounded = g is not None
-        if d["noun"] and not grounded and memory and d["noun"] in goal_objects and d["noun"] not in said:
+        if d["noun"] and not grounded and memory and d["noun"] in goal_objects and d["noun"] not in said \
+                and not general(d["noun"]):
             notes.append(f"no {d['name']} in memory")
             said.add(d["noun"])
         if not d["noun"]:

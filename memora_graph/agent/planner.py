@@ -27,8 +27,9 @@ from memora_graph.retrieve.results import PreferenceRecord
 from memora_graph.text import KITCHEN_NOUNS, tokenize
 
 MAX_STEPS = compose.MAX_STEPS
-MAX_PREFERENCES = 4  # retrieved preferences considered for one plan
-MAX_PREFERENCE_STEPS = 3  # steps a plan may gain from them
+MAX_PLAN_STEPS = 15  # what a plan answer is read to (bench.answers.extract_plan)
+MAX_PREFERENCES = 6  # retrieved preferences considered for one plan
+MAX_PREFERENCE_STEPS = 4  # steps a plan may gain from them
 ROUTINES_K = 8  # routines retrieved for the whole goal
 PART_ROUTINES_K = 3  # for one of its actions
 EPISODES_K = 10
@@ -109,9 +110,9 @@ def compose_structured(task_query: str, calls: list[dict[str, Any]], lex: Lexico
         return generic_plan(task_query)
     found = compose.groundings(calls, lex)
     goal_objects = {o for p in compose.goal_parts(goal, lex) for o in p.objects}
-    steps = compose.ground(draft, found, goal_objects, memory=bool(calls))
+    steps = compose.ground(draft, found, goal_objects, memory=bool(calls), general=lambda n: compose._general(n, lex))
     prefs = relevant_preferences(goal, calls, steps)
-    return apply_preferences(steps, prefs, say=compose._say)
+    return apply_preferences(steps, prefs, say=compose._say)[:MAX_PLAN_STEPS]
 
 
 def plan_text(steps: list[dict[str, Any]]) -> str:
