@@ -51,6 +51,7 @@ TOOL_CATEGORIES = ("utensils", "cutlery", "cookware", "cleaning equipment and ma
 _SAY = {"put": "put down", "put-down": "put down", "pick-up": "pick up", "take": "take", "turn-on": "turn on",
         "turn-off": "turn off", "put-in": "put down", "put-into": "put down", "put-on": "put down", "put-onto": "put down",
         "move-into": "move", "move-onto": "move", "take-out": "take out", "cook": "cook"}
+_PARTICLES = frozenset({"up", "down", "on", "off", "out", "in", "into", "onto"})
 _IN_PLACES = ("sink", "drawer", "cupboard", "fridge", "bin", "box", "bag", "basket", "cabinet", "oven", "microwave",
               "dishwasher", "pan", "pot", "wok", "bowl", "saucepan")
 
@@ -103,7 +104,10 @@ def display(noun_class: str) -> str:
 
 def _say(verb_word: str) -> str:
     w = verb_word.lower().strip()
-    return _SAY.get(w, w.split("-")[0])
+    if w in _SAY:
+        return _SAY[w]
+    first, _, particle = w.partition("-")
+    return f"{first} {particle}" if particle in ("up", "off", "out") else first
 
 
 def _place(text: str | None) -> str:
@@ -204,8 +208,10 @@ def _text_steps(text: str, place: str, ids: list[str], lex: Lexicon) -> list[Pro
                 continue
             objs = c.objects()
             noun = objs[0] if objs else ""
-            head = part.split()[0] if part.split() else c.verb
-            steps.append(ProcStep(c.verb, _say(head if lex.verb(head) == c.verb else c.verb), noun, display(noun),
+            words = part.lower().split()
+            head = "-".join(words[:2]) if len(words) > 1 and words[1] in _PARTICLES else (words[0] if words else "")
+            said = head if lex.verb(head.split("-")[0]) == c.verb or lex.verb(head) == c.verb else c.verb
+            steps.append(ProcStep(c.verb, _say(said), noun, display(noun),
                                   _place(place) or display(c.place or ""), ids))
     return steps
 
