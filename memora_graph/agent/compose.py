@@ -13,7 +13,9 @@ order:
   every step, the other objects (tools, containers) and the order kept;
 - parts the same procedure already covers are not planned twice; procedures for successive parts
   are *chained* in the goal's order (a step that repeats the one before it is dropped);
-- a part no remembered procedure does becomes one step from the goal itself, saying so.
+- a part no remembered procedure does becomes one step from the goal itself, saying so;
+- the part's object is fetched first unless the procedure takes it, and the tools the person
+  handles around that action in two or more procedures are taken up before it (`with_tools`).
 
 Objects are then grounded in the person's memory (their name, colour, material and where it is
 kept, from the entity tools); an object the goal names that memory has no record of keeps the
@@ -350,7 +352,8 @@ def compose(goal: str, calls: list[dict[str, Any]], lex: Lexicon) -> list[dict[s
     out: list[dict[str, Any]] = []
     for part, proc, theme in chosen:
         carried = [o for o in part.objects if _carried(o, lex)]
-        if len(carried) > 1 and all(lex.noun_category.get(o) in SET_CATEGORIES for o in carried):  # "with plate, bowl and cutlery": the action for each object in turn
+        # "with plate, bowl and cutlery": the action for each object in turn
+        if len(carried) > 1 and all(lex.noun_category.get(o) in SET_CATEGORIES for o in carried):
             out.extend(_each(part, proc, carried, lex))
             continue
         out.extend(_fetch(part, proc, theme, lex))
@@ -544,7 +547,8 @@ def ground(draft: list[dict[str, Any]], found: dict[str, Grounding], goal_object
         note = "; ".join(notes) or None
         step = {"action": d["say"], "verb": d["say"], "verb_class": d["verb_class"], "entity": obj, "object": obj,
                 "location": place, "place": place, "grounded": grounded, "preconditions": preconditions,
-                "evidence": evidence, "source": d["source"], "text": render(d["say"], obj, place, note, "from" if d.get("fetch") else None)}
+                "evidence": evidence, "source": d["source"],
+                "text": render(d["say"], obj, place, note, "from" if d.get("fetch") else None)}
         if note:
             step["note"] = note
         if d.get("transferred_from"):
