@@ -38,6 +38,7 @@ CALLS = {
     "get_object_history": {"object_query": "carrot", "max_entries": 5},
     "get_state_at_time": {"time_seconds": 60, "video": "P37_101"},
     "ask": {"question": "After P37 takes the chicken, what do they usually do next?"},
+    "plan": {"goal": "wash the chicken"},
     "cypher": {"query": "MATCH (e:Entity) WHERE e.participant = $participant RETURN e.object_id AS id ORDER BY id "
                         "LIMIT 3"},
 }
@@ -47,7 +48,7 @@ NAMED_VALUES = {"object": "carrot", "video": "P37_101"}
 def expected_tools() -> list[str]:
     named = [f"query_{q.name}" for q in load_queries().values()
              if not q.name.startswith("_") and not q.writes and "participant" in q.params]
-    return [s.name for s in specs("memora")] + ["ask", "cypher"] + named
+    return [s.name for s in specs("memora")] + ["ask", "plan", "cypher"] + named
 
 
 def stdio(bank: Path, *extra: str) -> StdioServerParameters:
@@ -107,6 +108,10 @@ def test_stdio_lists_and_calls_every_tool(small_bank):
             res = await client.call_tool("ask", {"participant": "P37", **CALLS["ask"], "choices": [
                 "breaks the chicken apart", "puts the chicken in the fridge"]})
             assert res.structured_content["letter"] == "A" and res.structured_content["evidence"]
+            res = await client.call_tool("plan", {"participant": "P37", **CALLS["plan"]})
+            steps = res.structured_content["steps"]
+            assert steps and any("chicken" in s["object"] for s in steps) and any(s["evidence"] for s in steps)
+            assert all({"verb", "object", "place", "preconditions", "evidence"} <= set(s) for s in steps)
 
             # bad arguments: a JSON-RPC error naming each field at fault
             e = await refused(client, "search_objects", {"participant": "P37", "query": "knife", "top_k": 99})

@@ -68,3 +68,45 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
              "confidence": "" if result.confidence is None else result.confidence,
              "evidence": "; ".join(e["id"] for e in result.evidence)}]
     click.echo(render(pl.DataFrame(rows), fmt))
+
+
+@click.command("plan")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.argument("goal")
+@click.option("--participant", required=True, help="Whose memory to plan from (P01).")
+@click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
+              help="The memory the lookups read: memora, or a baseline's representation (flat1d, graph2d).")
+@click.option("--json", "as_json", is_flag=True, help="The structured steps (verb, object, place, preconditions, "
+                                                      "evidence ids, notes) and the lookups made, as JSON.")
+def plan_cmd(bank, goal, participant, family, as_json):
+    """Plan a goal from one person's memory, with the offline planner (deterministic, no model).
+
+    The planner reads the goal into actions and objects, retrieves the person's routines, episodes
+    and preferences about it, and composes: a remembered procedure used as learned or transferred
+    to the goal's object, procedures chained for a goal of several actions, the person's objects
+    and places, their preferences inserted at the steps they govern. Each step lists the evidence
+    ids it came from; an object memory has no record of is said to be "not in memory".
+
+    \b
+    Examples:
+      memora plan banks/epic "cut the cucumber" --participant P01
+      memora plan banks/epic "wash, cut and stir-fry the bok choy" --participant P01 --json
+    """
+    from memora_graph.agent.planner import plan
+
+    result = plan(bank, participant, goal, memory=family)
+    if as_json:
+        click.echo(json.dumps(result.as_dict(), indent=2, ensure_ascii=False))
+        return
+    click.echo(f"Plan for {participant}: {result.goal}")
+    for row in result.as_dict()["steps"]:
+        click.echo(f"{row['n']:>2}. {row['text']}")
+        extra = []
+        if row.get("learned_on"):
+            extra.append(row["learned_on"])
+        if row.get("preference"):
+            extra.append(f"preference {row['preference']}")
+        if row["evidence"]:
+            extra.append("evidence: " + ", ".join(row["evidence"][:4]))
+        if extra:
+            click.echo("    " + "; ".join(extra))

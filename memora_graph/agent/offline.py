@@ -15,13 +15,15 @@ option is supported well enough. At most 3 calls per response, four tool rounds.
 Parametric (no tools) is a closed-book prior: the content option closest to the question stem,
 never E.
 
-Planning: it retrieves a routine first (get_routine_skill, else search_activities, else search),
-grounds up to two objects through the entity tools (search_objects, else get_object_history,
-else search), and writes numbered steps "Verb the object at the place" from the routine's steps
-or, without a routine, from the best-matching remembered activity sequence. Where the condition
-has preferences (MEMORA's get_preferences), the plan honours the ones about its objects: it puts
-an object back where the person keeps it, adds a habitual next action, follows a workflow
-(`apply_preferences`).
+Planning: `agent.planner` and `agent.compose`. It looks up routines for the goal, the person's
+preferences about it and the episodes most like it; for a goal of several actions, routines (or
+episodes) for each; then the objects the draft plan needs (search_objects, else
+get_object_history, else search). It composes: per action of the goal, a remembered procedure
+used as learned or transferred to the goal's object (order kept), procedures chained in the
+goal's order, the object fetched first and the tools the person handles for that action taken
+up; objects grounded in the person's names and places, or said to be "not in memory"; retrieved
+preferences inserted at the steps they govern (`apply_preferences`). Every step keeps the
+evidence ids it came from; the answer lists them under the numbered plan.
 
 The policy reads only the task view and its own tool results; never gold answers or references.
 """
@@ -38,25 +40,16 @@ import numpy as np
 from memora_graph.agent import lookups
 from memora_graph.agent.evidence import events_of
 from memora_graph.agent.loop import AgentState, PolicyReply
-from memora_graph.agent.reading import Decision, parse_question, score
-from memora_graph.baselines.flat1d import FlatHit
-from memora_graph.baselines.graph2d import GraphNode
-from memora_graph.consolidate.vocab import past_tense
-from memora_graph.embed import get_embedder
-from memora_graph.retrieve.results import (
-    ActivityRecord, ObjectRecord, OtherMatch, PlaceRecord, PreferenceRecord, Record, RoutineRecord, RoutinesResult,
-    ToolResult, VisibleObject,
+from memora_graph.agent.planner import (  # noqa: F401  (_step, apply_preferences, generic_plan: kept importable here)
+    _step, _task_text, apply_preferences, compose_structured, generic_plan, plan_lookups, plan_text,
 )
+from memora_graph.agent.reading import Decision, parse_question, score
+from memora_graph.embed import get_embedder
+from memora_graph.retrieve.results import ToolResult
 from memora_graph.perceive.lexicon import Lexicon
-from memora_graph.text import KITCHEN_NOUNS, tokenize
 
-ROUTINE_ADOPT = 0.5
-MAX_STEPS = 12
-MAX_PREFERENCES = 4  # retrieved preferences considered for one plan
-MAX_PREFERENCE_STEPS = 3  # steps a plan may gain from them
 EVIDENCE_PER_CALL = 6  # the best results of each call are read
 EVIDENCE_CHARS = 240
-_KITCHEN = frozenset(KITCHEN_NOUNS)
 
 
 def _call(name: str, **arguments: Any) -> dict[str, Any]:
@@ -167,263 +160,19 @@ class OfflinePolicy:
     # -- Planning ---------------------------------------------------------------------------
     def _plan(self, tools, forced, state: AgentState) -> PolicyReply:
         names = _tool_names(tools)
-        query = _task_text(state.view["task_query"])
+        goal = _task_text(state.view["task_query"])
         if not forced and names:
-            if state.iteration == 0:
-                first = []
-                if "get_routine_skill" in names:
-                    first.append(_call("get_routine_skill", goal_query=query))
-                    if "get_preferences" in names:
-                        first.append(_call("get_preferences", query=query))
-                elif "search_activities" in names:
-                    first.append(_call("search_activities", query=query))
-                else:
-                    first.append(_call("search", query=query))
-                return PolicyReply(tool_calls=first)
-            if state.iteration == 1:
-                nouns = self._nouns_to_ground(query, state.calls)
-                routine, sim = self._routine(state.calls)
-                extra = []
-                if "get_routine_skill" in names and sim < ROUTINE_ADOPT and "search_activities" in names:
-                    extra = [_call("search_activities", query=query)]  # no usable routine: episodes once
-                    nouns = nouns[:2]
-                if nouns or extra:
-                    if "search_objects" in names:
-                        calls = [_call("search_objects", query=n) for n in nouns]
-                    elif "get_object_history" in names:
-                        calls = [_call("get_object_history", object_query=n) for n in nouns]
-                    else:
-                        calls = [_call("search", query=n) for n in nouns if n != query]
-                    if calls or extra:
-                        return PolicyReply(tool_calls=(extra + calls)[:3])
-        steps = self.compose_plan(state.view["task_query"], state.calls)
-        return PolicyReply(content="Plan:\n" + "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1)))
-
-    def _routine(self, calls) -> tuple[RoutineRecord | None, float]:
-        for c in calls:
-            if c["name"] == "get_routine_skill" and isinstance(c["result"], RoutinesResult) and c["result"].routines:
-                r = c["result"].routines[0]
-                return r, float(r.similarity or 0)
-        return None, 0.0
-
-    def _nouns_to_ground(self, query: str, calls) -> list[str]:
-        routine, sim = self._routine(calls)
-        nouns: list[str] = []
-        if routine is not None and sim >= ROUTINE_ADOPT:
-            nouns = [o.object.replace("_", " ") for o in routine.key_objects]
-        nouns += [w for w in re.findall(r"[a-z]+", query.lower()) if w in _KITCHEN]
-        return list(dict.fromkeys(n for n in nouns if n))[:2]
-
-    def _grounding(self, calls) -> dict[str, dict[str, str]]:
-        """noun -> {label, location} from the entity-tool results."""
-        out: dict[str, dict[str, str]] = {}
-        for c in calls:
-            if c["name"] not in ("search_objects", "get_object_history", "search"):
-                continue
-            noun = str(next(iter(c["arguments"].values()), "")).lower()
-            for it in evidence_items(c["result"]):
-                found = _object_fields(it["record"])
-                if found is None:
-                    continue
-                name, loc, color, material = found
-                name = name.lower()
-                if not name or (noun and noun not in name and name not in noun):
-                    continue
-                label = " ".join(x for x in (color, material, name) if x)
-                out.setdefault(name, {"label": label.strip(), "location": str(loc).replace("_", " ")})
-        return out
+            calls = plan_lookups(goal, names, state.calls, self.lexicon)
+            if calls:
+                return PolicyReply(tool_calls=[_call(n, **a) for n, a in calls])
+        steps = self.structured_plan(state.view["task_query"], state.calls)
+        return PolicyReply(content=plan_text(steps))
 
     def compose_plan(self, task_query: str, calls: list[dict[str, Any]]) -> list[str]:
         return [s["text"] for s in self.structured_plan(task_query, calls)]
 
     def structured_plan(self, task_query: str, calls: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        query = _task_text(task_query)
-        routine, sim = self._routine(calls)
-        raw_steps: list[tuple[str, str]] = []  # (narration, place)
-        if routine is not None and sim >= ROUTINE_ADOPT:
-            raw_steps = [(s.action, "") for s in routine.canonical_steps]
-        if not raw_steps:
-            raw_steps = self._activity_steps(query, calls)
-        if not raw_steps:
-            return generic_plan(task_query)
-        grounding = self._grounding(calls)
-        out: list[dict[str, Any]] = []
-        for narration, place in raw_steps:
-            verb, obj = _split_narration(narration)
-            if not verb:
-                continue
-            g = next((v for k, v in grounding.items() if obj and (k in obj or obj in k)), None)
-            entity = g["label"] if g else obj or "item"
-            location = (g["location"] if g and g["location"] else place) or "counter"
-            step = _step(verb, entity, location, grounded=g is not None)
-            if not out or out[-1]["text"].lower() != step["text"].lower():
-                out.append(step)
-        out = out[:MAX_STEPS]
-        if out:
-            out = apply_preferences(out, self._preferences(query, calls, out))
-        return out or generic_plan(task_query)
-
-    def _preferences(self, query: str, calls, steps: list[dict[str, Any]]) -> list[PreferenceRecord]:
-        """The retrieved preferences that concern this plan: one of their objects is an object of
-        the plan or of the request; best retrieval similarity first."""
-        prefs = [it["record"] for c in calls if c["name"] in ("get_preferences", "search_patterns", "search")
-                 for it in evidence_items(c["result"]) if isinstance(it["record"], PreferenceRecord)]
-        nouns = {w for s in steps for w in str(s["entity"]).split()} | set(re.findall(r"[a-z]+", query.lower()))
-        relevant: dict[str, PreferenceRecord] = {}
-        for p in sorted(prefs, key=lambda p: -float(p.similarity or 0)):
-            if any(w in nouns for o in p.objects for w in o.lower().split()):
-                relevant.setdefault(p.preference_id, p)
-        return list(relevant.values())[:MAX_PREFERENCES]
-
-    def _activity_steps(self, query: str, calls) -> list[tuple[str, str]]:
-        acts = [(it, fields) for c in calls if c["name"] in ("search", "search_activities")
-                for it in evidence_items(c["result"]) if (fields := _activity_fields(it["kind"], it["record"]))]
-        if not acts:
-            return []
-        texts = [it["text"] for it, _ in acts]
-        from memora_graph.vector_store import query_vectors
-
-        # the reader's own encoder on both sides (no torch in an evaluation whose caches are warm)
-        sims = query_vectors(self.embedder, kind="passage").encode(texts) @ self.embed([query])[0]
-        ranked = [acts[i][1] for i in np.argsort(-sims, kind="stable")[:2]]
-        steps: list[tuple[str, str]] = []
-        for text, place in ranked:
-            text = re.sub(r"^\[[^\]]*\]\s*", "", text)
-            place = re.sub(r"\s*\(.*$", "", place.replace("_", " "))
-            for part in re.split(r"[;.]\s*", text):
-                if part.strip():
-                    steps.append((part.strip(), place))
-        return steps
-
-
-def _step(action: str, entity: str, location: str, *, grounded: bool, preference: str | None = None) -> dict[str, Any]:
-    step = {"action": action, "entity": entity, "location": location, "grounded": grounded,
-            "text": f"{action.capitalize()} the {entity} {_prep(location)} the {location}"}
-    if preference:
-        step["preference"] = preference
-    return step
-
-
-def _prep(location: str) -> str:
-    return "in" if location.split()[-1:] and location.split()[-1] in ("sink", "drawer", "cupboard", "fridge", "bin",
-                                                                     "box", "bag", "basket") else "at"
-
-
-def _object_fields(rec: Record) -> tuple[str, str, str, str] | None:
-    """(name, location, colour, material) of a record that names an object, else None."""
-    if isinstance(rec, ObjectRecord):
-        vis = rec.visual_properties
-        return rec.name, rec.spatial_info.location, vis.get("color", ""), vis.get("material", "")
-    if isinstance(rec, VisibleObject):
-        return rec.name, rec.location, "", ""
-    if isinstance(rec, (PlaceRecord, OtherMatch)):
-        return rec.name, "", "", ""
-    if isinstance(rec, GraphNode) and rec.name:
-        return rec.name, rec.location or "", "", ""
-    return None
-
-
-def _activity_fields(kind: str, rec: Record) -> tuple[str, str] | None:
-    """(what was done, where) of an activity record of any memory, else None."""
-    if isinstance(rec, ActivityRecord):
-        return rec.summary, rec.environment
-    if isinstance(rec, FlatHit) and rec.kind == "activity":
-        return rec.text(), ""
-    if isinstance(rec, GraphNode) and kind == "activities":
-        return rec.text(), rec.place or ""
-    return None
-
-
-def _matches(step: dict[str, Any], obj: str, verb: str | None = None) -> bool:
-    entity = str(step["entity"]).lower()
-    if not obj or not any(w in entity.split() for w in obj.lower().split()):
-        return False
-    return verb is None or tokenize(verb) <= tokenize(step["action"]) or tokenize(step["action"]) <= tokenize(verb)
-
-
-def _after_words(text: str | None) -> str:
-    """"put on drying rack" -> "drying rack": the place a workflow's follow-up puts things."""
-    words = (text or "").split(" ", 2)
-    return words[2] if len(words) == 3 and words[0] == "put" and words[1] in ("in", "on", "at", "into") else ""
-
-
-def apply_preferences(steps: list[dict[str, Any]], prefs: list[PreferenceRecord]) -> list[dict[str, Any]]:
-    """Honour retrieved preferences in a plan, the way a person's helper would, reading each
-    preference's structured fields:
-
-    - storage (object, preferred location; context storage, after use or default): after the last
-      step with the object, put it back where the person keeps it (unless the plan already does);
-    - habit (trigger, next action: "empty pan" -> "wash pan"): after a step that does the trigger,
-      add the habitual next action (unless it already follows);
-    - workflow (objects, use "wash @ sink", then "put on drying rack"): after the plan uses one of
-      those objects that way, add the follow-up.
-
-    Each added step names the preference it honours; at most MAX_PREFERENCE_STEPS are added."""
-    out = list(steps)
-    added = 0
-    for p in prefs:
-        if added >= MAX_PREFERENCE_STEPS:
-            break
-        objects = [o.lower().replace("_", " ") for o in p.objects]
-        new: tuple[int, dict[str, Any]] | None = None
-        if p.subtype == "storage" and objects and p.preferred_location and p.context != "during_use":
-            place = p.preferred_location.strip(" .").lower()
-            idx = [i for i, s in enumerate(out) if _matches(s, objects[0])]
-            if idx and not any(_matches(s, objects[0]) and s["location"] == place for s in out):
-                new = (idx[-1] + 1, _step("put", out[idx[-1]]["entity"], place, grounded=True,
-                                          preference=p.preference_id))
-        elif p.subtype == "habit":
-            trigger, nxt = (p.trigger or "").split(), (p.next_action or "").split()
-            if len(trigger) >= 2 and len(nxt) >= 2:
-                idx = [i for i, s in enumerate(out) if _matches(s, " ".join(trigger[1:]), trigger[0])]
-                if idx:
-                    i = idx[0]
-                    verb, obj = nxt[0], " ".join(nxt[1:])
-                    follow = out[i + 1] if i + 1 < len(out) else None
-                    if follow is None or not _matches(follow, obj, verb):
-                        new = (i + 1, _step(verb, obj, out[i]["location"], grounded=True, preference=p.preference_id))
-        elif p.subtype == "workflow" and objects and p.use and (place := _after_words(p.then)):
-            # the use is matched on its participle ("washed"), the word the statement uses
-            used = past_tense(p.use.split(" @ ")[0])
-            idx = [i for i, s in enumerate(out) if re.fullmatch(r"\w+", used) and any(_matches(s, o, used) for o in objects)]
-            place = place.strip(" .").lower()
-            if idx and not any(s["location"] == place for s in out[idx[-1] + 1:]):
-                i = idx[-1]
-                new = (i + 1, _step("put", out[i]["entity"], place, grounded=True, preference=p.preference_id))
-        if new is not None:
-            out.insert(*new)
-            added += 1
-    return out[:MAX_STEPS + MAX_PREFERENCE_STEPS]
-
-
-_HELP = re.compile(r"^\s*help\s+(?:p\d+|the participant|the person)\s+(?:to\s+)?", re.I)
-
-
-def _task_text(task_query: str) -> str:
-    return _HELP.sub("", task_query).strip().rstrip(".")
-
-
-def _split_narration(text: str) -> tuple[str, str]:
-    words = re.sub(r"[^a-z\s-]", " ", text.lower()).split()
-    words = [w for w in words if w not in ("person", "the", "a", "an", "they", "he", "she")]
-    if not words:
-        return "", ""
-    two = " ".join(words[:2])
-    if two in ("pick up", "put down", "turn on", "turn off", "put in", "put into", "put on", "take out"):
-        return two, " ".join(words[2:])
-    return words[0].replace("-", " "), " ".join(words[1:])
-
-
-def generic_plan(task_query: str) -> list[dict[str, Any]]:
-    """A plan from the request alone (Parametric, or nothing retrieved): locate, take, act, put back."""
-    query = _task_text(task_query).lower()
-    nouns = [w for w in re.findall(r"[a-z]+", query) if w in _KITCHEN] or [re.findall(r"[a-z]+", query)[-1] if query else "item"]
-    noun = nouns[0]
-    verbs = [w for w in re.findall(r"[a-z]+", query) if w in ("wash", "dry", "cut", "peel", "stir", "pour", "rinse", "wipe",
-                                                               "fry", "boil", "chop", "slice", "mix", "fill", "open", "close")]
-    verbs = verbs or ["prepare"]
-    steps = [("take", noun, "counter")]
-    for v in verbs:
-        steps.append((v, noun, "sink" if v in ("wash", "rinse", "dry", "fill") else "counter"))
-    steps.append(("place", noun, "counter"))
-    return [_step(a, e, loc, grounded=False) for a, e, loc in steps]
+        """The plan composed from the calls' results (`agent.compose`): procedures adapted and
+        chained for the goal's parts, objects grounded, preferences inserted; every step with its
+        evidence ids. A plan from the request alone when memory returned no procedure."""
+        return compose_structured(task_query, calls, self.lexicon)

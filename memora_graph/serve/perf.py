@@ -58,6 +58,7 @@ def call_set(service: MemoryService, participant: str) -> list[tuple[str, dict]]
         "get_state_at_time": [{"time_seconds": 60.0, "video": video}, {"time_seconds": 300.0, "video": video}],
         "ask": [{"question": f"After {participant} takes the {objects[0]}, what do they usually do next?"},
                 {"question": f"Where does {participant} keep the {objects[-1]}?"}],
+        "plan": [{"goal": f"wash the {objects[0]}"}],
         "cypher": [{"query": "MATCH (e:Entity) WHERE e.participant = $participant RETURN e.name, e.state LIMIT 5"}],
     }
     values = {"object": objects[0], "video": video}

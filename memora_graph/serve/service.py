@@ -62,7 +62,7 @@ class Endpoint:
     args: type[BaseModel]  # validates the arguments (participant aside)
     input_schema: dict[str, Any]
     output_schema: dict[str, Any] | None
-    kind: str  # retrieval, ask, cypher, query
+    kind: str  # retrieval, ask, plan, cypher, query
     run: Callable[[str, dict[str, Any]], dict[str, Any]]  # (participant, validated arguments) -> JSON result
 
 
@@ -115,6 +115,34 @@ class AskAnswer(BaseModel):
     typed: dict[str, Any] | None = Field(None, description="Without choices: the answer in the type asked (a place, "
                                                            "a video and time, a count, yes/no, next actions with "
                                                            "their share, steps, states; or the not-in-memory reason).")
+
+
+class PlanArgs(_Args):
+    goal: str = Field(min_length=1, description="The goal, in words (e.g. 'cut the cucumber', 'wash, cut and "
+                                                 "stir-fry the bok choy').")
+
+
+class PlanStep(BaseModel):
+    n: int
+    text: str
+    verb: str
+    object: str
+    place: str
+    preconditions: list[str]
+    evidence: list[str] = Field(description="Ids of the routines, episodes, objects and preferences the step came from.")
+    grounded: bool | None = None
+    source: str | None = None
+    note: str | None = Field(None, description="What memory lacks for the step (e.g. 'no cucumber in memory').")
+    learned_on: str | None = None
+    preference: str | None = None
+    verb_class: str | None = None
+
+
+class PlanAnswer(BaseModel):
+    goal: str
+    participant: str
+    steps: list[PlanStep]
+    calls: list[ToolCall] = Field(description="The typed lookups the planner made.")
 
 
 class Rows(BaseModel):
@@ -235,6 +263,11 @@ class MemoryService:
                    "confidence; 'not in memory' says why (general knowledge, or a subject absent from this memory).",
             AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
         out.append(self._endpoint(
+            "plan", "Plan a goal from the person's memory with the offline planner (deterministic, no model): "
+                    "remembered procedures used or transferred to the goal's objects, chained, with the person's "
+                    "objects, places and preferences; each step with its evidence ids.",
+            PlanArgs, PlanAnswer.model_json_schema(mode="serialization"), "plan", self._plan))
+        out.append(self._endpoint(
             "cypher", "Run one read-only Cypher statement on the person's memory graph (schema: `memora queries`, "
                       "schema/*.cypher). Writes, file access, extensions and other databases are refused.",
             CypherArgs, Rows.model_json_schema(mode="serialization"), "cypher", self._cypher))
@@ -267,6 +300,13 @@ class MemoryService:
         with self._lock:
             result = ask_memory(self._view(participant), participant, arguments["question"], arguments["choices"])
         return AskAnswer.model_validate(result.as_dict()).model_dump(mode="json")
+
+    def _plan(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        from memora_graph.agent.planner import plan_memory
+
+        with self._lock:
+            result = plan_memory(self._view(participant), participant, arguments["goal"])
+        return PlanAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
     def _cypher(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.adhoc import run_query
