@@ -226,8 +226,8 @@ def _is_name(tokens: list[Token], i: int) -> bool:
     nxt = tokens[i + 1] if i + 1 < len(tokens) else None
     if prev and prev.text == "." and before and before.kind in ("word", "name"):
         return True
-    if prev and prev.upper == "AS":
-        return True
+    if prev and prev.upper == "AS" and prev.kind == "word" and not _is_name(tokens, i - 1):
+        return True  # an alias: AS's own word is a clause word, never an alias itself (AS AS is refused)
     return bool(prev and prev.text in ("{", ",") and nxt and nxt.text == ":")
 
 
@@ -295,6 +295,9 @@ def check_query(text: object, write: bool = False) -> Statement:
                 depth = max(depth - 1, 0)
             continue
         word = t.upper
+        if word == "AS" and t.kind == "word" and i > 0 and tokens[i - 1].upper == "AS":
+            raise _refuse(text, t.start, "AS as a name: write it in backticks (`AS`), so that no clause can hide "
+                                         "behind it")
         if not word or _is_name(tokens, i):
             continue
         nxt = tokens[i + 1] if i + 1 < len(tokens) else None

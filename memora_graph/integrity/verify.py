@@ -19,7 +19,7 @@ import polars as pl
 from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, _alive
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
-from memora_graph.integrity.files import file_sha256, probe, side_files
+from memora_graph.integrity.files import file_kind, file_sha256, probe, side_files
 from memora_graph.store import Store
 
 _DB = re.compile(r"^(P\d{2})\.kuzu(\.wal|\.shadow)?$")
@@ -81,16 +81,24 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         alive = _alive(mark.get("pid"))
         row["write"] = f"{'running' if alive else 'interrupted'} {mark.get('op', 'write')} ({mark.get('since', '?')})"
         problems.append(bank.interrupted_message(p, mark))
-    if entry is None and db.exists() and not mark:
+    try:
+        kind = file_kind(db.lstat())
+    except FileNotFoundError:
+        kind = "missing"
+    if entry is None and kind != "missing" and not mark:
         problems.append(f"{db}: not listed in {MANIFEST} (entry removed, or file copied in); readers do not see it")
-    if entry is not None and not db.exists():
+    if entry is not None and kind == "missing":
         row["hash"] = "missing"
         problems.append(f"{db}: missing, but {MANIFEST} lists {p}")
+    elif kind not in ("file", "missing"):
+        row["hash"] = kind
+        problems.append(f"{db}: is {kind}, not a database file; every reader refuses it (move it away and rebuild: "
+                        f"`memora build {bank.path} --rebuild {p}`)")
     if sides and not mark:
         problems.append(f"{', '.join(s.name for s in sides)}: next to a database that was closed cleanly: does not "
                         "belong to it (never replayed; move it away)")
     counts = None
-    if db.is_file():
+    if kind == "file":
         st = db.stat()
         if not integ:
             row["hash"] = "not recorded"
@@ -193,8 +201,7 @@ def accept(path: str | Path, participant: str) -> dict:
     if mark and mark.get("op") == "build":
         raise BankError(f"{db}: its build was interrupted; resume it with `memora build {bank.path} --participants "
                         f"{participant}` rather than accepting half of it")
-    if not db.is_file():
-        raise BankError(f"{db}: missing; nothing to accept")
+    bank.checked_db_file(participant)
     probe(db, participant, timeout=PROBE_TIMEOUT_S)
     bank.mark_writing(participant, "accept")
     with Store(db, read_only=False):  # replays the log, and checkpoints it into the file on close
