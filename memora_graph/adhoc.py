@@ -317,7 +317,9 @@ def _warm_up() -> None:
 
     frame = pl.from_arrow(pa.table({"a": [1], "b": ["x"], "c": [[1.0]]}))
     pl.read_ipc_stream(_ipc(frame))
-    frame.select(pl.col("a")).write_csv()
+    from memora_graph.output import render
+
+    render(frame, "csv")
 
 
 def _child_main() -> None:

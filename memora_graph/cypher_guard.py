@@ -104,7 +104,7 @@ _PARAM = re.compile(r"\$(?:[A-Za-z_][A-Za-z0-9_]*|[0-9]+)")
 _BLOCK_COMMENT = re.compile(r"/\*(?:[^*]|\*[^/])*\*/", re.S)
 _ESCAPES = set("\\'\"bBfFnNrRtT")
 _HEX4 = re.compile(r"[0-9A-Fa-f]{4}")
-_PID = re.compile(r"^P\d{2}$")
+_PID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
 
 
 @dataclass(frozen=True)
