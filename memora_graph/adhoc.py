@@ -309,17 +309,17 @@ def _capped(frame: pl.DataFrame, max_rows: int, max_bytes: int) -> tuple[bytes, 
     return body, cut
 
 
-def _warm_up() -> None:
+def _warm_up(csv: bool) -> None:
     """Load, before confinement, the modules a query's answer goes through (after it, the child
-    can open no library file): Arrow to polars, the IPC writer, the CSV writer."""
+    can open no library file): Arrow to polars, the IPC writer, the CSV writer if asked for."""
     import pyarrow as pa
-    import pyarrow.compute  # noqa: F401
 
     frame = pl.from_arrow(pa.table({"a": [1], "b": ["x"], "c": [[1.0]]}))
     pl.read_ipc_stream(_ipc(frame))
-    from memora_graph.output import render
+    if csv:
+        from memora_graph.output import render
 
-    render(frame, "csv")
+        render(frame, "csv")
 
 
 def _child_main() -> None:
@@ -335,7 +335,7 @@ def _child_main() -> None:
         from memora_graph.store import Store
 
         load_queries()
-        _warm_up()
+        _warm_up(request.get("csv_fd") is not None)
         statm = os.open("/proc/self/statm", os.O_RDONLY) if os.path.exists("/proc/self/statm") else None
         jobs, write = request["jobs"], request["write"]
         if request["confine"]:

@@ -16,7 +16,11 @@ backtick names, // and /* */ comments) and accepts exactly one statement:
 
 A forbidden word inside a string literal, a comment or backticks is text, not a clause, and so
 is one used as a property name (`e.set`), an alias (`AS copy`) or a map key (`{set: 1}`); any
-other name that is such a word must be quoted in backticks. Where the guard and Kùzu's lexer
+other name that is such a word must be quoted in backticks. `AS` itself as an alias (`AS AS`) is
+refused: Kùzu accepts it, and the word after it would otherwise pass as a name (`UNWIND [1] AS
+AS LOAD FROM ...` read any file). The guard is the first, explaining line only: the query child
+is confined by the kernel as well (memora_graph/confine.py), so what it misjudges still cannot
+open a file outside the one database. Where the guard and Kùzu's lexer
 could disagree about where a literal or comment ends (an unknown escape, an unterminated
 comment, a character outside ASCII), the text is refused rather than guessed at. Bounds on size
 and nesting keep out texts on which Kùzu's parser crashes or runs for minutes (5,000 nested
