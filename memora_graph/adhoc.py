@@ -224,17 +224,24 @@ def _in_child(request: dict, csv_fd: int | None = None) -> QueryResult:
     root = str(Path(__file__).resolve().parents[1])  # this checkout's memora_graph, whatever the caller's path
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
     timeout, grace, write = request["timeout"], request["grace"], request["write"]
-    child = subprocess.Popen([sys.executable, "-m", "memora_graph.adhoc"], stdin=subprocess.PIPE,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
-                             pass_fds=(csv_fd,) if csv_fd is not None else ())
+    # the CSV target under a number of its own: the child's 0-2 are its pipes
+    passed = os.dup(csv_fd) if csv_fd is not None else None
+    request = {**request, "csv_fd": passed}
     try:
-        # the child stops itself at the time limit; this is the backstop, start-up included
-        out, err = child.communicate(json.dumps(request).encode(), timeout=timeout + grace + STARTUP_SECONDS)
-    except subprocess.TimeoutExpired:
-        child.kill()
-        child.communicate()
-        raise QueryTimeout(f"the query ran past its time limit of {timeout:g} s and was stopped; nothing it did "
-                           "was kept. Narrow it, or give it more time with --timeout SECONDS") from None
+        child = subprocess.Popen([sys.executable, "-m", "memora_graph.adhoc"], stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                                 pass_fds=(passed,) if passed is not None else ())
+        try:
+            # the child stops itself at the time limit; this is the backstop, start-up included
+            out, err = child.communicate(json.dumps(request).encode(), timeout=timeout + grace + STARTUP_SECONDS)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.communicate()
+            raise QueryTimeout(f"the query ran past its time limit of {timeout:g} s and was stopped; nothing it "
+                               "did was kept. Narrow it, or give it more time with --timeout SECONDS") from None
+    finally:
+        if passed is not None:
+            os.close(passed)
     head, _, body = out.partition(b"\n")
     try:
         header = json.loads(head)
