@@ -195,9 +195,11 @@ def _write_in_child(bank: Bank, participant: str, request: dict, csv_fd: int | N
         request["jobs"][0]["db"] = str(work / db.name)
         request["work"] = str(work)
         bank.mark_writing(participant, "write")
+        opened = True  # unless the child says it refused the database before opening it to write
         try:
             result = _in_child(request, csv_fd)
         except MemoraError as exc:  # name the bank's file, not the private link
+            opened = getattr(exc, "opened", True)
             raise type(exc)(str(exc).replace(str(work / db.name), str(db))) from None
         finally:
             left = side_files(work / db.name)
@@ -206,8 +208,10 @@ def _write_in_child(bank: Bank, participant: str, request: dict, csv_fd: int | N
             shutil.rmtree(work, ignore_errors=True)
             if left:
                 bank.abandon_writing(participant)
-            else:
+            elif opened:
                 bank.record_integrity(participant)
+            else:  # refused before writing (counts differ from the manifest): the file is as it was
+                bank.clear_writing(participant)
     return result
 
 
@@ -249,8 +253,10 @@ def _in_child(request: dict, csv_fd: int | None = None) -> QueryResult:
         raise _died(child.returncode, write, err) from None
     if "error" in header:
         kind, text = header["error"], header["message"]
-        raise {"QueryRefused": QueryRefused, "QueryTimeout": QueryTimeout, "BankError": BankError}.get(
+        exc = {"QueryRefused": QueryRefused, "QueryTimeout": QueryTimeout, "BankError": BankError}.get(
             kind, StoreError)(text)
+        exc.opened = header.get("opened", True)
+        raise exc
     if header.get("csv"):
         return QueryResult(pl.DataFrame(), header["rows"], None, streamed=True)
     if len(body) > request["max_bytes"] + 2**20:
@@ -291,8 +297,8 @@ class _Reply:
             self._sent = True
             return True
 
-    def error(self, kind: str, message: str) -> bool:
-        return self.send({"error": kind, "message": message})
+    def error(self, kind: str, message: str, opened: bool = True) -> bool:
+        return self.send({"error": kind, "message": message, "opened": opened})
 
 
 def _ipc(frame: pl.DataFrame) -> bytes:
@@ -350,14 +356,15 @@ def _child_main() -> None:
             reads += [s for j in jobs for s in side_files(Path(j["db"]))]  # --no-verify: a log Kùzu replays
             confine(reads, Path(request["work"]) if write else None)
     except ConfinementError as exc:
-        reply.error("QueryRefused", f"the query process could not confine itself, so nothing ran: {exc}")
+        reply.error("QueryRefused", f"the query process could not confine itself, so nothing ran: {exc}", False)
         os._exit(0)
     except Exception as exc:  # noqa: BLE001 - words for the caller, never a traceback
-        reply.error("StoreError", f"the query process could not start ({type(exc).__name__}: {exc})")
+        reply.error("StoreError", f"the query process could not start ({type(exc).__name__}: {exc})", False)
         os._exit(0)
     timeout, grace, memory_mb = request["timeout"], request["grace"], request["memory_mb"]
     _watch(reply, time.monotonic() + timeout + grace, timeout, memory_mb, write, statm)
     deadline = time.monotonic() + timeout
+    opened = False  # whether a database was opened to write past the count check
     try:
         bank = Bank(request["bank"])  # for its messages: the child opens no bank file but the databases
         frames = []
@@ -369,6 +376,7 @@ def _child_main() -> None:
             with Store(job["db"], read_only=not write) as store:
                 if job["counts"] is not None:
                     bank.verify_counts(job["participant"], store, job["counts"])
+                opened = True
                 store.set_timeout(left)
                 frames.append(store.query(request["cypher"], job["params"]))
         frame = pl.concat(frames, how="vertical_relaxed") if frames else pl.DataFrame()
@@ -382,9 +390,9 @@ def _child_main() -> None:
             body, cut = _capped(frame, request["max_rows"], request["max_bytes"])
             reply.send({"ok": True, "rows": frame.height, "cut": cut}, body)
     except MemoraError as exc:
-        reply.error(type(exc).__name__, str(exc))
+        reply.error(type(exc).__name__, str(exc), opened)
     except Exception as exc:  # noqa: BLE001 - words for the caller, never a traceback
-        reply.error("StoreError", f"{type(exc).__name__}: {exc}")
+        reply.error("StoreError", f"{type(exc).__name__}: {exc}", opened)
     os._exit(0)  # at once: nothing left to clean up that the caller waits for
 
 

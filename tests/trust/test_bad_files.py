@@ -143,3 +143,15 @@ def test_participant_ids_are_refused_where_they_enter(bank):
             assert r.exit_code in (1, 2) and "Error" in r.output, (args, r.output)
             assert r.exception is None or isinstance(r.exception, SystemExit), (args, r.exception)
     assert sorted(p.name for p in bank.glob("*.kuzu")) == ["P09.kuzu", "P37.kuzu"]
+
+
+def test_a_write_refused_on_counts_that_differ_records_nothing(bank):
+    data = json.loads((bank / "manifest.json").read_text())
+    data["participants"]["P09"]["counts"]["segments"] += 1  # a manifest edited by hand
+    (bank / "manifest.json").write_text(json.dumps(data))
+    r = invoke("query", bank, "CREATE (:Participant {id: 'X1', participant: 'X1'})", "--participant", "P09", "--write")
+    assert clean_error(r) and "does not match" in r.output, r.output
+    after = json.loads((bank / "manifest.json").read_text())
+    assert after["participants"]["P09"]["counts"] == data["participants"]["P09"]["counts"]  # not "accepted"
+    assert "writing" not in after
+    assert not [p for p in bank.iterdir() if p.name.startswith(".adhoc-write-")]

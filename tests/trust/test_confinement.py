@@ -13,13 +13,14 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import threading
 from pathlib import Path
 
 import anyio
 import pytest
 from click.testing import CliRunner
-from mcp import Client
+from mcp import Client, StdioServerParameters
 
 import memora_graph.adhoc as adhoc
 from memora_graph.adhoc import run_query
@@ -131,6 +132,16 @@ def test_the_issue_repros_fail_through_the_cli_and_mcp(bank):
         anyio.run(run)
     finally:
         server.stop()
+
+    async def over_stdio() -> None:
+        params = StdioServerParameters(command=sys.executable, args=["-m", "memora_graph.cli", "serve", str(path),
+                                                                     "--participant", "P09"],
+                                       env={"PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+        async with Client(params) as client:
+            for text in repros:
+                res = await client.call_tool("cypher", {"query": text})
+                assert res.is_error and "refused" in res.content[0].text and "root:" not in res.content[0].text
+    anyio.run(over_stdio)
     assert digest(path) == before
 
 
@@ -154,7 +165,6 @@ def test_caps_on_a_cartesian_product(bank):
 def test_csv_streams_every_row_past_the_cap(bank, tmp_path):
     path, _ = bank
     import subprocess
-    import sys
 
     out = tmp_path / "all.csv"
     root = Path(__file__).resolve().parents[2]
@@ -236,7 +246,6 @@ def test_without_landlock_the_cli_warns_and_serve_holds_back_cypher(bank, monkey
 
 def test_serve_help_reports_the_mode():
     import subprocess
-    import sys
 
     root = Path(__file__).resolve().parents[2]
     for env, says in (({}, "kernel-confined (Landlock ABI"), ({NO_LANDLOCK_ENV: "1"}, "unconfined")):
