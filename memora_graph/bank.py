@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from memora_graph.errors import BankError
-from memora_graph.integrity.files import file_sha256, side_files
+from memora_graph.integrity.files import file_kind, file_sha256, side_files
 
 if TYPE_CHECKING:  # imported where used: a one-shot command that reads persisted stores never loads Kùzu
     import polars as pl
@@ -38,8 +38,8 @@ FORMAT = 1
 BUILD_LOCK = ".build.lock"
 VERIFIED = ".verified.json"
 NO_VERIFY_ENV = "MEMORA_NO_VERIFY"  # set by `--no-verify`; inherited by worker processes
-_PID = re.compile(r"^P\d{2}$")
-_DB = re.compile(r"^(P\d{2})\.kuzu$")
+_PID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
+_DB = re.compile(r"\A(P\d{2})\.kuzu\Z")
 CHECKED_COUNTS = ("segments", "entity_records", "state_events", "places")
 log = logging.getLogger("memora_graph.integrity")
 _NOTICED: set[tuple[str, str]] = set()
@@ -60,6 +60,11 @@ def _alive(pid) -> bool:
     except (OSError, ValueError, TypeError):
         return False
     return True
+
+
+def _shown(value: object) -> str:
+    text = json.dumps(value) if isinstance(value, (str, int, float, list, dict, type(None))) else repr(value)
+    return f"a JSON {type(value).__name__} {text[:60]}"
 
 
 class Bank:
@@ -94,6 +99,16 @@ class Bank:
                                                   and isinstance(v.get("counts", {}), dict) for k, v in parts.items()):
             raise BankError(f"{self.manifest_path}: damaged manifest ('participants' is not a map of participant ids "
                             "to their records)")
+        writing = data.get("writing", {})
+        if not isinstance(writing, dict) or not all(isinstance(k, str) and _PID.match(k) and isinstance(v, dict)
+                                                    for k, v in writing.items()):
+            raise BankError(f"{self.manifest_path}: damaged manifest (field 'writing' is not a map of participant ids "
+                            f"to write marks, but {_shown(writing)})")
+        for p, entry in parts.items():
+            for key in ("counts", "integrity"):
+                if entry.get(key) is not None and not isinstance(entry[key], dict):
+                    raise BankError(f"{self.manifest_path}: damaged manifest (participants.{p}.{key} is "
+                                    f"{_shown(entry[key])}, not a map)")
         return data
 
     def init(self, mode: str, embed_model: str, consolidated: bool) -> dict:
@@ -261,10 +276,7 @@ class Bank:
             raise BankError(f"{db}: {MANIFEST} records no hash for it (a bank built before integrity records?). "
                             f"`memora verify {self.path}` checks it; `memora verify {self.path} --accept {participant}` "
                             f"records it as it is now; or rebuild: `memora build {self.path} --rebuild {participant}`.")
-        if not db.is_file():
-            raise BankError(f"{db}: missing (or not a file), but {MANIFEST} lists {participant}. Rebuild it with "
-                            f"`memora build {self.path} --rebuild {participant}`, or `memora forget {self.path} "
-                            f"--participant {participant}`.")
+        self.checked_db_file(participant)
         sides = side_files(db)
         if sides:
             raise BankError(f"{sides[0]}: a {'write-ahead log' if sides[0].suffix == '.wal' else 'shadow file'} next "
@@ -513,6 +525,26 @@ class Bank:
             raise BankError(f"participant must look like P01, not {participant!r}")
         return self.path / f"{participant}.kuzu"
 
+    def checked_db_file(self, participant: str) -> Path:
+        """A participant's database path, refused (BankError naming it) unless it is a regular
+        file of its own, directly inside the bank: not missing, not a folder, a device, a pipe or
+        a symbolic link (which could point at a copy outside the bank, or /dev/zero)."""
+        db = self.db_path(participant)
+        try:
+            st = db.lstat()
+        except FileNotFoundError:
+            raise BankError(f"{db}: missing. Rebuild it with `memora build {self.path} --rebuild {participant}`, or "
+                            f"`memora forget {self.path} --participant {participant}`.") from None
+        except OSError as exc:
+            raise BankError(f"{db}: cannot be read ({exc.strerror or exc})") from None
+        kind = file_kind(st)
+        if kind != "file":
+            raise BankError(f"{db}: is {kind}, not a database file; nothing was read from it. Move it away and "
+                            f"rebuild: `memora build {self.path} --rebuild {participant}`.")
+        if db.resolve().parent != self.path.resolve():
+            raise BankError(f"{db}: resolves to {db.resolve()}, outside the bank {self.path.resolve()}; refused")
+        return db
+
     def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None) -> Store:
         """Open a participant's database after checking it (`check`): against its integrity
         record before Kùzu opens it, then its record counts against the manifest. `verify=False`
@@ -528,6 +560,8 @@ class Bank:
         if not ours:
             self._notify(data, skip=participant if verify else None)
         checked = check and verify and not ours
+        if self.db_path(participant).exists() or self.db_path(participant).is_symlink():
+            self.checked_db_file(participant)  # a folder, device or link is refused even under --no-verify
         if checked:
             self.check(participant, data)
             if not read_only:  # the counts, before a write changes the file

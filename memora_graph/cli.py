@@ -303,14 +303,19 @@ def index(bank, fts, hnsw, participants, fmt):
                                             "--participant; never files, extensions or the schema.")
 @click.option("--timeout", type=float, default=30.0, show_default=True, metavar="SECONDS",
               help="Stop the query after this long.")
+@click.option("--max-rows", type=click.IntRange(min=1), default=10_000, show_default=True,
+              help="Show at most this many rows (a notice says when the result was cut); --csv writes every row.")
 @output_options
-def query(bank, cypher, params, participant, write, timeout, fmt):
+def query(bank, cypher, params, participant, write, timeout, max_rows, fmt):
     """Run one ad-hoc Cypher statement over a bank (read-only unless --write).
 
     The statement must be one read query (MATCH, OPTIONAL MATCH, UNWIND, WITH, RETURN, or CALL of
     a read-only procedure such as show_tables); COPY, LOAD, EXPORT, ATTACH, extensions, schema
     and transaction statements are refused before anything runs. $participant is bound to the
-    participant whose database is read unless -p participant says otherwise.
+    participant whose database is read unless -p participant says otherwise. The query runs in a
+    process the kernel confines (Landlock) to the participants' database files: no other file, no
+    network; a warning says so where the kernel cannot. At most --max-rows rows are shown; --csv
+    streams every row.
 
     \b
     Examples:
@@ -319,10 +324,27 @@ def query(bank, cypher, params, participant, write, timeout, fmt):
       memora query banks/epic "CALL show_tables() RETURN name, type" --participant P01
       memora query banks/epic "MATCH (e:Entity {object_id: 'plate'}) SET e.state = 'clean'" --participant P01 --write
     """
-    from memora_graph.adhoc import run_query
+    import sys
 
-    click.echo(render(run_query(bank, cypher, _params(params), participant=participant, write=write, timeout=timeout),
-                      fmt))
+    from memora_graph.adhoc import run_query
+    from memora_graph.confine import mode
+
+    confinement = mode()
+    if not confinement.confined:
+        click.echo(f"warning: {confinement.describe()}", err=True)
+    csv_fd = None
+    if fmt == "csv":  # every row, streamed by the query process to standard output
+        try:
+            sys.stdout.flush()
+            csv_fd = sys.stdout.fileno()
+        except (AttributeError, OSError, ValueError):  # not a real file (a test runner's buffer): capped rows
+            csv_fd = None
+    result = run_query(bank, cypher, _params(params), participant=participant, write=write, timeout=timeout,
+                       max_rows=max_rows, csv_fd=csv_fd)
+    if not result.streamed:
+        click.echo(render(result.frame, fmt))
+    if result.notice:
+        click.echo(f"notice: {result.notice}", err=True)
 
 
 @main.command("queries")

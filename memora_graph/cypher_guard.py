@@ -16,7 +16,11 @@ backtick names, // and /* */ comments) and accepts exactly one statement:
 
 A forbidden word inside a string literal, a comment or backticks is text, not a clause, and so
 is one used as a property name (`e.set`), an alias (`AS copy`) or a map key (`{set: 1}`); any
-other name that is such a word must be quoted in backticks. Where the guard and Kùzu's lexer
+other name that is such a word must be quoted in backticks. `AS` itself as an alias (`AS AS`) is
+refused: Kùzu accepts it, and the word after it would otherwise pass as a name (`UNWIND [1] AS
+AS LOAD FROM ...` read any file). The guard is the first, explaining line only: the query child
+is confined by the kernel as well (memora_graph/confine.py), so what it misjudges still cannot
+open a file outside the one database. Where the guard and Kùzu's lexer
 could disagree about where a literal or comment ends (an unknown escape, an unterminated
 comment, a character outside ASCII), the text is refused rather than guessed at. Bounds on size
 and nesting keep out texts on which Kùzu's parser crashes or runs for minutes (5,000 nested
@@ -80,6 +84,8 @@ def for_agents(message: str) -> str:
     for cli, agent in _FOR_AGENTS:
         message = message.replace(cli, agent)
     return message
+
+
 _DATA_WRITES = frozenset({"CREATE", "MERGE", "SET", "DELETE", "REMOVE"})
 # Bare words refused anywhere in a statement (except as a name, see _is_name), with the reason.
 _FORBIDDEN = {
@@ -122,7 +128,7 @@ _PARAM = re.compile(r"\$(?:[A-Za-z_][A-Za-z0-9_]*|[0-9]+)")
 _BLOCK_COMMENT = re.compile(r"/\*(?:[^*]|\*[^/])*\*/", re.S)
 _ESCAPES = set("\\'\"bBfFnNrRtT")
 _HEX4 = re.compile(r"[0-9A-Fa-f]{4}")
-_PID = re.compile(r"^P\d{2}$")
+_PID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
 
 
 @dataclass(frozen=True)
@@ -244,8 +250,8 @@ def _is_name(tokens: list[Token], i: int) -> bool:
     nxt = tokens[i + 1] if i + 1 < len(tokens) else None
     if prev and prev.text == "." and before and before.kind in ("word", "name"):
         return True
-    if prev and prev.upper == "AS":
-        return True
+    if prev and prev.upper == "AS" and prev.kind == "word" and not _is_name(tokens, i - 1):
+        return True  # an alias: AS's own word is a clause word, never an alias itself (AS AS is refused)
     return bool(prev and prev.text in ("{", ",") and nxt and nxt.text == ":")
 
 
@@ -313,6 +319,9 @@ def check_query(text: object, write: bool = False) -> Statement:
                 depth = max(depth - 1, 0)
             continue
         word = t.upper
+        if word == "AS" and t.kind == "word" and i > 0 and tokens[i - 1].upper == "AS":
+            raise _refuse(text, t.start, "AS as a name: write it in backticks (`AS`), so that no clause can hide "
+                                         "behind it")
         if not word or _is_name(tokens, i):
             continue
         nxt = tokens[i + 1] if i + 1 < len(tokens) else None

@@ -40,7 +40,10 @@ def verify_cmd(bank, participants, accept_, fmt):
         rec = accept(bank, p)
         click.echo(f"{p}: recorded sha256 {rec['sha256'][:16]}..., {rec['bytes']} bytes, "
                    f"{sum(rec['tables'].values())} rows in {len(rec['tables'])} tables")
+    from memora_graph.confine import mode
+
     report = verify_bank(bank, list(participants) or None)
+    click.echo(f"ad-hoc Cypher (memora query, the cypher tool): {mode().describe()}", err=True)
     df = report.frame()
     if fmt == "table":
         click.echo(render(df.drop("problems") if "problems" in df.columns else df))

@@ -31,6 +31,19 @@ def side_files(db: Path) -> list[Path]:
     return [p for p in (db.with_name(db.name + s) for s in SIDE_SUFFIXES) if p.exists()]
 
 
+def file_kind(st: os.stat_result) -> str:
+    """What an lstat result is, in words: "file" for a regular file."""
+    import stat
+
+    mode = st.st_mode
+    for test, name in ((stat.S_ISREG, "file"), (stat.S_ISLNK, "a symbolic link"), (stat.S_ISDIR, "a folder"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
 def _key(path: Path, st: os.stat_result) -> tuple:
     return (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
 

@@ -19,10 +19,10 @@ import polars as pl
 from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, _alive
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
-from memora_graph.integrity.files import file_sha256, probe, side_files
+from memora_graph.integrity.files import file_kind, file_sha256, probe, side_files
 from memora_graph.store import Store
 
-_DB = re.compile(r"^(P\d{2})\.kuzu(\.wal|\.shadow)?$")
+_DB = re.compile(r"\A(P\d{2})\.kuzu(\.wal|\.shadow)?\Z")
 KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash"}
 PROBE_TIMEOUT_S = 60
 
@@ -47,7 +47,7 @@ def verify_bank(path: str | Path, participants: list[str] | None = None) -> Repo
     on_disk = {m.group(1) for f in bank.path.iterdir() if (m := _DB.match(f.name))}
     staging_root = bank.path / ".staging"
     staged = {d.name for d in staging_root.iterdir() if d.is_dir()} if staging_root.is_dir() else set()
-    everyone = sorted(set(data["participants"]) | on_disk | set(marks) | {p for p in staged if re.match(r"^P\d{2}$", p)})
+    everyone = sorted(set(data["participants"]) | on_disk | set(marks) | {p for p in staged if re.fullmatch(r"P\d{2}", p)})
     report = Report()
     for p in participants or everyone:
         report.rows.append(_participant(bank, data, p))
@@ -57,7 +57,7 @@ def verify_bank(path: str | Path, participants: list[str] | None = None) -> Repo
                 report.bank.append(f"{f}: not a file of a memora bank (foreign)")
         if staging_root.is_dir():
             for d in sorted(staging_root.iterdir()):
-                if not (d.is_dir() and re.match(r"^P\d{2}$", d.name)):
+                if not (d.is_dir() and re.fullmatch(r"P\d{2}", d.name)):
                     report.bank.append(f"{d}: not a participant's staging folder (foreign; never opened)")
         trash = bank.path / ".trash"
         if trash.is_dir():
@@ -81,16 +81,24 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         alive = _alive(mark.get("pid"))
         row["write"] = f"{'running' if alive else 'interrupted'} {mark.get('op', 'write')} ({mark.get('since', '?')})"
         problems.append(bank.interrupted_message(p, mark))
-    if entry is None and db.exists() and not mark:
+    try:
+        kind = file_kind(db.lstat())
+    except FileNotFoundError:
+        kind = "missing"
+    if entry is None and kind != "missing" and not mark:
         problems.append(f"{db}: not listed in {MANIFEST} (entry removed, or file copied in); readers do not see it")
-    if entry is not None and not db.exists():
+    if entry is not None and kind == "missing":
         row["hash"] = "missing"
         problems.append(f"{db}: missing, but {MANIFEST} lists {p}")
+    elif kind not in ("file", "missing"):
+        row["hash"] = kind
+        problems.append(f"{db}: is {kind}, not a database file; every reader refuses it (move it away and rebuild: "
+                        f"`memora build {bank.path} --rebuild {p}`)")
     if sides and not mark:
         problems.append(f"{', '.join(s.name for s in sides)}: next to a database that was closed cleanly: does not "
                         "belong to it (never replayed; move it away)")
     counts = None
-    if db.is_file():
+    if kind == "file":
         st = db.stat()
         if not integ:
             row["hash"] = "not recorded"
@@ -193,8 +201,7 @@ def accept(path: str | Path, participant: str) -> dict:
     if mark and mark.get("op") == "build":
         raise BankError(f"{db}: its build was interrupted; resume it with `memora build {bank.path} --participants "
                         f"{participant}` rather than accepting half of it")
-    if not db.is_file():
-        raise BankError(f"{db}: missing; nothing to accept")
+    bank.checked_db_file(participant)
     probe(db, participant, timeout=PROBE_TIMEOUT_S)
     bank.mark_writing(participant, "accept")
     with Store(db, read_only=False):  # replays the log, and checkpoints it into the file on close

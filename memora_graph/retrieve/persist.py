@@ -107,15 +107,30 @@ class PersistedStores:
         return f"rows{query}.json" in self.meta.get("files", {})
 
     def rows(self, query: str) -> list[dict]:
-        return json.loads(self._path(f"rows{query}.json").read_text())
+        return self._read(f"rows{query}.json", lambda p: json.loads(p.read_text()))
 
     def vectors(self, table: str) -> VectorTable:
-        ids = json.loads(self._path(f"ids-{table}.json").read_text())
-        mat = np.load(self._path(f"vectors-{table}.npy"), mmap_mode="r", allow_pickle=False)
-        return VectorTable.normalized(ids, mat)
+        ids = self._read(f"ids-{table}.json", lambda p: json.loads(p.read_text()))
+
+        def load(path: Path) -> VectorTable:
+            mat = np.load(path, mmap_mode="r", allow_pickle=False)
+            if mat.ndim != 2 or mat.shape[0] != len(ids):
+                raise ValueError(f"{mat.shape} vectors for {len(ids)} ids")
+            return VectorTable.normalized(ids, mat)
+
+        return self._read(f"vectors-{table}.npy", load)
 
     def bm25(self, table: str) -> Bm25:
-        return Bm25.from_state(json.loads(self._path(f"bm25-{table}.json").read_text()))
+        return self._read(f"bm25-{table}.json", lambda p: Bm25.from_state(json.loads(p.read_text())))
+
+    def _read(self, name: str, read):
+        """`read(path)` of a checked file; a file whose hash was recorded but which does not
+        read (truncated, then recorded again by hand) is damaged, not a traceback."""
+        path = self._path(name)
+        try:
+            return read(path)
+        except (OSError, ValueError, TypeError, KeyError, IndexError, RecursionError) as exc:
+            raise StaleStores(f"{path}: damaged (it does not read: {type(exc).__name__}: {exc})") from None
 
 
 def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) -> Path:

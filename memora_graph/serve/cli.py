@@ -7,6 +7,12 @@ import click
 from memora_graph.output import output_options, render
 
 
+def _confinement() -> str:
+    from memora_graph.confine import mode
+
+    return mode().describe()
+
+
 def _recipes() -> list[str]:
     from memora_graph.retrieve.search import RECIPES
 
@@ -29,14 +35,19 @@ def _recipes() -> list[str]:
 @click.option("--output-schemas", is_flag=True,
               help="Also advertise each tool's result JSON schema. Results carry structured JSON either way; a "
                    "client that validates them against the schema (the mcp SDK's does) pays 5-40 ms per call.")
+@click.option("--unconfined-cypher", is_flag=True,
+              help="Offer the cypher tool even where the kernel cannot confine its query process (no Landlock): "
+                   "then only the read guard keeps it from the files on disk. Confinement here: "
+                   + _confinement() + ".")
 @click.pass_context
-def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_schemas):
+def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_schemas, unconfined_cypher):
     """Serve a memory bank to agents over the Model Context Protocol (MCP).
 
     The bank is opened read-only, checked against its integrity record, and kept open across
     calls. Tools: every typed retrieval tool (argument schemas from the tool registry; JSON
     results), `ask` (the typed question reader), `cypher` (one read-only statement through the
-    guard of `memora query`) and the named queries as `query_<name>` (`memora queries`). Nothing
+    guard of `memora query`, in a process the kernel confines to that one database: offered only
+    where Landlock is available, unless --unconfined-cypher; at most 2 run at once) and the named queries as `query_<name>` (`memora queries`). Nothing
     served writes. Bad arguments are MCP errors naming the field.
 
     \b
@@ -60,7 +71,11 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
     if transport == "http" and host not in ("127.0.0.1", "localhost", "::1"):
         click.echo(f"warning: listening on {host}: the server has no authentication; anyone who can reach this "
                    "port can read this memory", err=True)
-    service = MemoryService(bank, participant, recipe=recipe)
+    service = MemoryService(bank, participant, recipe=recipe, unconfined_cypher=unconfined_cypher)
+    if not service.confinement.confined:
+        click.echo(f"warning: ad-hoc Cypher {service.confinement.describe()}; "
+                   + ("the cypher tool is offered anyway (--unconfined-cypher)" if service.cypher_offered
+                      else "the cypher tool is not offered (start with --unconfined-cypher to offer it)"), err=True)
     who = participant or f"each call names one of {', '.join(service.participants)}"
     try:
         if transport == "stdio":

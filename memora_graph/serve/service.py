@@ -32,6 +32,9 @@ from memora_graph.retrieve.search import DEFAULT_RECIPE
 from memora_graph.retrieve.view import MemoryView
 
 MAX_ROWS = 1000  # rows a Cypher or named query returns at most (the rest is counted, not sent)
+CYPHER_BYTES = 4 * 2**20  # bytes of Arrow a cypher call's child hands back at most
+CYPHER_IN_FLIGHT = 2  # cypher calls running at once (each a child process of up to 2 GB)
+CYPHER_QUEUE = 8  # cypher calls waiting beyond those; past it a call is refused as busy
 CYPHER_TIMEOUT = 30.0
 MAX_CYPHER_TIMEOUT = 300.0
 QUERY_PREFIX = "query_"  # a named query `object_history` is served as the tool `query_object_history`
@@ -169,12 +172,18 @@ def _problems(exc: ValidationError) -> list[tuple[str, str]]:
     return [(".".join(map(str, e["loc"])) or "arguments", e["msg"]) for e in exc.errors()]
 
 
-def _rows(frame, participant: str, max_rows: int) -> dict[str, Any]:
-    """A polars frame as JSON rows (dates as ISO text, as polars writes them)."""
+def _rows(frame, participant: str, max_rows: int, total: int | None = None) -> dict[str, Any]:
+    """A polars frame as JSON rows (dates as ISO text, as polars writes them). `total`: the rows
+    the query returned, where `frame` already holds only the first ones."""
     head = frame.head(max_rows)
     rows = json.loads(head.write_json()) if head.height else []
-    return Rows(participant=participant, columns=list(frame.columns), rows=rows, row_count=frame.height,
-                truncated=frame.height > max_rows).model_dump(mode="json")
+    total = frame.height if total is None else total
+    return Rows(participant=participant, columns=list(frame.columns), rows=rows, row_count=total,
+                truncated=total > head.height).model_dump(mode="json")
+
+
+class Busy(MemoraError):
+    """Too many cypher calls at once: the call was not run."""
 
 
 class MemoryService:
@@ -183,7 +192,12 @@ class MemoryService:
     connection are not shared across threads); Cypher runs in its own child process."""
 
     def __init__(self, bank: str | Path, participant: str | None = None, recipe: str = DEFAULT_RECIPE,
-                 max_rows: int = MAX_ROWS):
+                 max_rows: int = MAX_ROWS, unconfined_cypher: bool = False, cypher_in_flight: int = CYPHER_IN_FLIGHT,
+                 cypher_queue: int = CYPHER_QUEUE):
+        """`unconfined_cypher`: offer the cypher tool even where the kernel cannot confine its
+        child process (memora_graph/confine.py); by default it is offered only where it can."""
+        from memora_graph.confine import mode
+
         self.bank = Bank(bank)
         self.bank.manifest()  # a missing or damaged bank fails here, naming the file
         self.participants = self.bank.participants()
@@ -194,6 +208,12 @@ class MemoryService:
         self.participant = participant
         self.recipe = recipe
         self.max_rows = max_rows
+        self.confinement = mode()
+        self.cypher_offered = self.confinement.confined or unconfined_cypher
+        self._cypher_slots = threading.BoundedSemaphore(cypher_in_flight)
+        self._cypher_waiting = 0
+        self._cypher_bound = cypher_in_flight + cypher_queue
+        self._cypher_count = threading.Lock()
         self._views: dict[str, MemoryView] = {}
         self._lock = threading.Lock()
         self._endpoints = {e.name: e for e in self._build_endpoints()}
@@ -267,10 +287,12 @@ class MemoryService:
                     "remembered procedures used or transferred to the goal's objects, chained, with the person's "
                     "objects, places and preferences; each step with its evidence ids.",
             PlanArgs, PlanAnswer.model_json_schema(mode="serialization"), "plan", self._plan))
-        out.append(self._endpoint(
-            "cypher", "Run one read-only Cypher statement on the person's memory graph (schema: `memora queries`, "
-                      "schema/*.cypher). Writes, file access, extensions and other databases are refused.",
-            CypherArgs, Rows.model_json_schema(mode="serialization"), "cypher", self._cypher))
+        if self.cypher_offered:  # only where the kernel confines its child, unless started --unconfined-cypher
+            out.append(self._endpoint(
+                "cypher", "Run one read-only Cypher statement on the person's memory graph (schema: `memora queries`, "
+                          "schema/*.cypher). Writes, file access, extensions and other databases are refused; at most "
+                          f"{self.max_rows} rows come back.",
+                CypherArgs, Rows.model_json_schema(mode="serialization"), "cypher", self._cypher))
         for q in load_queries().values():
             if q.name.startswith("_") or q.writes or "participant" not in q.params:
                 continue
@@ -315,12 +337,23 @@ class MemoryService:
         # (a `participant` parameter that names someone else is refused there)
         from memora_graph.cypher_guard import for_agents
 
+        # at most CYPHER_IN_FLIGHT children at once, CYPHER_QUEUE more calls waiting; past that, busy
+        with self._cypher_count:
+            if self._cypher_waiting >= self._cypher_bound:
+                raise Busy(f"busy: {self._cypher_bound} cypher calls are already running or waiting; retry in a "
+                           "few seconds")
+            self._cypher_waiting += 1
         try:
-            frame = run_query(self.bank.path, arguments["query"], arguments["params"], participant=participant,
-                              write=False, timeout=arguments["timeout"])
+            with self._cypher_slots:
+                result = run_query(self.bank.path, arguments["query"], arguments["params"], participant=participant,
+                                   write=False, timeout=arguments["timeout"], max_rows=self.max_rows,
+                                   max_bytes=CYPHER_BYTES)
         except QueryRefused as exc:
             raise QueryRefused(for_agents(str(exc))) from None
-        return _rows(frame, participant, self.max_rows)
+        finally:
+            with self._cypher_count:
+                self._cypher_waiting -= 1
+        return _rows(result.frame, participant, self.max_rows, result.total_rows)
 
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:

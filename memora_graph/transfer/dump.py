@@ -192,9 +192,23 @@ def _check_header(doc, where: Path) -> None:
     for k in ("participant", "bank", "manifest", "migrations", "tables"):
         if k not in doc:
             raise DataError(f"{where}: damaged memora export: no '{k}' field")
+    for k, kind in (("bank", dict), ("manifest", dict), ("migrations", dict), ("tables", list)):
+        if not isinstance(doc[k], kind):
+            raise DataError(f"{where}: damaged memora export: field '{k}' is a {type(doc[k]).__name__}, not a "
+                            f"{'map' if kind is dict else 'list'}")
     for k in ("mode", "embed_model"):
-        if k not in doc["bank"]:
-            raise DataError(f"{where}: damaged memora export: no 'bank.{k}' field")
+        if not isinstance(doc["bank"].get(k), str):
+            raise DataError(f"{where}: damaged memora export: no 'bank.{k}' text field")
+    p = doc["participant"]
+    if not isinstance(p, str) or not re.fullmatch(r"P\d{2}", p):
+        raise DataError(f"{where}: field 'participant' is {json.dumps(p)[:40]}, not a participant id like P01 "
+                        "(no path or control characters)")
+    counts = doc["manifest"].get("counts")
+    if not isinstance(counts, dict):
+        raise DataError(f"{where}: damaged memora export: field 'manifest.counts' is not a map of record counts")
+    for k, v in counts.items():
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise DataError(f"{where}: field 'manifest.counts.{k}' is {json.dumps(v)[:40]}, not a whole number")
 
 
 def _table_from_meta(meta: dict, where: Path) -> tuple[str, str, list[tuple[str, str]], str, str]:
@@ -212,10 +226,16 @@ def _table_from_meta(meta: dict, where: Path) -> tuple[str, str, list[tuple[str,
 
 def _frame(rows: list, cols: list[tuple[str, str]], where: str) -> pl.DataFrame:
     schema = {c: polars_type(t) for c, t in cols}
+    fixed = {j: (c, dt.size) for j, (c, dt) in enumerate(schema.items()) if isinstance(dt, pl.Array)}
     for i, r in enumerate(rows):
         if not isinstance(r, list) or len(r) != len(cols):
             raise DataError(f"{where}: row {i + 1} has {len(r) if isinstance(r, list) else 'no'} values, "
                             f"the table has {len(cols)} columns")
+        for j, (c, size) in fixed.items():  # polars panics on an array of the wrong length
+            if r[j] is not None and (not isinstance(r[j], list) or len(r[j]) != size):
+                got = f"{len(r[j])} values" if isinstance(r[j], list) else f"a {type(r[j]).__name__}"
+                raise DataError(f"{where}: row {i + 1}, column {c}: {got}, not {size} (an embedding of another "
+                                "model?)")
     times = {j for j, (_, t) in enumerate(cols) if t == "TIMESTAMP"}
     if times:
         try:
@@ -225,7 +245,8 @@ def _frame(rows: list, cols: list[tuple[str, str]], where: str) -> pl.DataFrame:
             raise DataError(f"{where}: a date/time value does not parse ({exc})") from exc
     try:
         return pl.DataFrame(rows, schema=schema, orient="row", strict=False)
-    except Exception as exc:  # noqa: BLE001 - polars raises several kinds; all mean a value of the wrong type
+    except (Exception, pl.exceptions.PanicException) as exc:  # noqa: BLE001 - polars raises several kinds (and
+        # panics, a BaseException); all mean a value of the wrong type
         raise DataError(f"{where}: values do not fit the column types ({exc})") from exc
 
 
@@ -237,6 +258,8 @@ def read_json(path: Path) -> ParticipantDump:
         raise DataError(f"{path}: not a memora export (not text: {exc.reason})") from exc
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: not a memora export (not JSON: {exc})") from exc
+    except RecursionError:
+        raise DataError(f"{path}: not a memora export (JSON nested too deep to read)") from None
     _check_header(doc, path)
     dump = ParticipantDump(doc["participant"], doc["bank"], doc["manifest"], doc["migrations"],
                            exported_at=doc.get("exported_at", ""))
@@ -287,6 +310,8 @@ def read_parquet(folder: Path) -> ParticipantDump:
         doc = json.loads(meta_path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{meta_path}: not a memora export (not JSON: {exc})") from exc
+    except RecursionError:
+        raise DataError(f"{meta_path}: not a memora export (JSON nested too deep to read)") from None
     _check_header(doc, meta_path)
     dump = ParticipantDump(doc["participant"], doc["bank"], doc["manifest"], doc["migrations"],
                            exported_at=doc.get("exported_at", ""))

@@ -192,6 +192,11 @@ BAD_MANIFESTS = {
     "counts not a map": b'{"format": 1, "participants": {"P09": {"counts": [1, 2]}}}',
     "unknown format": b'{"format": 99, "participants": {}}',
     "format a list": b'{"format": [1], "participants": {}}',
+    "writing a string": b'{"format": 1, "participants": {}, "writing": "P09"}',
+    "writing a list": b'{"format": 1, "participants": {}, "writing": ["P09"]}',
+    "writing a bad id": b'{"format": 1, "participants": {}, "writing": {"P09\\n": {"op": "build"}}}',
+    "integrity a string": b'{"format": 1, "participants": {"P09": {"counts": {}, "integrity": "ok"}}}',
+    "a participant id with a newline": b'{"format": 1, "participants": {"P09\\n": {"counts": {}}}}',
 }
 
 

@@ -135,7 +135,7 @@ def test_timeout_stops_a_long_query(bank):
 def test_what_kuzu_cannot_interrupt_is_stopped_by_time_or_memory(bank):
     path, _ = bank
     huge = "RETURN size(rpad('', 2000000000, 'x')) AS n"  # one value: Kùzu checks its time limit between batches
-    assert run_query(path, "MATCH (e:Entity) RETURN count(e) AS n", participant="P09", memory_mb=600)["n"][0] > 0
+    assert run_query(path, "MATCH (e:Entity) RETURN count(e) AS n", participant="P09", memory_mb=600).frame["n"][0] > 0
     with pytest.raises(StoreError, match="more than 600 MB of memory"):
         run_query(path, huge, participant="P09", memory_mb=600)
     with pytest.raises(QueryTimeout, match="could not interrupt"):
@@ -148,7 +148,10 @@ def test_a_kuzu_crash_is_an_error_not_a_dead_caller(bank):
     before = digest(path)
     # what the guard refuses (Kùzu 0.11.3 crashes on several statements), sent past it on purpose
     with pytest.raises(StoreError, match="Kùzu crashed \\(SIGSEGV\\)"):
-        _in_child(str(path), [("P09", {})], "RETURN 1 AS a; RETURN 2 AS b", False, 30.0, 2048)
+        _in_child({"bank": str(path), "jobs": [{"participant": "P09", "db": str(path / "P09.kuzu"), "params": {},
+                                                "counts": None}],
+                   "cypher": "RETURN 1 AS a; RETURN 2 AS b", "write": False, "timeout": 30.0, "memory_mb": 2048,
+                   "grace": 5.0, "max_rows": 10, "max_bytes": 2**20, "confine": True, "csv_fd": None})
     assert digest(path) == before
 
 
