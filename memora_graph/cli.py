@@ -190,9 +190,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
                                    "and --jobs")
         if ex.remote:  # one task per participant: --participant, or a directory of P01/, P02/ ... folders
-            from memora_graph.executors.cli import build_video_ray
-
-            return build_video_ray(bank, video, backend, embed_model, quiet, ex,
+            return _build_video_ray(bank, video, backend, embed_model, quiet, ex,
                                    {**video_opts, "episodic": episodic, "fts": fts})
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
@@ -207,7 +205,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
     from memora_graph.pipeline import build_bank
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
     from memora_graph.stats import build_summary
 
     progress = progress_bar(quiet)
@@ -256,6 +254,62 @@ def _build_video(bank, video, backend, embed_model, quiet, opts):
         click.echo(line, err=True)
 
 
+def _video_jobs(video: str, participant: str | None) -> list[tuple[str, str]]:
+    """(participant, path) per Ray task: the one --participant, or each P01/, P02/ ... folder of a
+    directory (that participant's videos, built in order)."""
+    from pathlib import Path
+
+    from memora_graph.bank import _PID
+
+    path = Path(video).resolve()
+    if participant:
+        return [(participant, str(path))]
+    folders = sorted(d for d in path.iterdir() if d.is_dir() and _PID.match(d.name)) if path.is_dir() else []
+    if not folders:
+        raise click.UsageError(f"{video}: give --participant, or a directory with one folder per participant "
+                               "(P01/, P02/ ...) to build each as a Ray task")
+    return [(d.name, str(d)) for d in folders]
+
+
+def _build_video_ray(bank: str, video: str, backend: str, embed_model: str | None, quiet: bool, ex,
+                     opts: dict) -> None:
+    """`memora build --video ... --executor ray`: one task per participant, one progress bar."""
+    import polars as pl
+
+    from memora_graph.bank import Bank, check_writable
+    from memora_graph.pipeline.ray import video_on_ray
+    from memora_graph.stats import decision_shares
+
+    jobs = _video_jobs(video, opts.pop("participant"))
+    if opts.get("video_id") and len(jobs) > 1:
+        raise click.UsageError("--video-id names one video of one participant")
+    kwargs = {**opts, "backend": backend, "embed_model": embed_model}
+    progress = progress_bar(quiet)
+    task = progress.add_task("video clips", total=0)
+
+    def on_event(ev: tuple) -> None:
+        kind, p, v, value = ev
+        if kind == "video":
+            progress.update(task, total=(progress.tasks[0].total or 0) + value, description=f"{p} {v}")
+        else:
+            progress.update(task, advance=1)
+
+    with progress:
+        results = video_on_ray(ex, Bank(check_writable(bank)), jobs, kwargs, on_event=on_event,
+                               on_notice=lambda text: click.echo(text, err=True))
+    rows = []
+    for res in results:
+        c, shares = res.counts, decision_shares(res.decisions)
+        rows.append({"participant": res.participant, "videos": len(res.videos),
+                     "built": sum(not v.get("skipped") for v in res.videos), "segments": c.get("segments"),
+                     "entities": c.get("entities"), "state_events": c.get("state_events"), "places": c.get("places"),
+                     "NOOP%": shares["NOOP"], "UPDATE%": shares["UPDATE"], "ADD%": shares["ADD"],
+                     "DELETE%": shares["DELETE"], "model_calls": len(res.calls),
+                     "failed_calls": sum(not r.ok for r in res.calls), "seconds": round(res.wall_seconds, 1)})
+    click.echo(render(pl.DataFrame(rows)))
+    click.echo(f"bank {bank}: {len(rows)} participant(s) built from video as Ray tasks")
+
+
 @main.command()
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--fts", is_flag=True, help="Full-text indexes: the 'fts' and 'kuzu' retrieval recipes (and 'hnsw').")
@@ -280,7 +334,7 @@ def index(bank, fts, hnsw, participants, fmt):
 
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
 
     done = Bank(bank).build_indexes(participants, fts=fts, hnsw=hnsw)
     rows = [{"participant": p, "created": ", ".join(r["created"]) or "(had them)", "indexes": ", ".join(r["indexes"]),

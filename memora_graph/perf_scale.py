@@ -179,7 +179,7 @@ def _index_step(bank: str, participant: str) -> dict:
 
 def _stores_step(bank: str, participant: str) -> dict:
     """The tool stores persisted next to the bank (as `memora build` and `memora index` write them)."""
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
 
     done = persist_bank(bank, [participant])
     return {"stores_bytes": sum(_dir_bytes(Path(d)) for d in done.written)}

@@ -19,11 +19,11 @@ RULES = (
      or m.startswith(("cli_", "perf_", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
-    ("consolidate", lambda m: m.startswith(("consolidate", "pipeline.")) or m in ("pipeline", "executors.build")),
+    ("consolidate", lambda m: m.startswith(("consolidate", "pipeline.")) or m == "pipeline"),
     ("retrieve", lambda m: m.startswith(("retrieve", "baselines", "explore", "transfer"))),
     ("agent", lambda m: m.startswith("agent")),
     ("serve", lambda m: m.startswith("serve")),  # the MCP server: over retrieve and agent, below the commands
-    ("bench", lambda m: m.startswith("bench") or m == "executors.evaluate"),
+    ("bench", lambda m: m.startswith("bench")),
     ("base", lambda m: True),
 )
 

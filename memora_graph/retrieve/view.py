@@ -13,7 +13,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
 from collections import Counter, defaultdict
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -23,13 +25,13 @@ import numpy as np
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
-from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, Bm25, SearchConfig, VectorTable
+from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
+    VectorTable
 
 if TYPE_CHECKING:
     from memora_graph.retrieve.persist import PersistedStores
     from memora_graph.store import Store
 
-TABLES = ("segment", "entity", "place", "routine", "preference")
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 log = logging.getLogger("memora_graph.integrity")
 TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
@@ -382,3 +384,23 @@ class ObservationGraph:
         row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
         order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
         return [(self.entities[j], int(c)) for j, c in order]
+
+
+@dataclass
+class Persisted:
+    written: list[Path] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
+    """Write the persisted tool stores of each participant (all by default) whose files are
+    missing or stale (after a build or `memora consolidate`); returns the directories written."""
+    t0 = time.perf_counter()
+    bank = Bank(bank_path)
+    out = Persisted()
+    for p in bank.participants() if participants is None else participants:
+        with MemoryView.open(bank_path, p, persist=True) as view:
+            if view.persisted_written is not None:
+                out.written.append(view.persisted_written)
+    out.seconds = time.perf_counter() - t0
+    return out
