@@ -263,12 +263,12 @@ def _video_jobs(video: str, participant: str | None) -> list[tuple[str, str]]:
     directory (that participant's videos, built in order)."""
     from pathlib import Path
 
-    from memora_graph.bank import _PID
+    from memora_graph.bank import is_participant_id
 
     path = Path(video).resolve()
     if participant:
         return [(participant, str(path))]
-    folders = sorted(d for d in path.iterdir() if d.is_dir() and _PID.match(d.name)) if path.is_dir() else []
+    folders = sorted(d for d in path.iterdir() if d.is_dir() and is_participant_id(d.name)) if path.is_dir() else []
     if not folders:
         raise click.UsageError(f"{video}: give --participant, or a directory with one folder per participant "
                                "(P01/, P02/ ...) to build each as a Ray task")

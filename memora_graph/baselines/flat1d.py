@@ -25,6 +25,7 @@ from memora_graph.baselines.common import (
     prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
+from memora_graph.embed import single_thread_blas
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Record, ToolResult
@@ -128,9 +129,7 @@ class Flat1DMemory:
     @classmethod
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Flat1DMemory:
         """Built once per bank and participant, then read from `BANK/.cache/`."""
-        from memora_graph.retrieve.view import _single_thread_blas
-
-        _single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
+        single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)

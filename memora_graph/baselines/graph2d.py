@@ -29,6 +29,7 @@ from memora_graph.baselines.common import (
     EmbeddingStore, cache_dir, embed_query, load_records, object_label, participant_key, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
+from memora_graph.embed import single_thread_blas
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Model, Record, ToolErrorResult, ToolResult
@@ -194,9 +195,7 @@ class Graph2DMemory:
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Graph2DMemory:
         import networkx as nx
 
-        from memora_graph.retrieve.view import _single_thread_blas
-
-        _single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
+        single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
         key = participant_key(bank, participant, VERSION)

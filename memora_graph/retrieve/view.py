@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from memora_graph.bank import Bank
+from memora_graph.embed import single_thread_blas
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
@@ -39,24 +40,6 @@ TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted s
 
 class ToolError(MemoraError):
     """A tool called with arguments it cannot answer (the message says what would work)."""
-
-
-_BLAS_LIMITED = False
-
-
-def _single_thread_blas() -> None:
-    """Tool calls do small matrix products (a query against <= 1.4k rows); on the 2-core
-    machines this project targets, OpenBLAS' worker threads turn a 0.1 ms product into 8 ms
-    (the same spin as torch's). Limit BLAS to one thread, once per process."""
-    global _BLAS_LIMITED
-    if _BLAS_LIMITED:
-        return
-    _BLAS_LIMITED = True
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return
-    threadpool_limits(limits=1, user_api="blas")
 
 
 def _config(config: SearchConfig | str) -> SearchConfig:
@@ -82,7 +65,7 @@ class MemoryView:
         instead of Kùzu for what they hold) and `open_store()` to open the database when a tool
         needs something else (`MemoryView.open` does that). `config`: a recipe name (RECIPES) or a
         SearchConfig; None picks one by the memory's size (`auto_recipe`)."""
-        _single_thread_blas()
+        single_thread_blas()
         self._store = store
         self._open_store = open_store
         self._persisted = persisted
