@@ -13,8 +13,6 @@ results per category, activities with their neighbouring turns as `_context`),
 
 from __future__ import annotations
 
-import json
-import os
 from collections import defaultdict
 from itertools import combinations
 from pathlib import Path
@@ -26,7 +24,7 @@ from pydantic import Field
 
 from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
-    EmbeddingStore, cache_dir, embed_query, load_records, object_label, participant_key, place_name, prefetch_queries,
+    EmbeddingStore, cache_or_build, embed_query, load_records, object_label, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
 from memora_graph.embed import single_thread_blas
@@ -198,26 +196,19 @@ class Graph2DMemory:
         single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
-        key = participant_key(bank, participant, VERSION)
-        base = cache_dir(bank) / f"graph2d-{participant}-{key}"
-        path, npy = base.with_suffix(".json"), base.with_suffix(".npy")
-        if path.exists() and npy.exists():
-            try:
-                data = json.loads(path.read_text())
-                graph = nx.node_link_graph(data["graph"], edges="edges")
-                return cls(participant, mode, graph, data["nodes"], np.load(npy, allow_pickle=False))
-            except (OSError, ValueError, KeyError, TypeError, nx.NetworkXError):
-                pass  # a damaged cache is rebuilt from the bank, never trusted
-        graph = build_graph(load_records(bank, participant), mode)
-        nodes = sorted(graph.nodes)
-        store = store or EmbeddingStore(bank)
-        vectors = store.encode([graph.nodes[n]["text"] for n in nodes])
-        store.save()
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes}))
-        np.save(npy, vectors)
-        os.replace(tmp, path)  # written last: a cache is complete when its JSON exists
-        return cls(participant, mode, graph, nodes, vectors)
+
+        def build():
+            graph = build_graph(load_records(bank, participant), mode)
+            nodes = sorted(graph.nodes)
+            return ((graph, nodes), {"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes},
+                    [graph.nodes[n]["text"] for n in nodes])
+
+        def read(data: dict, vectors: np.ndarray) -> Graph2DMemory:
+            return cls(participant, mode, nx.node_link_graph(data["graph"], edges="edges"), data["nodes"], vectors)
+
+        return cache_or_build(bank, participant, "graph2d", VERSION, store=store, build=build, read=read,
+                              make=lambda built, vectors: cls(participant, mode, *built, vectors),
+                              damaged=(nx.NetworkXError,))
 
     prefetch = staticmethod(prefetch_queries)
 
