@@ -50,6 +50,11 @@ def verify_default() -> bool:
     return os.environ.get(NO_VERIFY_ENV, "") in ("", "0")
 
 
+def is_participant_id(name: str) -> bool:
+    """Whether `name` is a participant id (P01 ... P99)."""
+    return bool(_PID.match(name))
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -61,11 +66,6 @@ def pid_alive(pid) -> bool:
     except (OSError, ValueError, TypeError):
         return False
     return True
-
-
-def is_participant_id(name: str) -> bool:
-    """Whether `name` is a participant id (P01 ... P99)."""
-    return bool(_PID.match(name))
 
 
 class Bank:

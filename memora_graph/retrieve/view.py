@@ -322,6 +322,26 @@ def _writable(bank: Path) -> bool:
     return os.access(cache if cache.is_dir() else bank, os.W_OK)
 
 
+@dataclass
+class Persisted:
+    written: list[Path] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
+    """Write the persisted tool stores of each participant (all by default) whose files are
+    missing or stale (after a build or `memora consolidate`); returns the directories written."""
+    t0 = time.perf_counter()
+    bank = Bank(bank_path)
+    out = Persisted()
+    for p in bank.participants() if participants is None else participants:
+        with MemoryView.open(bank_path, p, persist=True) as view:
+            if view.persisted_written is not None:
+                out.written.append(view.persisted_written)
+    out.seconds = time.perf_counter() - t0
+    return out
+
+
 class ObservationGraph:
     """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
     the entity co-occurrence counts (segments two entities share), computed once. The counts are
@@ -367,23 +387,3 @@ class ObservationGraph:
         row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
         order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
         return [(self.entities[j], int(c)) for j, c in order]
-
-
-@dataclass
-class Persisted:
-    written: list[Path] = field(default_factory=list)
-    seconds: float = 0.0
-
-
-def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
-    """Write the persisted tool stores of each participant (all by default) whose files are
-    missing or stale (after a build or `memora consolidate`); returns the directories written."""
-    t0 = time.perf_counter()
-    bank = Bank(bank_path)
-    out = Persisted()
-    for p in bank.participants() if participants is None else participants:
-        with MemoryView.open(bank_path, p, persist=True) as view:
-            if view.persisted_written is not None:
-                out.written.append(view.persisted_written)
-    out.seconds = time.perf_counter() - t0
-    return out
