@@ -40,8 +40,8 @@ from memora_graph.agent.policies import is_model_policy
 from memora_graph.agent.prompts import PROMPT_VERSION
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
-from memora_graph.bench.items import (  # noqa: F401 - the run folder's names, as callers import them from here
-    KINDS, RunSummary, make_policy, one_torch_thread, read_records, record_path, run_item, run_plan, structure_steps,
+from memora_graph.bench.items import (
+    DEFAULT_TEMPERATURE, KINDS, RunSummary, make_policy, one_torch_thread, read_records, record_path, run_item, run_plan,
 )
 from memora_graph.bench.tasks import BenchSuite, load_suite
 from memora_graph.errors import MemoraError
