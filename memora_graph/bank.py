@@ -50,11 +50,17 @@ def verify_default() -> bool:
     return os.environ.get(NO_VERIFY_ENV, "") in ("", "0")
 
 
+def is_participant_id(name: str) -> bool:
+    """Whether `name` is a participant id (P01 ... P99)."""
+    return bool(_PID.match(name))
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _alive(pid) -> bool:
+def pid_alive(pid) -> bool:
+    """Whether a process with this id runs on this machine (False for None or garbage)."""
     try:
         os.kill(int(pid), 0)
     except (OSError, ValueError, TypeError):
@@ -313,7 +319,7 @@ class Bank:
         db = self.db_path(participant)
         mark = data.get("writing", {}).get(participant)
         if mark:
-            if mark.get("pid") != os.getpid() and _alive(mark.get("pid")):
+            if mark.get("pid") != os.getpid() and pid_alive(mark.get("pid")):
                 raise BankError(self.interrupted_message(participant, mark))
             if side_files(db):
                 from memora_graph.integrity.files import probe
@@ -376,7 +382,7 @@ class Bank:
     def interrupted_message(self, participant: str, mark: dict) -> str:
         db, op, pid, since = self.db_path(participant), mark.get("op", "write"), mark.get("pid"), mark.get("since", "?")
         pid = pid if pid is not None else mark.get("failed_in")
-        if mark.get("pid") is not None and _alive(pid):
+        if mark.get("pid") is not None and pid_alive(pid):
             return (f"{db}: being written by process {pid} ({op} since {since}); wait for it to finish "
                     "(or stop it), then retry.")
         if op == "build":

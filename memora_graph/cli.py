@@ -72,28 +72,32 @@ COMMANDS = {
                "files, unfinished writes or builds, staged videos; and files that belong to no participant."),
 }
 PERF_COMMANDS = {
-    "decode": ("memora_graph.perf_video:perf_decode",
+    "build": ("memora_graph.perf.build:perf_build",
+              "Build the bundled annotations from scratch and print where the time went: every phase, summing to "
+              "the wall time (to worker-seconds with --jobs > 1), and the share of graph work (all but embedding and "
+              "model load)."),
+    "decode": ("memora_graph.perf.video:perf_decode",
                "Decode and segment a 60 s synthetic video; print the multiple of real time (target >= 20x)."),
-    "encoders": ("memora_graph.retrieve.perf_encoders:perf_encoders_cmd",
+    "encoders": ("memora_graph.perf.encoders:perf_encoders_cmd",
                  "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
-    "model": ("memora_graph.perf_model:perf_model",
+    "model": ("memora_graph.perf.model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
-    "ray": ("memora_graph.perf_ray:perf_ray",
+    "ray": ("memora_graph.perf.ray:perf_ray",
             "Ray's overhead against the local executor on a full build, measured side by side."),
-    "scale": ("memora_graph.perf_scale:perf_scale_cmd",
+    "scale": ("memora_graph.perf.scale:perf_scale_cmd",
               "Build 10, 100 and 1,000 hours of one participant and print, per size: build seconds per hour, bank size, open time, peak resident memory, p50/p95 per tool for the in-process and the K\u00f9zu HNSW recipes, and the size at which HNSW becomes faster."),
-    "serve": ("memora_graph.serve.cli:perf_serve_cmd",
+    "serve": ("memora_graph.perf.serve:perf_serve_cmd",
               "Warm tool-call latency of `memora serve` over streamable HTTP on loopback."),
-    "startup": ("memora_graph.perf_startup:perf_startup_cmd",
+    "startup": ("memora_graph.perf.startup:perf_startup_cmd",
                 "How fast one-shot commands start: `memora --help` and a one-shot `memora tool` as new processes "
                 "(median wall and CPU seconds of several runs)."),
-    "tools": ("memora_graph.retrieve.cli:perf_tools_cmd",
+    "tools": ("memora_graph.perf.tools:perf_tools_cmd",
               "Time every tool over a fixed query set: p50 / p95 per call (query embedding included), next to the "
               "exact numpy top-k floor, and recall@10 of every vector search against exact."),
     "verify": ("memora_graph.integrity.cli:perf_verify_cmd",
                "What checking a database before opening it costs, against a one-shot command."),
-    "video": ("memora_graph.perf_video:perf_video",
+    "video": ("memora_graph.perf.video:perf_video",
               "Build from a synthetic video against a scripted server on 127.0.0.1 and print the graph work per "
               "segment: everything except decoding and waiting for the model (target <= 50 ms)."),
 }
@@ -192,9 +196,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
             raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
                                    "and --jobs")
         if ex.remote:  # one task per participant: --participant, or a directory of P01/, P02/ ... folders
-            from memora_graph.executors.cli import build_video_ray
-
-            return build_video_ray(bank, video, backend, embed_model, quiet, ex,
+            return _build_video_ray(bank, video, backend, embed_model, quiet, ex,
                                    {**video_opts, "episodic": episodic, "fts": fts})
         if not participant:
             raise click.UsageError("--video needs --participant (whose memory this is, e.g. P01)")
@@ -209,7 +211,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
     from memora_graph.pipeline import build_bank
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
     from memora_graph.stats import build_summary
     from memora_graph.text import counted
 
@@ -259,6 +261,62 @@ def _build_video(bank, video, backend, embed_model, quiet, opts):
         click.echo(line, err=True)
 
 
+def _video_jobs(video: str, participant: str | None) -> list[tuple[str, str]]:
+    """(participant, path) per Ray task: the one --participant, or each P01/, P02/ ... folder of a
+    directory (that participant's videos, built in order)."""
+    from pathlib import Path
+
+    from memora_graph.bank import is_participant_id
+
+    path = Path(video).resolve()
+    if participant:
+        return [(participant, str(path))]
+    folders = sorted(d for d in path.iterdir() if d.is_dir() and is_participant_id(d.name)) if path.is_dir() else []
+    if not folders:
+        raise click.UsageError(f"{video}: give --participant, or a directory with one folder per participant "
+                               "(P01/, P02/ ...) to build each as a Ray task")
+    return [(d.name, str(d)) for d in folders]
+
+
+def _build_video_ray(bank: str, video: str, backend: str, embed_model: str | None, quiet: bool, ex,
+                     opts: dict) -> None:
+    """`memora build --video ... --executor ray`: one task per participant, one progress bar."""
+    import polars as pl
+
+    from memora_graph.bank import Bank, check_writable
+    from memora_graph.pipeline.ray import video_on_ray
+    from memora_graph.stats import decision_shares
+
+    jobs = _video_jobs(video, opts.pop("participant"))
+    if opts.get("video_id") and len(jobs) > 1:
+        raise click.UsageError("--video-id names one video of one participant")
+    kwargs = {**opts, "backend": backend, "embed_model": embed_model}
+    progress = progress_bar(quiet)
+    task = progress.add_task("video clips", total=0)
+
+    def on_event(ev: tuple) -> None:
+        kind, p, v, value = ev
+        if kind == "video":
+            progress.update(task, total=(progress.tasks[0].total or 0) + value, description=f"{p} {v}")
+        else:
+            progress.update(task, advance=1)
+
+    with progress:
+        results = video_on_ray(ex, Bank(check_writable(bank)), jobs, kwargs, on_event=on_event,
+                               on_notice=lambda text: click.echo(text, err=True))
+    rows = []
+    for res in results:
+        c, shares = res.counts, decision_shares(res.decisions)
+        rows.append({"participant": res.participant, "videos": len(res.videos),
+                     "built": sum(not v.get("skipped") for v in res.videos), "segments": c.get("segments"),
+                     "entities": c.get("entities"), "state_events": c.get("state_events"), "places": c.get("places"),
+                     "NOOP%": shares["NOOP"], "UPDATE%": shares["UPDATE"], "ADD%": shares["ADD"],
+                     "DELETE%": shares["DELETE"], "model_calls": len(res.calls),
+                     "failed_calls": sum(not r.ok for r in res.calls), "seconds": round(res.wall_seconds, 1)})
+    click.echo(render(pl.DataFrame(rows)))
+    click.echo(f"bank {bank}: {len(rows)} participant(s) built from video as Ray tasks")
+
+
 @main.command()
 @click.argument("bank", type=click.Path(exists=True, file_okay=False))
 @click.option("--fts", is_flag=True, help="Full-text indexes: the 'fts' and 'kuzu' retrieval recipes (and 'hnsw').")
@@ -283,7 +341,7 @@ def index(bank, fts, hnsw, participants, fmt):
 
     if not (fts or hnsw):
         raise click.UsageError("say which indexes to build: --fts and/or --hnsw")
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
     from memora_graph.text import counted
 
     done = Bank(bank).build_indexes(participants, fts=fts, hnsw=hnsw)
@@ -435,88 +493,6 @@ def stats(bank, participant, calls, fmt):
 @main.group(cls=LazyGroup, lazy=PERF_COMMANDS, on_load=_prepare)
 def perf():
     """Benchmarks that print their figures (not timed tests)."""
-
-
-@perf.command("build")
-@click.option("--bank", "bank_dir", type=click.Path(file_okay=False), help="Where to build (default: a temporary directory).")
-@participants_option()
-@click.option("--episodic", is_flag=True, help="Time the MEMORA-Episodic build (no consolidation).")
-@click.option("--fts", is_flag=True, help="Time the build with the full-text indexes (`memora build --fts`).")
-@click.option("--jobs", type=click.IntRange(min=1), default=None, help="Worker processes (default: as `memora build`).")
-def perf_build(bank_dir, participants, episodic, fts, jobs):
-    """Build the bundled annotations from scratch and print where the time went: every phase,
-    summing to the wall time (to worker-seconds with --jobs > 1), and the share of graph work
-    (all but embedding and model load).
-
-    \b
-    Example:
-      memora perf build
-    """
-    import os
-    import tempfile
-
-    import polars as pl
-
-    from memora_graph.pipeline import build_bank
-
-    pids = participants
-    load_before = os.getloadavg()
-    others = _OtherCPU()
-    with tempfile.TemporaryDirectory() as tmp:
-        res = build_bank(bank_dir or f"{tmp}/bank", pids, episodic=episodic, fts=fts, jobs=jobs)
-    others_s = others.seconds()
-    total = res.wall_seconds
-    phases = res.phases()
-    capacity = res.jobs * total  # seconds the phases add up to: the wall time, or worker-seconds
-    rows = [{"phase": k, "seconds": round(v, 2), "share%": round(100 * v / capacity, 1) if capacity else 0.0}
-            for k, v in phases.items()]
-    rows.append({"phase": "sum of phases", "seconds": round(sum(phases.values()), 2),
-                 "share%": round(100 * sum(phases.values()) / capacity, 1) if capacity else 0.0})
-    click.echo(render(pl.DataFrame(rows)))
-    if res.jobs > 1:
-        click.echo(f"{res.jobs} worker processes: the phases are worker-seconds, summing to {res.jobs} x wall")
-    click.echo(f"participants {len(res.participants)}  segments {res.segments}  wall {total:.1f} s  "
-               f"segments/s {res.segments / total:.0f}  texts encoded {res.texts_encoded}  encode calls by torch "
-               f"threads {dict(sorted(res.embed_threads.items()))}")
-    click.echo(f"machine: load average before {load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}"
-               + (f"; during the build other processes used {others_s[0]:.1f} CPU-seconds and the hypervisor took "
-                  f"{others_s[1]:.1f} (steal)" if others_s is not None else ""))
-    of = "wall" if res.jobs == 1 else f"the workers' busy {res.busy_seconds:.1f} s"
-    click.echo(f"graph work (all but embedding {res.embedding_seconds:.1f} s and model load {res.model_seconds:.1f} s): "
-               f"{res.graph_seconds:.1f} s = {100 * res.graph_share:.0f}% of {of} (target <= 25%; wall {total:.1f} s, "
-               f"target <= 120 s)")
-
-
-class _OtherCPU:
-    """CPU seconds other processes used while this one ran (Linux /proc/stat busy time minus our
-    own) and the hypervisor took from this virtual machine (steal), to tell a clean timing from
-    one taken on a shared machine."""
-
-    def __init__(self):
-        self._start = self._sample()
-
-    @staticmethod
-    def _sample() -> tuple[float, float, float] | None:
-        import os
-        import resource
-
-        try:
-            with open("/proc/stat") as fh:
-                f = [int(x) for x in fh.readline().split()[1:9]] + [0]
-        except (OSError, ValueError):
-            return None
-        me = resource.getrusage(resource.RUSAGE_SELF)
-        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-        own = me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
-        tick = os.sysconf("SC_CLK_TCK")
-        return (f[0] + f[1] + f[2] + f[5] + f[6]) / tick, own, f[7] / tick
-
-    def seconds(self) -> tuple[float, float] | None:
-        """(other processes' CPU-seconds, steal seconds) since construction."""
-        end = self._sample()
-        if self._start is None or end is None:
-            return None
-        return max((end[0] - self._start[0]) - (end[1] - self._start[1]), 0.0), end[2] - self._start[2]
 
 
 if __name__ == "__main__":

@@ -31,9 +31,6 @@ class LazyGroup(click.Group):
         self.on_load = on_load
         self._prepared: set[str] = set()
 
-    def add_lazy(self, name: str, target: str, short_help: str) -> None:
-        self.lazy[name] = (target, short_help)
-
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted({*self.commands, *self.lazy})
 
@@ -105,11 +102,6 @@ def backend_names() -> list[str]:
     from memora_graph.llm import list_backends
 
     return list_backends()
-
-
-def model_backend_names() -> list[str]:
-    """Backends with a model behind them (video builds, LLM consolidation)."""
-    return [b for b in backend_names() if b != "offline"]
 
 
 def recipe_names() -> list[str]:

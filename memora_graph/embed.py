@@ -183,6 +183,24 @@ def adaptive_threads(embedder, governor: ThreadGovernor | None = None) -> Iterat
         torch.set_num_threads(before)
 
 
+_BLAS_LIMITED = False
+
+
+def single_thread_blas() -> None:
+    """Tool calls do small matrix products (a query against <= 1.4k rows); on the 2-core
+    machines this project targets, OpenBLAS' worker threads make such a product many times
+    slower (the same spin as torch's; docs/performance.md). Limit BLAS to one thread, once per process."""
+    global _BLAS_LIMITED
+    if _BLAS_LIMITED:
+        return
+    _BLAS_LIMITED = True
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return
+    threadpool_limits(limits=1, user_api="blas")
+
+
 @contextmanager
 def torch_threads(n: int = 1, embedder=None, kind: str = "query"):
     """Torch on `n` intra-op threads within the block; with `embedder`, only where it encodes

@@ -82,7 +82,7 @@ def _private(root: Path) -> bool:
     return not root.is_symlink() and st.st_uid == os.getuid() and not st.st_mode & 0o022
 
 
-def _writable(root: Path) -> bool:
+def writable_dir(root: Path) -> bool:
     try:
         root.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile(dir=root, prefix=".probe-"):
@@ -197,11 +197,11 @@ def export_dir(model_dir: Path | None = None, root: Path | None = None) -> Path:
     if _valid(primary / name, fingerprint):
         return primary / name
     base = primary
-    if not _writable(primary):
+    if not writable_dir(primary):
         base = _fallback_root()
         log.warning("memora: the cache directory %s cannot be written; the ONNX query encoder is kept in %s "
                     "instead (set MEMORA_CACHE_DIR to choose another place)", primary, base)
-        if not (_private(base) and _writable(base)):
+        if not (_private(base) and writable_dir(base)):
             raise EncoderExportError(f"neither {primary} nor {base} (ours alone) can be written: set "
                                      "MEMORA_CACHE_DIR to a writable directory, or MEMORA_QUERY_ENCODER=torch")
     final = base / name

@@ -26,6 +26,11 @@ STOPWORDS = frozenset(
 _TOKEN = re.compile(r"\b[a-z][a-z\-]{2,}\b")
 
 
+def uniq(items) -> list:
+    """The items without repeats, in first-seen order."""
+    return list(dict.fromkeys(items))
+
+
 @functools.lru_cache(maxsize=1 << 16)  # the planning metrics stem the same memory words for every item
 def stem(word: str) -> str:
     """Strip the first fitting suffix of ing/ied/ies/ed/es/s, then one letter of a final double."""

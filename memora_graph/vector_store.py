@@ -128,10 +128,10 @@ class TextVectors:
         persist = self._persist if self._persist is not None else os.environ.get(ENV, "1") != "0"
         if not persist:
             return
-        from memora_graph.onnx_embed import _writable, cache_root
+        from memora_graph.onnx_embed import cache_root, writable_dir
 
         root = (Path(self._root) if self._root is not None else cache_root()) / "vectors"
-        if not _writable(root):
+        if not writable_dir(root):
             log.warning("memora: %s cannot be written; text vectors are kept in memory only (set MEMORA_CACHE_DIR "
                         "to a writable directory)", root)
             return

@@ -71,8 +71,9 @@ def test_every_registered_name_is_accepted_and_an_unknown_one_refused(tmp_path, 
 def test_a_name_registered_later_is_accepted(tmp_path):
     from memora_graph.consolidate import processors
     from memora_graph.consolidate.processors import register_processor
+    from memora_graph.consolidate.run import deterministic_processors
 
-    register_processor("scratch-rules", processors._deterministic)
+    register_processor("scratch-rules", deterministic_processors)
     try:
         ctx = _command("consolidate").make_context("consolidate", [str(tmp_path), "--processor", "scratch-rules"])
         assert ctx.params["processor"] == "scratch-rules"

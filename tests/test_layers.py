@@ -14,16 +14,17 @@ PACKAGE = Path(memora_graph.__file__).parent
 ORDER = ("base", "perceive", "form", "consolidate", "retrieve", "agent", "serve", "bench", "cli")
 # first match wins: a module path (dotted, without the package name) -> its layer
 RULES = (
-    # commands, benchmarks, test helpers, and the bank report that reads every layer's files (verify)
-    ("cli", lambda m: m == "cli" or m.endswith(".cli")
-     or m.startswith(("cli_", "perf_", "testing", "integrity.verify"))),
+    # commands, benchmarks (the perf package: a top layer like the commands), test helpers, and the
+    # bank report that reads every layer's files (verify)
+    ("cli", lambda m: m == "cli" or m.endswith(".cli") or m == "perf"
+     or m.startswith(("cli_", "perf.", "testing", "integrity.verify"))),
     ("perceive", lambda m: m.startswith("perceive")),
     ("form", lambda m: m.startswith("form")),
-    ("consolidate", lambda m: m.startswith(("consolidate", "pipeline.")) or m in ("pipeline", "executors.build")),
+    ("consolidate", lambda m: m.startswith(("consolidate", "pipeline.")) or m == "pipeline"),
     ("retrieve", lambda m: m.startswith(("retrieve", "baselines", "explore", "transfer"))),
     ("agent", lambda m: m.startswith("agent")),
     ("serve", lambda m: m.startswith("serve")),  # the MCP server: over retrieve and agent, below the commands
-    ("bench", lambda m: m.startswith("bench") or m == "executors.evaluate"),
+    ("bench", lambda m: m.startswith("bench")),
     ("base", lambda m: True),
 )
 
@@ -79,3 +80,4 @@ def test_the_layer_check_sees_a_violation(tmp_path):
     assert ORDER.index(layer_of("bench.run")) > ORDER.index(layer_of("form.editor"))
     assert layer_of("consolidate.cli") == "cli" and layer_of("baselines.flat1d") == "retrieve"
     assert layer_of("pipeline") == layer_of("pipeline.workers") == "consolidate"
+    assert layer_of("perf.tools") == layer_of("perf") == "cli" and layer_of("executors.tasks") == "base"

@@ -55,7 +55,7 @@ class Policy(Protocol):
                 state: AgentState) -> PolicyReply: ...
 
 
-class ToolSet(Protocol):
+class Tools(Protocol):
     participant: str
 
     def schemas(self) -> list[dict[str, Any]]: ...
@@ -106,7 +106,7 @@ def _describe(call: ToolCall) -> str:
     return f"{call.name}({canonical_arguments(call.arguments)})"
 
 
-def run_agent(policy: Policy, toolset: ToolSet | None, task_kind: str, view: dict[str, Any], family: str,
+def run_agent(policy: Policy, toolset: Tools | None, task_kind: str, view: dict[str, Any], family: str,
               *, max_iterations: int | None = None) -> AgentResult:
     """One episode: an EAM-QA question (view = EamQuestion.answering_view()) or a planning task
     (view = {task_id, participant_id, task_query}). Returns the final reply text and the trace."""

@@ -194,10 +194,6 @@ def _match(items: list[Item], have: set[Item], w: dict[Item, float], lex: Lexico
     return sum(w.get(x, 1.0) * _hit(x, have, verbs, lex) for x in items) / total
 
 
-def _mentions(e: Event, intent: Intent) -> bool:
-    return bool(set(e.nouns) & set(intent.subject_nouns))
-
-
 def _sequences(events: list[Event]) -> dict[str, list[Event]]:
     by_video: dict[str, list[Event]] = defaultdict(list)
     seen = set()

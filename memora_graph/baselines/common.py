@@ -12,8 +12,9 @@ import hashlib
 import json
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from memora_graph.bank import Bank
 from memora_graph.embed import get_embedder, torch_threads
 
 CACHE_DIR = ".cache"
+M = TypeVar("M")  # a baseline memory
 DEDUP_COSINE = 0.95
 DEFAULT_TOP_K = 10
 MAX_TOP_K = 30
@@ -45,6 +47,35 @@ def participant_key(bank: Bank, participant: str, version: str) -> str:
     entry = bank.manifest()["participants"][participant]
     blob = json.dumps({"entry": entry, "mode": bank.manifest().get("mode"), "v": version}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def cache_or_build(bank: Bank, participant: str, name: str, version: str, *, read: Callable[[Any, np.ndarray], M],
+                   build: Callable[[], tuple[Any, Any, list[str]]], make: Callable[[Any, np.ndarray], M],
+                   store: EmbeddingStore | None = None, damaged: tuple[type[Exception], ...] = ()) -> M:
+    """A participant's baseline memory `name`, read from `BANK/.cache/` when cached, else built once.
+
+    Cached: `read(json data, vectors)` makes it from the two files; a file that cannot be read or
+    parsed (OSError, ValueError, KeyError, TypeError, or one of `damaged`) is rebuilt from the
+    bank, never trusted. Not cached: `build()` gives (what it built, its JSON data, the texts to
+    embed); the texts are encoded with `store` (default: the bank's), both files are written (the
+    JSON last: a cache is complete when its JSON exists), and `make(what it built, vectors)`."""
+    key = participant_key(bank, participant, version)
+    base = cache_dir(bank) / f"{name}-{participant}-{key}"
+    path, npy = base.with_suffix(".json"), base.with_suffix(".npy")
+    if path.exists() and npy.exists():
+        try:
+            return read(json.loads(path.read_text()), np.load(npy, allow_pickle=False))
+        except (OSError, ValueError, KeyError, TypeError, *damaged):
+            pass
+    built, data, texts = build()
+    store = store or EmbeddingStore(bank)
+    vectors = store.encode(texts)
+    store.save()
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data))
+    np.save(npy, vectors)
+    os.replace(tmp, path)
+    return make(built, vectors)
 
 
 def load_records(bank: Bank, participant: str) -> dict[str, list[dict]]:

@@ -11,7 +11,6 @@ The records come from the same bank every other condition reads:
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,10 +20,10 @@ from pydantic import Field
 
 from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
-    EmbeddingStore, cache_dir, clamp_top_k, embed_query, load_records, object_label, participant_key, place_name,
-    prefetch_queries,
+    EmbeddingStore, cache_or_build, clamp_top_k, embed_query, load_records, object_label, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
+from memora_graph.embed import single_thread_blas
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Record, ToolResult
@@ -128,23 +127,17 @@ class Flat1DMemory:
     @classmethod
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Flat1DMemory:
         """Built once per bank and participant, then read from `BANK/.cache/`."""
-        from memora_graph.retrieve.view import _single_thread_blas
-
-        _single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
+        single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
-        key = participant_key(bank, participant, VERSION)
-        base = cache_dir(bank) / f"flat1d-{participant}-{key}"
-        if base.with_suffix(".json").exists() and base.with_suffix(".npy").exists():
-            rows = json.loads(base.with_suffix(".json").read_text())
-            return cls(participant, mode, [FlatRecord(**r) for r in rows], np.load(base.with_suffix(".npy")))
-        recs = build_records(load_records(bank, participant), mode)
-        store = store or EmbeddingStore(bank)
-        vectors = store.encode([r.embed_text for r in recs])
-        store.save()
-        base.with_suffix(".json").write_text(json.dumps([r.__dict__ for r in recs]))
-        np.save(base.with_suffix(".npy"), vectors)
-        return cls(participant, mode, recs, vectors)
+
+        def build():
+            recs = build_records(load_records(bank, participant), mode)
+            return recs, [r.__dict__ for r in recs], [r.embed_text for r in recs]
+
+        return cache_or_build(bank, participant, "flat1d", VERSION, store=store, build=build,
+                              read=lambda rows, vectors: cls(participant, mode, [FlatRecord(**r) for r in rows], vectors),
+                              make=lambda recs, vectors: cls(participant, mode, recs, vectors))
 
     def search(self, query: str, top_k: int = 10) -> FlatSearchResult:
         """The top-k records by cosine to the query (near-duplicates collapsed)."""

@@ -13,8 +13,6 @@ results per category, activities with their neighbouring turns as `_context`),
 
 from __future__ import annotations
 
-import json
-import os
 from collections import defaultdict
 from itertools import combinations
 from pathlib import Path
@@ -26,9 +24,10 @@ from pydantic import Field
 
 from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
-    EmbeddingStore, cache_dir, embed_query, load_records, object_label, participant_key, place_name, prefetch_queries,
+    EmbeddingStore, cache_or_build, embed_query, load_records, object_label, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
+from memora_graph.embed import single_thread_blas
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Model, Record, ToolErrorResult, ToolResult
@@ -194,31 +193,22 @@ class Graph2DMemory:
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Graph2DMemory:
         import networkx as nx
 
-        from memora_graph.retrieve.view import _single_thread_blas
-
-        _single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
+        single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
         bank = Bank(bank_path)
         mode = bank.manifest().get("mode", "edited")
-        key = participant_key(bank, participant, VERSION)
-        base = cache_dir(bank) / f"graph2d-{participant}-{key}"
-        path, npy = base.with_suffix(".json"), base.with_suffix(".npy")
-        if path.exists() and npy.exists():
-            try:
-                data = json.loads(path.read_text())
-                graph = nx.node_link_graph(data["graph"], edges="edges")
-                return cls(participant, mode, graph, data["nodes"], np.load(npy, allow_pickle=False))
-            except (OSError, ValueError, KeyError, TypeError, nx.NetworkXError):
-                pass  # a damaged cache is rebuilt from the bank, never trusted
-        graph = build_graph(load_records(bank, participant), mode)
-        nodes = sorted(graph.nodes)
-        store = store or EmbeddingStore(bank)
-        vectors = store.encode([graph.nodes[n]["text"] for n in nodes])
-        store.save()
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes}))
-        np.save(npy, vectors)
-        os.replace(tmp, path)  # written last: a cache is complete when its JSON exists
-        return cls(participant, mode, graph, nodes, vectors)
+
+        def build():
+            graph = build_graph(load_records(bank, participant), mode)
+            nodes = sorted(graph.nodes)
+            return ((graph, nodes), {"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes},
+                    [graph.nodes[n]["text"] for n in nodes])
+
+        def read(data: dict, vectors: np.ndarray) -> Graph2DMemory:
+            return cls(participant, mode, nx.node_link_graph(data["graph"], edges="edges"), data["nodes"], vectors)
+
+        return cache_or_build(bank, participant, "graph2d", VERSION, store=store, build=build, read=read,
+                              make=lambda built, vectors: cls(participant, mode, *built, vectors),
+                              damaged=(nx.NetworkXError,))
 
     prefetch = staticmethod(prefetch_queries)
 

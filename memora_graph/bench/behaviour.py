@@ -68,7 +68,7 @@ class Action(NamedTuple):
 
 
 @dataclass(frozen=True)
-class Step:
+class ActionRow:
     """One annotated EPIC action row."""
 
     narration_id: str
@@ -89,7 +89,7 @@ class Run:
     """Consecutive steps of one video with the same action, collapsed into one event."""
 
     action: Action
-    steps: tuple[Step, ...]
+    steps: tuple[ActionRow, ...]
 
     @property
     def video_id(self) -> str:
@@ -106,7 +106,7 @@ class Evidence:
 
     hits: list[tuple[str, float, str]] = field(default_factory=list)
 
-    def add(self, step: Step) -> None:
+    def add(self, step: ActionRow) -> None:
         self.hits.append((step.video_id, step.start_s, step.narration_id))
 
     @property
@@ -138,7 +138,7 @@ def clock(seconds: float) -> str:
 class Behaviour:
     """The index of one participant's annotated actions."""
 
-    def __init__(self, participant_id: str, steps_by_video: dict[str, list[Step]], noun_category: dict[str, str]):
+    def __init__(self, participant_id: str, steps_by_video: dict[str, list[ActionRow]], noun_category: dict[str, str]):
         self.participant_id = participant_id
         self.steps_by_video = steps_by_video
         self.videos = sorted(steps_by_video)
@@ -216,7 +216,7 @@ class Behaviour:
         return self.noun_category.get(noun, "other")
 
 
-def _collapse(steps: list[Step]) -> list[Run]:
+def _collapse(steps: list[ActionRow]) -> list[Run]:
     runs: list[Run] = []
     for step in steps:
         if runs and runs[-1].action == step.action:
@@ -241,7 +241,7 @@ def build_behaviours(annotations: pl.DataFrame, class_dir: str | Path | None = N
     tables = load_class_tables(Path(class_dir) if class_dir else epic_dir())
     noun_key = tables.nouns
     noun_category = {noun_key[i]: cat for i, cat in tables.noun_category.items()}
-    by_pid: dict[str, dict[str, list[Step]]] = defaultdict(lambda: defaultdict(list))
+    by_pid: dict[str, dict[str, list[ActionRow]]] = defaultdict(lambda: defaultdict(list))
     for row in annotations.iter_rows(named=True):
         action = Action(row["verb_key"], noun_key[int(row["noun_class"])])
         place = tool = ""
@@ -249,7 +249,7 @@ def build_behaviours(annotations: pl.DataFrame, class_dir: str | Path | None = N
             place = _second_noun(row, noun_key, noun_category, PLACE_CATEGORIES)
         elif action.verb in TOOL_VERB_KEYS:
             tool = _second_noun(row, noun_key, noun_category, TOOL_CATEGORIES)
-        by_pid[row["participant_id"]][row["video_id"]].append(Step(
+        by_pid[row["participant_id"]][row["video_id"]].append(ActionRow(
             narration_id=row["narration_id"], video_id=row["video_id"], start_s=float(row["start_s"]),
             stop_s=float(row["stop_s"]), narration=row["narration"], verb=row["verb"], noun=row["noun"],
             action=action, place=place, tool=tool, text_source=row["text_source"],

@@ -20,7 +20,7 @@ import polars as pl
 from memora_graph.bench.behaviour import Behaviour, build_behaviours
 from memora_graph.bench.generate_generalize import GeneralizeConfig, generate_generalize
 from memora_graph.bench.generate_qa import (
-    Candidate, QaConfig, QaGenerator, VectorCache, balanced_letters, control_quota, dedup_pool, rank_candidates,
+    QuestionCandidate, QaConfig, QaGenerator, VectorCache, balanced_letters, control_quota, dedup_pool, rank_candidates,
     rewrite_participant, select_answerable, select_controls,
 )
 from memora_graph.bench.generate_replay import ReplayConfig, generate_replay
@@ -66,7 +66,7 @@ def _rng(seed: int, pid: str, purpose: str) -> random.Random:
     return random.Random(f"{seed}:{pid}:{purpose}")
 
 
-def _question(pid: str, c: Candidate, position: int, rng: random.Random, scope: list[str]) -> EamQuestion:
+def _question(pid: str, c: QuestionCandidate, position: int, rng: random.Random, scope: list[str]) -> EamQuestion:
     options = list(c.distractors)
     rng.shuffle(options)
     options.insert(position, c.answer)
@@ -80,7 +80,7 @@ def _question(pid: str, c: Candidate, position: int, rng: random.Random, scope: 
     )
 
 
-def _control(pid: str, donor: str, c: Candidate, donor_videos: int, rng: random.Random) -> EamQuestion:
+def _control(pid: str, donor: str, c: QuestionCandidate, donor_videos: int, rng: random.Random) -> EamQuestion:
     options = [c.answer, *c.distractors]
     rng.shuffle(options)
     options = [rewrite_participant(o, donor, pid) for o in options]
@@ -96,7 +96,7 @@ def _control(pid: str, donor: str, c: Candidate, donor_videos: int, rng: random.
     )
 
 
-def _eam_file(pid: str, b: Behaviour, kept: list[Candidate], controls: list[tuple[str, Candidate]],
+def _eam_file(pid: str, b: Behaviour, kept: list[QuestionCandidate], controls: list[tuple[str, QuestionCandidate]],
               donors: dict[str, Behaviour], seed: int, dedup: str, dropped: dict) -> EamQaFile:
     rng = _rng(seed, pid, "assemble")
     positions = balanced_letters(len(kept), rng)
@@ -167,7 +167,7 @@ def generate_suite(
     dedup = f"{getattr(embedder, 'name', type(embedder).__name__)} cosine >= {config.qa.dedup_threshold}" if embedder else "off"
 
     ranked: dict[str, dict] = {}
-    donor_pools: dict[str, list[Candidate]] = {}
+    donor_pools: dict[str, list[QuestionCandidate]] = {}
     for pid, b in behaviours.items():
         cands = QaGenerator(b, _rng(seed, pid, "qa"), config.qa.thresholds).all()
         ranked[pid] = rank_candidates(cands, _rng(seed, pid, "rank"))

@@ -55,7 +55,7 @@ class QaThresholds:
 
 
 @dataclass
-class Candidate:
+class QuestionCandidate:
     qa_type: str
     depth: int
     template: str
@@ -126,8 +126,8 @@ class QaGenerator:
         by_key = {a.key(): a for a in pool}
         return [by_key[t] for t in texts]
 
-    def all(self) -> list[Candidate]:
-        out: list[Candidate] = []
+    def all(self) -> list[QuestionCandidate]:
+        out: list[QuestionCandidate] = []
         out += self.spref()
         out += self.shabit()
         out += self.sroutine()
@@ -143,7 +143,7 @@ class QaGenerator:
         return out
 
     # -- SPref ----------------------------------------------------------------------------------
-    def spref(self) -> list[Candidate]:
+    def spref(self) -> list[QuestionCandidate]:
         out = []
         t = self.t
         known_places = Counter()
@@ -168,7 +168,7 @@ class QaGenerator:
 
             stem = (f"Where does {self.pid} usually take the {noun_text(noun)} from?" if taking
                     else f"Where does {self.pid} usually put the {noun_text(noun)}?")
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SPref", 1, f"{kind}_location", stem, say(best), [say(p) for p in distract], ev.videos,
                 ev.count / (ev.count + second), {**ev.audit(), "runner_up_count": second, "object": noun, "place": best},
                 [f"{kind}:{noun}@{best}"],
@@ -187,7 +187,7 @@ class QaGenerator:
                 continue
             distract = _pick(self.rng, others, 3, set())
             stem = f"What does {self.pid} usually use to {verb_phrase(action.verb, 'base')} {object_text(action.noun)}?"
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SPref", 1, "tool", stem, f"The {noun_text(best)}", [f"The {noun_text(p)}" for p in distract],
                 ev.videos, ev.count / (ev.count + second),
                 {**ev.audit(), "runner_up_count": second, "action": action.key(), "tool": best},
@@ -198,7 +198,7 @@ class QaGenerator:
         out += self._spref_chained_location()
         return out
 
-    def _spref_object_for_verb(self) -> list[Candidate]:
+    def _spref_object_for_verb(self) -> list[QuestionCandidate]:
         out, t = [], self.t
         by_verb: dict[str, dict[str, Evidence]] = defaultdict(dict)
         for a, ev in self.b.action_evidence.items():
@@ -216,7 +216,7 @@ class QaGenerator:
                 continue
             distract = _pick(self.rng, others[:10], 3, set())
             stem = f"Across sessions, which item does {self.pid} {verb_phrase(verb, 'base')} most often?"
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SPref", 1, "object_for_verb", stem, f"The {noun_text(best)}",
                 [f"The {noun_text(n)}" for n in distract], ev.videos, ev.count / (ev.count + second),
                 {**ev.audit(), "runner_up_count": second, "verb": verb, "object": best},
@@ -224,7 +224,7 @@ class QaGenerator:
             ))
         return out
 
-    def _spref_verb_for_object(self) -> list[Candidate]:
+    def _spref_verb_for_object(self) -> list[QuestionCandidate]:
         out, t = [], self.t
         by_noun: dict[str, dict[str, Evidence]] = defaultdict(dict)
         for a, ev in self.b.action_evidence.items():
@@ -247,7 +247,7 @@ class QaGenerator:
             distract = _pick(self.rng, others[:10], 3, set())
             stem = f"What does {self.pid} most often do with the {noun_text(noun)}?"
             say = pronoun_phrase
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SPref", 1, "verb_for_object", stem, say(best), [say(v) for v in distract], ev.videos,
                 ev.count / (ev.count + second),
                 {**ev.audit(), "runner_up_count": second, "object": noun, "verb": best},
@@ -255,7 +255,7 @@ class QaGenerator:
             ))
         return out
 
-    def _spref_chained_location(self) -> list[Candidate]:
+    def _spref_chained_location(self) -> list[QuestionCandidate]:
         """Depth d: where the object goes after a chain of d-1 actions (chain + put with a place)."""
         out, t = [], self.t
         table: dict[tuple, dict[str, Evidence]] = defaultdict(lambda: defaultdict(Evidence))
@@ -290,7 +290,7 @@ class QaGenerator:
             context = ", then ".join(action_phrase(a) for a in chain)
             stem = f"After {self.pid} {context}, where do they usually put the {noun_text(put_action.noun)}?"
             say = lambda p: f"{_cap(place_preposition('', p))} the {noun_text(p)}"  # noqa: E731
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SPref", d, "chained_location", stem, say(best), [say(p) for p in distract], ev.videos,
                 ev.count, {**ev.audit(), "chain": [a.key() for a in chain], "object": put_action.noun, "place": best},
                 [f"put:{put_action.noun}@{best}"] + [f"action:{a.key()}" for a in chain],
@@ -298,7 +298,7 @@ class QaGenerator:
         return out
 
     # -- SHabit ---------------------------------------------------------------------------------
-    def shabit(self) -> list[Candidate]:
+    def shabit(self) -> list[QuestionCandidate]:
         out, t = [], self.t
         for chain, nexts in sorted(self.b.chain_next.items()):
             d = len(chain)
@@ -332,7 +332,7 @@ class QaGenerator:
                 continue
             context = ", then ".join(action_phrase(a) for a in chain)
             stem = f"After {self.pid} {context}, what do they typically do next?"
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SHabit", d, "trigger_next" if d == 1 else "chain_next", stem, _cap(action_phrase(best)),
                 [_cap(action_phrase(a)) for a in distract], ev.videos, ev.count / total + ev.count / 100,
                 {**ev.audit(), "trigger": [a.key() for a in chain], "response": best.key(),
@@ -375,7 +375,7 @@ class QaGenerator:
             picked += [o for o in perms[2:] if o not in picked][: k - len(picked)]
         return picked
 
-    def sroutine(self) -> list[Candidate]:
+    def sroutine(self) -> list[QuestionCandidate]:
         out, t = [], self.t
         routines: dict[tuple[Action, ...], Evidence] = defaultdict(Evidence)
         conts: dict[tuple[Action, int], dict[tuple[Action, ...], Evidence]] = defaultdict(lambda: defaultdict(Evidence))
@@ -402,7 +402,7 @@ class QaGenerator:
             if len(distract) < 3:
                 continue
             stem = f"Which sequence of steps does {self.pid} repeat across sessions when handling the {noun_text(topic)}?"
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SRoutine", 1, "recurring_sequence", stem, sequence_phrase(seq) + ".",
                 [sequence_phrase(s) + "." for s in distract], ev.videos, ev.count,
                 {**ev.audit(), "sequence": [a.key() for a in seq], "topic": topic},
@@ -423,7 +423,7 @@ class QaGenerator:
             if len(distract) < 3:
                 continue
             stem = (f"After {self.pid} {action_phrase(trigger)}, which {_DEPTH_WORD[d]} steps follow, in order?")
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "SRoutine", d, "continuation", stem, sequence_phrase(best) + ".",
                 [sequence_phrase(s) + "." for s in distract], ev.videos, ev.count,
                 {**ev.audit(), "trigger": trigger.key(), "continuation": [a.key() for a in best],
@@ -446,7 +446,7 @@ class QaGenerator:
         label = " and ".join(action_phrase(a, "gerund") for a in top)
         return top, _cap(label)
 
-    def erecall(self) -> list[Candidate]:
+    def erecall(self) -> list[QuestionCandidate]:
         out = []
         labels = {v: self._video_label(v) for v in self.b.videos}
         for video in self.b.videos:
@@ -468,7 +468,7 @@ class QaGenerator:
             for run in self.b.runs_by_video[video]:
                 if run.action in top:
                     ev.add(run.steps[0])
-            out.append(Candidate(
+            out.append(QuestionCandidate(
                 "ERecall", 1, "main_activity", f"What was {self.pid} mainly doing in video {video}?", label,
                 distract, [video], float(counts[top[0]]),
                 {**ev.audit(), "top_actions": {a.key(): counts[a] for a in top}}, [f"action:{a.key()}" for a in top],
@@ -497,7 +497,7 @@ class QaGenerator:
                     for run in chain:
                         ev.add(run.steps[0])
                     stem = f"In video {video}, {self.pid} handled {object_text(noun)}. Which sequence did they perform?"
-                    out.append(Candidate(
+                    out.append(QuestionCandidate(
                         "ERecall", d, "video_sequence", stem, sequence_phrase(seq) + ".",
                         [sequence_phrase(s) + "." for s in distract], [video], float(d),
                         {**ev.audit(), "sequence": [a.key() for a in seq], "start": clock(chain[0].start_s)},
@@ -541,7 +541,7 @@ def _normalized(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", " ", text.lower()).strip()
 
 
-def rank_candidates(cands: list[Candidate], rng: random.Random) -> dict[tuple[str, int], list[Candidate]]:
+def rank_candidates(cands: list[QuestionCandidate], rng: random.Random) -> dict[tuple[str, int], list[QuestionCandidate]]:
     """Exact dedup, then per (type, depth): strongest first, spread round-robin over topics."""
     seen, unique = set(), []
     for c in cands:
@@ -549,7 +549,7 @@ def rank_candidates(cands: list[Candidate], rng: random.Random) -> dict[tuple[st
         if key not in seen:
             seen.add(key)
             unique.append(c)
-    groups: dict[tuple[str, int], list[Candidate]] = defaultdict(list)
+    groups: dict[tuple[str, int], list[QuestionCandidate]] = defaultdict(list)
     for c in unique:
         groups[(c.qa_type, c.depth)].append(c)
     ranked = {}
@@ -557,7 +557,7 @@ def rank_candidates(cands: list[Candidate], rng: random.Random) -> dict[tuple[st
         items = groups[key]
         tiebreak = {id(c): rng.random() for c in items}
         items.sort(key=lambda c: (-c.strength, tiebreak[id(c)]))
-        by_topic: dict[str, list[Candidate]] = {}
+        by_topic: dict[str, list[QuestionCandidate]] = {}
         for c in items:
             by_topic.setdefault(c.topic, []).append(c)
         order = []
@@ -592,7 +592,7 @@ def pool_margin(quota: int) -> int:
     return max(4, quota // 3)
 
 
-def dedup_pool(ranked: dict[tuple[str, int], list[Candidate]], config: QaConfig, n_videos: int) -> list[str]:
+def dedup_pool(ranked: dict[tuple[str, int], list[QuestionCandidate]], config: QaConfig, n_videos: int) -> list[str]:
     """Stems select_answerable will most likely embed: those whose answer another candidate shares
     (only they can be duplicates). Used to prime a VectorCache with one model call."""
     pool = []
@@ -603,8 +603,8 @@ def dedup_pool(ranked: dict[tuple[str, int], list[Candidate]], config: QaConfig,
     return [c.dedup_text() for c in pool if claims[c.claim()] > 1]
 
 
-def select_answerable(ranked: dict[tuple[str, int], list[Candidate]], config: QaConfig, n_videos: int,
-                      vectors: VectorCache | None = None) -> tuple[list[Candidate], dict]:
+def select_answerable(ranked: dict[tuple[str, int], list[QuestionCandidate]], config: QaConfig, n_videos: int,
+                      vectors: VectorCache | None = None) -> tuple[list[QuestionCandidate], dict]:
     """Fill each (type, depth) quota in rank order, then apply the per-type share cap.
 
     Semantic dedup (with `vectors`): stems at cosine >= threshold form a near-duplicate cluster;
@@ -616,8 +616,8 @@ def select_answerable(ranked: dict[tuple[str, int], list[Candidate]], config: Qa
     """
     import numpy as np
 
-    kept: list[Candidate] = []
-    kept_by_claim: dict[str, list[Candidate]] = defaultdict(list)
+    kept: list[QuestionCandidate] = []
+    kept_by_claim: dict[str, list[QuestionCandidate]] = defaultdict(list)
     dropped_semantic = 0
     for key, items in ranked.items():
         quota = config.quota(key[0], key[1], n_videos)
@@ -638,7 +638,7 @@ def select_answerable(ranked: dict[tuple[str, int], list[Candidate]], config: Qa
     return kept, {"dropped_semantic_duplicates": dropped_semantic, "dropped_by_type_cap": capped}
 
 
-def apply_type_cap(items: list[Candidate], share: float) -> tuple[list[Candidate], int]:
+def apply_type_cap(items: list[QuestionCandidate], share: float) -> tuple[list[QuestionCandidate], int]:
     """Drop the lowest-ranked items of any type above `share` of the participant's items.
 
     A participant whose annotations support a single type keeps it: dropping cannot balance it.
@@ -682,10 +682,10 @@ def allocate(total: int, weights: dict[str, int]) -> dict[str, int]:
 
 
 def select_controls(target: str, target_facts: set[str], answerable_types: Counter,
-                    donor_pools: dict[str, list[Candidate]], n: int, rng: random.Random) -> list[tuple[str, Candidate]]:
+                    donor_pools: dict[str, list[QuestionCandidate]], n: int, rng: random.Random) -> list[tuple[str, QuestionCandidate]]:
     """E-correct controls: donor questions whose asked fact the target never shows."""
     wanted = allocate(n, {t: answerable_types.get(t, 0) for t in ("SPref", "SHabit", "SRoutine", "ERecall")})
-    offers: dict[str, list[tuple[str, Candidate]]] = defaultdict(list)
+    offers: dict[str, list[tuple[str, QuestionCandidate]]] = defaultdict(list)
     for donor in sorted(donor_pools):
         if donor == target:
             continue
@@ -703,7 +703,7 @@ def select_controls(target: str, target_facts: set[str], answerable_types: Count
             order += [q.pop(0) for q in queues]
             queues = [q for q in queues if q]
         offers[t] = order
-    chosen: list[tuple[str, Candidate]] = []
+    chosen: list[tuple[str, QuestionCandidate]] = []
     stems = set()
     short = 0
     for t, k in wanted.items():

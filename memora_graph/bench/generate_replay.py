@@ -17,7 +17,7 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
-from memora_graph.bench.behaviour import Behaviour, Step, clock, noun_text
+from memora_graph.bench.behaviour import Behaviour, ActionRow, clock, noun_text
 from memora_graph.bench.tasks import MatchedObject, ReplayStep, ReplayTask
 
 CLEANUP = frozenset({"wash", "rinse", "clean", "wipe", "dry", "sponge", "scrub", "squeeze"})
@@ -89,12 +89,12 @@ def split_category(verb: str) -> str:
     return cat if cat in ("cleanup", "cooking", "prep") else "general"
 
 
-def segment_video(steps: list[Step], config: ReplayConfig | None = None) -> list[list[Step]]:
+def segment_video(steps: list[ActionRow], config: ReplayConfig | None = None) -> list[list[ActionRow]]:
     """Split one video's time-ordered steps into candidate segments of min..max steps."""
     config = config or ReplayConfig()
     if not steps:
         return []
-    segments: list[list[Step]] = [[steps[0]]]
+    segments: list[list[ActionRow]] = [[steps[0]]]
     for i in range(1, len(steps)):
         gap = max(0.0, steps[i].start_s - steps[i - 1].stop_s)
         prev_cat, cat = split_category(steps[i - 1].verb), split_category(steps[i].verb)
@@ -104,8 +104,8 @@ def segment_video(steps: list[Step], config: ReplayConfig | None = None) -> list
             segments.append([steps[i]])
         else:
             segments[-1].append(steps[i])
-    merged: list[list[Step]] = []
-    carry: list[Step] = []
+    merged: list[list[ActionRow]] = []
+    carry: list[ActionRow] = []
     for seg in segments:
         seg = carry + seg
         carry = []
@@ -334,7 +334,7 @@ class ReplayResult:
     n_candidates: int = 0
 
 
-def _step_record(step: Step, registry: list[MatchedObject] | None, accept: float) -> ReplayStep:
+def _step_record(step: ActionRow, registry: list[MatchedObject] | None, accept: float) -> ReplayStep:
     record = ReplayStep(
         narration_id=step.narration_id, narration=step.narration, verb=step.verb, noun=step.noun,
         start_time=clock(step.start_s), end_time=clock(step.stop_s),
@@ -435,7 +435,7 @@ def generate_replay(behaviour: Behaviour, registry: list[dict] | None = None,
     result = ReplayResult(n_candidates=len(cands))
     for c in select_tasks(cands, config):
         objects = registry_for_video(registry, c["video_id"]) if registry else None
-        steps: list[Step] = c["steps"]
+        steps: list[ActionRow] = c["steps"]
         narrations = [s.narration for s in steps]
         rate = round(repeat_rate(narrations), 4)
         task = ReplayTask(

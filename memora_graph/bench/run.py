@@ -30,62 +30,28 @@ import json
 import os
 import subprocess
 import time
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
 import polars as pl
 
-from memora_graph.agent.loop import run_agent
 from memora_graph.agent.policies import is_model_policy
 from memora_graph.agent.prompts import PROMPT_VERSION
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
-from memora_graph.bench.answers import extract_plan, parse_answer_letter
-from memora_graph.bench.metrics import score_plan
+from memora_graph.bench.items import (
+    DEFAULT_TEMPERATURE, KINDS, RunSummary, make_policy, one_torch_thread, read_records, record_path, run_item, run_plan,
+)
 from memora_graph.bench.tasks import BenchSuite, load_suite
 from memora_graph.errors import MemoraError
 from memora_graph.stats import memory_formation
 
 RUN_FORMAT = 1
-KINDS = ("eam_qa", "replay", "generalize")
-DEFAULT_TEMPERATURE = 0.6
 DEFAULT_CONCURRENCY = 32  # agent loops in flight against a model server
 
 
-@dataclass
-class RunSummary:
-    out: Path
-    done: int = 0
-    skipped: int = 0
-    failed: int = 0
-    seconds: float = 0.0
-    items_seconds: float = 0.0  # running the items (after the run's setup: scoring memory, formation stats)
-    per_condition_seconds: dict[str, float] = field(default_factory=dict)
-
-
 # -- run directory ------------------------------------------------------------------------------
-
-
-def record_path(out: Path, kind: str, condition: str) -> Path:
-    return out / "records" / ("eam_qa" if kind == "eam_qa" else "planning") / f"{condition}.jsonl"
-
-
-def read_records(path: Path) -> dict[str, dict]:
-    """item id -> the last record written for it (a retried item replaces its failed record)."""
-    out: dict[str, dict] = {}
-    if not path.exists():
-        return out
-    for line in path.read_text(encoding="utf-8").splitlines():
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            continue  # a line cut by a killed run; the item runs again
-        out[rec["item_id"]] = rec
-    return out
 
 
 def load_run(out: str | Path) -> dict[str, dict[str, list[dict]]]:
@@ -141,88 +107,7 @@ def scoring_memory(bank: Path, participant: str) -> dict[str, Any]:
     }
 
 
-# -- structured plan steps ------------------------------------------------------------------------
-
-
-def structure_steps(steps: list[str], memory: dict[str, Any] | None) -> list[dict[str, Any]]:
-    """(action, entity, location) per plan step; entity and location are drawn from the
-    participant's memory (object names, places) when the condition has memory."""
-    from memora_graph.bench.vocabulary import LOCATION_NOUNS, extract_action_verb
-
-    names = sorted(memory["object_names"], key=len, reverse=True) if memory else []
-    places = sorted(memory["places"], key=len, reverse=True) if memory else []
-    out = []
-    for s in steps:
-        low = s.lower()
-        entity = next((n for n in names if n.lower() in low), None)
-        location = next((p for p in places if p and p.lower() in low), None)
-        if location is None:
-            location = next((p for p in sorted(LOCATION_NOUNS, key=len, reverse=True) if f" {p}" in f" {low}"), None)
-        out.append({"text": s, "action": extract_action_verb(s), "entity": entity, "location": location,
-                    "from_memory": bool(memory) and entity is not None})
-    return out
-
-
-# -- one item ---------------------------------------------------------------------------------------
-
-
-def _run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any, memory: dict | None,
-              participant: str) -> dict[str, Any]:
-    t0 = time.perf_counter()
-    base: dict[str, Any] = {"condition": condition.name, "participant": participant, "kind": kind,
-                            "status": "ok", "error": None}
-    if kind == "eam_qa":
-        view = item.answering_view()
-        base.update(item_id=item.question_id, question_id=item.question_id, qa_type=item.qa_type,
-                    is_unanswerable=item.is_unanswerable, correct_answer=item.correct_answer)
-    else:
-        view = {"task_id": item.task_id, "participant_id": item.participant_id, "task_query": item.task_query}
-        base.update(item_id=item.task_id, task_id=item.task_id, split=kind, task_type=item.task_type,
-                    task_query=item.task_query)
-    try:
-        toolset = condition.open_tools(banks, participant)
-        res = run_agent(policy, toolset, "eam_qa" if kind == "eam_qa" else "planning", view, condition.family)
-        base.update(final_text=res.final_text, iterations=res.iterations, forced=res.forced, retried=res.retried,
-                    tool_calls=res.tool_calls, n_tool_calls=len(res.tool_calls),
-                    time={"model_s": round(res.model_s, 4), "tools_s": round(res.tools_s, 4),
-                          "other_s": round(res.other_s + 0.0, 4), "total_s": 0.0})
-        if kind == "eam_qa":
-            base["predicted"] = parse_answer_letter(res.final_text, view["choices"])
-            base["is_correct"] = base["predicted"] == item.correct_answer
-        else:
-            steps = extract_plan(res.final_text)
-            base["plan_text"] = "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1))
-            base["generated_plan"] = steps
-            base["structured_steps"] = structure_steps(steps, memory if condition.bank != "none" else None)
-            base["scores"] = score_plan(steps, item.model_dump(), memory["routines"], memory["preferences"],
-                                        memory["object_names"])
-    except Exception as exc:  # recorded, never fatal
-        base.update(status="failed", error=f"{type(exc).__name__}: {exc}")
-        if kind == "eam_qa":
-            base.update(predicted="", is_correct=False)
-        else:
-            base.update(generated_plan=[], plan_text="",
-                        scores=score_plan([], item.model_dump(), memory["routines"], memory["preferences"],
-                                          memory["object_names"]) if memory else {"empty": True})
-    total = time.perf_counter() - t0
-    t = base.setdefault("time", {"model_s": 0.0, "tools_s": 0.0, "other_s": 0.0})
-    t["total_s"] = round(total, 4)
-    t["other_s"] = round(max(0.0, total - t["model_s"] - t["tools_s"]), 4)
-    return base
-
-
 # -- the run ----------------------------------------------------------------------------------------
-
-
-def make_policy(backend: str, options: dict[str, Any], out: Path):
-    """The answer policy registered as `backend` (memora_graph/agent/policies.py); a model's calls
-    go to OUT/model_calls.jsonl, at the evaluation's default temperature unless one is given."""
-    from memora_graph.agent.policies import make_answer_policy
-
-    opts = dict(options)
-    if is_model_policy(backend):
-        opts.setdefault("temperature", DEFAULT_TEMPERATURE)
-    return make_answer_policy(backend, opts, Path(out) / "model_calls.jsonl")
 
 
 def run_bench(
@@ -250,7 +135,7 @@ def run_bench(
     `concurrency` is the number of agent loops in flight for model backends (default 32); records
     do not depend on it either (content and order, timings aside). `executor`
     (memora_graph.executors.Executor) 'ray' runs one task per (condition, participant) shard
-    instead (executors/evaluate.py); the records are the same."""
+    instead (bench/ray.py); the records are the same."""
     t_start = time.perf_counter()
     concurrency = resolve_concurrency(concurrency, backend)  # a bad value fails before anything is written
     out = Path(out)
@@ -293,18 +178,18 @@ def run_bench(
         _write_json(out / "memory_formation" / f"{pid}.json", memory_formation(bank, pid))
     t_items = time.perf_counter()
     if executor is not None and executor.remote:
-        from memora_graph.executors.evaluate import run_shards_on_ray
+        from memora_graph.bench.ray import run_shards_on_ray
 
         run_shards_on_ray(executor, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary,
                           on_item)
     elif workers > 1:
         _run_parallel(workers, out, banks, conds, kinds, plan, memories, backend, backend_options or {}, summary, on_item)
     elif concurrency > 1:
-        with _one_torch_thread():
+        with one_torch_thread():
             _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summary, on_item, concurrency)
     else:
-        with _one_torch_thread():
-            _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item)
+        with one_torch_thread():
+            run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item)
     summary.items_seconds = time.perf_counter() - t_items
     write_results_table(out)
     summary.seconds = time.perf_counter() - t_start
@@ -316,14 +201,6 @@ def run_bench(
     })
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return summary
-
-
-def _one_torch_thread():
-    """Short MiniLM encodes are several times faster on one torch thread on small CPUs (they do
-    not fight Kùzu and each other); scoped to the run."""
-    from memora_graph.embed import torch_threads  # a broken import is an error, not a silent no-op
-
-    return torch_threads(1)
 
 
 def _write_json(path: Path, data: Any, indent: int | None = None) -> None:
@@ -377,8 +254,8 @@ def _worker(args: dict[str, Any]) -> dict[str, Any]:
     policy = make_policy(args["backend"], args["backend_options"], args["out"])
     summary = RunSummary(args["out"])
     conds = [get_condition(n) for n in args["conditions"]]
-    with _one_torch_thread():
-        _run_plan(args["out"], args["banks"], conds, args["kinds"], args["plan"], args["memories"], policy, summary,
+    with one_torch_thread():
+        run_plan(args["out"], args["banks"], conds, args["kinds"], args["plan"], args["memories"], policy, summary,
                   lambda rec: queue.put({k: rec.get(k) for k in ("condition", "item_id", "status")}))
     return {"done": summary.done, "skipped": summary.skipped, "failed": summary.failed,
             "per_condition_seconds": summary.per_condition_seconds}
@@ -418,36 +295,6 @@ def _drain(q, on_item, queue_mod) -> None:
             return
         if on_item:
             on_item(rec)
-
-
-def _run_plan(out, banks, conds, kinds, plan, memories, policy, summary, on_item) -> None:
-    for pid in dict.fromkeys(p for p, _, _ in plan):
-        memory = memories[pid]
-        for cond in conds:
-            t_cond = time.perf_counter()
-            for kind in kinds:
-                path = record_path(out, kind, cond.name)
-                existing = read_records(path)
-                path.parent.mkdir(parents=True, exist_ok=True)
-                with path.open("a", encoding="utf-8") as fh:
-                    for p, k, item in plan:
-                        if p != pid or k != kind:
-                            continue
-                        item_id = item.question_id if kind == "eam_qa" else item.task_id
-                        if existing.get(item_id, {}).get("status") == "ok":
-                            summary.skipped += 1
-                            if on_item:
-                                on_item({"condition": cond.name, "item_id": item_id, "status": "skipped"})
-                            continue
-                        rec = _run_item(policy, cond, banks, kind, item, memory, pid)
-                        fh.write(json.dumps(rec, ensure_ascii=False, default=str) + "\n")
-                        fh.flush()
-                        summary.done += 1
-                        summary.failed += rec["status"] != "ok"
-                        if on_item:
-                            on_item(rec)
-            summary.per_condition_seconds[cond.name] = summary.per_condition_seconds.get(cond.name, 0.0) + (
-                time.perf_counter() - t_cond)
 
 
 class _LockedTools:
@@ -518,7 +365,7 @@ class _LockedCondition:
 
 
 def _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summary, on_item, concurrency) -> None:
-    """`_run_plan` with `concurrency` items in flight: the same jobs in the same order, and
+    """`run_plan` with `concurrency` items in flight: the same jobs in the same order, and
     records written in that order as soon as every earlier one is written."""
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
@@ -578,7 +425,7 @@ def _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summa
                         if skip:
                             results[i] = None
                         else:
-                            pending[pool.submit(_run_item, policy, _LockedCondition(cond, shared), shared, kind, item,
+                            pending[pool.submit(run_item, policy, _LockedCondition(cond, shared), shared, kind, item,
                                                 memories[pid], pid)] = i
                         i += 1
                     write_ready()
@@ -587,7 +434,7 @@ def _run_plan_concurrent(out, banks, conds, kinds, plan, memories, policy, summa
                     done, _ = wait(pending, return_when=FIRST_COMPLETED)
                     for fut in done:
                         j = pending.pop(fut)
-                        results[j] = fut.result()  # _run_item records failures; anything else is a bug
+                        results[j] = fut.result()  # run_item records failures; anything else is a bug
                         pid = jobs[j][0]
                         left[pid] -= 1
                         if left[pid] == 0:

@@ -96,10 +96,6 @@ class EamQuestion(_Record):
             raise ValueError("correct_answer: 'E' on an item with is_unanswerable false")
         return self
 
-    @property
-    def correct_index(self) -> int:
-        return LETTERS.index(self.correct_answer)
-
     def answering_view(self) -> dict[str, Any]:
         """What the answering agent receives: no key, no ground truth, no provenance, no audit.
 
@@ -204,10 +200,6 @@ class GeneralizeTask(_Record):
         if any(not s.strip() for s in self.ground_truth_steps):
             raise ValueError("ground_truth_steps: a step is empty")
         return self
-
-
-def is_generalize_task_id(task_id: str) -> bool:
-    return task_id.startswith(GENERALIZE_PREFIX)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -106,10 +106,10 @@ def consolidate_bank_on_ray(executor, bank: Bank, participants: list[str], proce
                             llm_options: dict | None, on_done: Callable[[str], None] | None = None,
                             on_step: Callable[[str, str], None] | None = None,
                             on_notice: Callable[[str], None] | None = None) -> BankConsolidation:
-    """`consolidate_bank` with one Ray task per participant (memora_graph/executors/build.py):
+    """`consolidate_bank` with one Ray task per participant (memora_graph/consolidate/ray.py):
     the same rows and failure lines; the tasks' model calls join `processors.call_log`.
     `processor` is the registered name the tasks build their own processors from."""
-    from memora_graph.executors.build import consolidate_on_ray
+    from memora_graph.consolidate.ray import consolidate_on_ray
 
     _check_writable(bank, participants)
     out = BankConsolidation()

@@ -56,7 +56,7 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     from memora_graph.bank import Bank
     from memora_graph.consolidate import get_processors
     from memora_graph.consolidate.bank import consolidate_bank, consolidation_targets
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
 
     ex = executor_from(executor, ray_address, retries, ray_shared, base_url)
     base_url = ex.base_urls[0] if ex.base_urls else None  # a list is spread over the Ray tasks

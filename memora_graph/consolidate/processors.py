@@ -5,7 +5,8 @@
 generated preferences. The deterministic policies are the default (CPU, no model). The LLM
 processor (roles "consolidation" and "enrichment" of `memora_graph.llm`, in
 `memora_graph.consolidate.llm`) is registered as "llm" and returns the same records; evidence
-checking and storage do not change. A factory takes options, so one that needs a model server
+checking and storage do not change. This module is the interface and the registry; the built-in
+processors are registered where they are run (run.py). A factory takes options, so one that needs a model server
 is configured through the same lookup:
 
     get_processors("deterministic")
@@ -95,19 +96,3 @@ def get_processors(name: str = "deterministic", options: dict[str, Any] | None =
 
 def processor_names() -> list[str]:
     return sorted(_REGISTRY)
-
-
-def _deterministic() -> Processors:
-    from memora_graph.consolidate.rules import RuleConsolidator, RuleEnricher
-
-    return Processors("deterministic", RuleConsolidator(), RuleEnricher())
-
-
-def _llm(**options) -> Processors:
-    from memora_graph.consolidate.llm import make_llm_processors
-
-    return make_llm_processors(**options)
-
-
-register_processor("deterministic", _deterministic)
-register_processor("llm", _llm)

@@ -23,6 +23,7 @@ from memora_graph.consolidate.records import (
     StoragePreference, VideoConsolidation, WorkflowPattern,
 )
 from memora_graph.sequences import lcs_length
+from memora_graph.text import uniq as _uniq
 
 
 def _conf(x: float) -> float:
@@ -46,10 +47,6 @@ def _merge_videos(parts: list[dict[str, int]]) -> dict[str, int]:
     for p in parts:
         out.update(p)
     return dict(sorted(out.items()))
-
-
-def _uniq(items) -> list:
-    return list(dict.fromkeys(items))
 
 
 def stable_id(participant: str, kind: str, *key) -> str:

@@ -24,9 +24,9 @@ import polars as pl
 from memora_graph import schema
 from memora_graph.bank import Bank
 from memora_graph.consolidate.memory import ParticipantMemory, load_memory
-from memora_graph.consolidate.processors import Processors, StepReport, get_processors
+from memora_graph.consolidate.processors import Processors, StepReport, get_processors, register_processor
 from memora_graph.consolidate.records import Consolidation, Enrichment
-from memora_graph.consolidate.rules import stable_id
+from memora_graph.consolidate.rules import RuleConsolidator, RuleEnricher, stable_id
 from memora_graph.errors import ConsolidationError
 from memora_graph.llm.backends import CallRecord
 from memora_graph.embed import encode_passages
@@ -391,3 +391,22 @@ def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = 
     if timings is not None:
         timings.update(spent, checkpoint=t4 - t3, manifest=time.perf_counter() - t4)
     return knowledge
+
+
+# -- the built-in processors ---------------------------------------------------------------------------
+
+
+def deterministic_processors() -> Processors:
+    """The rule-based processors (CPU, no model): the default."""
+    return Processors("deterministic", RuleConsolidator(), RuleEnricher())
+
+
+def llm_processors(**options) -> Processors:
+    """The model-backed processors (memora_graph/consolidate/llm), imported only when asked for."""
+    from memora_graph.consolidate.llm import make_llm_processors
+
+    return make_llm_processors(**options)
+
+
+register_processor("deterministic", deterministic_processors)
+register_processor("llm", llm_processors)

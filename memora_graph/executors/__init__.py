@@ -7,8 +7,9 @@ shard per (condition, participant). Under `ray` a task does one participant (or 
 worker's own scratch space and hands back what it made; the driver, the process that runs the
 command, installs it into the bank (or the run folder) exactly as the local executor would, so
 the bank and its manifest only ever change on the driver. See `executors/bundle.py` (moving a
-participant's files), `executors/tasks.py` (submitting, retrying, progress), `executors/build.py`
-and `executors/evaluate.py` (the work).
+participant's files) and `executors/tasks.py` (submitting, retrying, progress). This package knows
+no work of its own: each Ray task sits beside the work it runs (`pipeline/ray.py` builds,
+`consolidate/ray.py` consolidation, `bench/ray.py` evaluation shards).
 
 Ray is an optional extra: `pip install -e '.[ray]'`.
 """
@@ -96,14 +97,6 @@ def require_ray():
     except ImportError:
         raise MemoraError(INSTALL_HINT) from None
     return ray
-
-
-def ray_available() -> bool:
-    try:
-        import ray  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 def cpu_count() -> int:

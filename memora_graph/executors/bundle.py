@@ -22,7 +22,7 @@ import tempfile
 import uuid
 from pathlib import Path
 
-from memora_graph.bank import Bank, _now
+from memora_graph.bank import Bank
 from memora_graph.errors import BankError
 from memora_graph.integrity.files import side_files
 
@@ -106,8 +106,7 @@ def install(bank: Bank, participant: str, sealed: dict) -> None:
             if size != integ.get("bytes") or digest != integ.get("sha256"):
                 raise BankError(f"{participant}: the database a task handed back does not match the hash recorded "
                                 "with it (damaged in transfer); the bank was not changed")
-            mark = {"op": "build", "pid": os.getpid(), "since": _now()}
-            bank.update_manifest(lambda data: data.setdefault("writing", {}).__setitem__(participant, mark))
+            bank.mark_writing(participant, "build")
             for side in side_files(db):  # an interrupted build's log: the new file holds everything it had
                 side.unlink()
             name_it()

@@ -18,10 +18,11 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from memora_graph.executors import Executor, cpu_count, require_ray
+from memora_graph.executors import Executor, TasksFailed, cpu_count, require_ray
 
 log = logging.getLogger("memora_graph.executors")
 ENV_PREFIXES = ("MEMORA_",)  # settings tasks inherit from the driver (e.g. MEMORA_NO_VERIFY)
+_PROCESS: dict = {}  # per worker process: whether threads were limited, model load time not yet reported
 
 
 @dataclass
@@ -162,3 +163,55 @@ def run_tasks(ex: Executor, fn: Callable, jobs: list[tuple[str, Callable[[int], 
             pass
     return outcomes
 
+
+
+# -- what every participant task shares (pipeline/ray.py, consolidate/ray.py) -----------------------
+
+
+def one_thread() -> None:
+    """Each task has one CPU: torch and BLAS on one thread, as the local worker processes do."""
+    if _PROCESS.get("threads"):
+        return
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+    except ImportError:
+        pass
+    import torch
+
+    torch.set_num_threads(1)
+    _PROCESS["threads"] = True
+
+
+def task_embedder(embed_model: str | None):
+    """The embedding model, loaded once per worker process; the first task reports the time."""
+    import time
+
+    from memora_graph.embed import get_embedder
+
+    t0 = time.perf_counter()
+    embedder = get_embedder(embed_model)
+    seconds = 0.0
+    if not _PROCESS.get("model_loaded"):
+        embedder.encode(["warm up"])
+        seconds = time.perf_counter() - t0
+        _PROCESS["model_loaded"] = True
+    return embedder, seconds
+
+
+def participants_failed(what: str, outcomes: dict, done: list[str]) -> TasksFailed:
+    """The error of a run whose participants in `outcomes` failed on every attempt; `done` were
+    `what` (built, consolidated) and installed."""
+    failed = {k: o.error for k, o in outcomes.items() if o.error}
+    lines = "; ".join(f"{k} failed on all {outcomes[k].attempts} attempt(s) ({e})" for k, e in sorted(failed.items()))
+    kept = f"the other {len(done)} were {what} and installed" if done else "none was installed"
+    return TasksFailed(f"{lines}. {kept}; the failed participant(s) were left as they were in the bank. Re-run "
+                       "the same command to try them again.", failed)
+
+
+def retry_notice(on_notice: Callable[[str], None] | None) -> Callable[[str, int, str], None] | None:
+    """`run_tasks`' on_retry that tells `on_notice` of each failed attempt."""
+    if on_notice is None:
+        return None
+    return lambda key, attempt, why: on_notice(f"{key}: attempt {attempt} failed ({why}); trying again")

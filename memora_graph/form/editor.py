@@ -71,12 +71,6 @@ def compatible(entity: EntityState, attrs: dict[str, str]) -> bool:
     return all(not getattr(entity, k) or getattr(entity, k) == v for k, v in attrs.items())
 
 
-@dataclass
-class Decision:
-    op: EditOp
-    entity: EntityState | None = None  # the matched entity (None for ADD)
-
-
 class EditPolicy(Protocol):
     name: str
     # True where `decide` reads only the live entities of each observation's own kind (by name):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import polars as pl
 
-from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, _alive
+from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, pid_alive
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
 from memora_graph.integrity.files import file_kind, file_sha256, probe, side_files
@@ -78,7 +78,7 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
            "other_participant_rows": None, "wal": "present" if any(s.suffix == ".wal" for s in sides) else "none",
            "shadow": "present" if any(s.suffix == ".shadow" for s in sides) else "none", "write": "-", "staging": "-"}
     if mark:
-        alive = _alive(mark.get("pid"))
+        alive = pid_alive(mark.get("pid"))
         row["write"] = f"{'running' if alive else 'interrupted'} {mark.get('op', 'write')} ({mark.get('since', '?')})"
         problems.append(bank.interrupted_message(p, mark))
     try:
@@ -196,7 +196,7 @@ def accept(path: str | Path, participant: str) -> dict:
     if participant not in data["participants"]:
         raise BankError(bank._not_listed(participant, data))
     mark = data.get("writing", {}).get(participant)
-    if mark and _alive(mark.get("pid")):
+    if mark and pid_alive(mark.get("pid")):
         raise BankError(bank.interrupted_message(participant, mark))
     if mark and mark.get("op") == "build":
         raise BankError(f"{db}: its build was interrupted; resume it with `memora build {bank.path} --participants "

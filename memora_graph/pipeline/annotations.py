@@ -246,7 +246,7 @@ def build_bank(
                 on_notice(f"rebuilding {p} from its first video ({', '.join(ids)}): memory formation is sequential, "
                           f"so a video is rebuilt with the participant that owns it")
         if executor is not None and executor.remote:
-            from memora_graph.executors.build import build_on_ray
+            from memora_graph.pipeline.ray import build_on_ray
 
             results = build_on_ray(executor, bank, found, df, durations, classes, embed_model, on_video, opts, results,
                                    on_notice)

@@ -1,5 +1,5 @@
 """One participant's build and finish, the step every annotation build runs: in this process,
-in a worker process (workers.py) or in a Ray task (executors/build.py)."""
+in a worker process (workers.py) or in a Ray task (ray.py)."""
 
 from __future__ import annotations
 

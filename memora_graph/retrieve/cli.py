@@ -1,4 +1,4 @@
-"""`memora tools`, `memora tool` and `memora perf tools`: parse, call the library, render."""
+"""`memora tools` and `memora tool`: parse, call the library, render."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from memora_graph.cli_options import FAMILY, RECIPE, check_participant_option, participants_option
+from memora_graph.cli_options import FAMILY, RECIPE, check_participant_option
 from memora_graph.output import output_options, render
 
 if TYPE_CHECKING:
@@ -174,35 +174,3 @@ def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
         head = {k: v for k, v in result.items() if k not in lists and k != "evidence"}
         click.echo(json.dumps(head, ensure_ascii=False, default=str)[:2000])
     click.echo(render(records_frame(res, compact=fmt == "table"), fmt))
-
-
-@click.command("tools")
-@click.argument("bank", type=click.Path(exists=True, file_okay=False), default="banks/epic")
-@participants_option()
-@click.option("--queries", "n_queries", default=10, show_default=True, help="Queries per tool and participant.")
-@click.option("--recipes", default="inprocess,fts,kuzu", show_default=True,
-              help="Retrieval variants to time (see memora_graph/retrieve/search.py).")
-@click.option("--hnsw/--no-hnsw", default=True, show_default=True,
-              help="Also build HNSW indexes on a temporary copy of a few participants and measure them.")
-@output_options
-def perf_tools_cmd(bank, participants, n_queries, recipes, hnsw, fmt):
-    """Time every tool over a fixed query set: p50 / p95 per call (query embedding included),
-    next to the exact numpy top-k floor, and recall@10 of every vector search against exact.
-
-    Cold = a query seen for the first time (it is embedded); warm = its embedding is cached
-    (an agent repeating a query, or `search` fanning one query out to every store).
-
-    \b
-    Examples:
-      memora perf tools banks/epic
-      memora perf tools banks/epic --participants P01,P03 --queries 5 --no-hnsw
-    """
-    from memora_graph.retrieve.perf import run_perf
-
-    report = run_perf(bank, participants, n_queries=n_queries, recipes=[r.strip() for r in recipes.split(",") if r.strip()],
-                      hnsw=hnsw, echo=click.echo)
-    click.echo(render(report.latency, fmt))
-    if fmt == "table":
-        click.echo(render(report.recall, fmt))
-        for line in report.summary:
-            click.echo(line)

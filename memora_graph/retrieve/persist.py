@@ -23,13 +23,11 @@ import json
 import logging
 import os
 import shutil
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from memora_graph.retrieve.search import Bm25, VectorTable
+from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 
 FORMAT = 1
 DIRNAME = "tools-{participant}"
@@ -136,8 +134,6 @@ class PersistedStores:
 def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) -> Path:
     """Warm `view` (open on the database) and persist what it loaded. The directory is replaced
     whole (written aside, then renamed), so a reader sees the old files or the new ones."""
-    from memora_graph.retrieve.view import TABLES
-
     root = store_dir(bank_path, view.participant)
     tmp = root.with_name(f".{root.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -181,26 +177,3 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return root
-
-
-@dataclass
-class Persisted:
-    written: list[Path] = field(default_factory=list)
-    seconds: float = 0.0
-
-
-def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
-    """Write the persisted tool stores of each participant (all by default) whose files are
-    missing or stale (after a build or `memora consolidate`); returns the directories written."""
-    from memora_graph.bank import Bank
-    from memora_graph.retrieve.view import MemoryView
-
-    t0 = time.perf_counter()
-    bank = Bank(bank_path)
-    out = Persisted()
-    for p in bank.participants() if participants is None else participants:
-        with MemoryView.open(bank_path, p, persist=True) as view:
-            if view.persisted_written is not None:
-                out.written.append(view.persisted_written)
-    out.seconds = time.perf_counter() - t0
-    return out

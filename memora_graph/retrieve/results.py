@@ -15,7 +15,7 @@ out, so a record shows only what its store holds.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_serializer
 
@@ -387,6 +387,9 @@ class PatternRecord(Record):
 
 # -- results ------------------------------------------------------------------------------------
 
+R = TypeVar("R", bound=Record)
+
+
 class ToolResult(Model):
     """The envelope every tool result shares. Subclasses name their record lists in `_lists`."""
 
@@ -430,28 +433,28 @@ class SearchResult(MemoraResult):
     notes: list[str] | None = None
 
 
-class ObjectsResult(MemoraResult):
+class ListResult(MemoraResult, Generic[R]):
+    """A tool's ranked records of one kind, under `results`."""
+
     _lists = ("results",)
-    results: list[ObjectRecord]
+    results: list[R]
     notes: list[str] | None = None
 
 
-class ActivitiesResult(MemoraResult):
-    _lists = ("results",)
-    results: list[ActivityRecord]
-    notes: list[str] | None = None
+class ObjectsResult(ListResult[ObjectRecord]):
+    pass
 
 
-class PlacesResult(MemoraResult):
-    _lists = ("results",)
-    results: list[PlaceRecord]
-    notes: list[str] | None = None
+class ActivitiesResult(ListResult[ActivityRecord]):
+    pass
 
 
-class PatternsResult(MemoraResult):
-    _lists = ("results",)
-    results: list[PatternRecord]
-    notes: list[str] | None = None
+class PlacesResult(ListResult[PlaceRecord]):
+    pass
+
+
+class PatternsResult(ListResult[PatternRecord]):
+    pass
 
 
 class RoutinesResult(MemoraResult):

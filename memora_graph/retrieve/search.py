@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict
 
 from memora_graph.text import index_tokens
 
+TABLES = ("segment", "entity", "place", "routine", "preference")  # the tables with vectors and BM25
 DEFAULT_TOP_K = 10
 MAX_TOP_K = 30
 

@@ -13,7 +13,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
 from collections import Counter, defaultdict
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -21,15 +23,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from memora_graph.bank import Bank
+from memora_graph.embed import single_thread_blas
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
-from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, Bm25, SearchConfig, VectorTable
+from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
+    VectorTable
 
 if TYPE_CHECKING:
     from memora_graph.retrieve.persist import PersistedStores
     from memora_graph.store import Store
 
-TABLES = ("segment", "entity", "place", "routine", "preference")
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 log = logging.getLogger("memora_graph.integrity")
 TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
@@ -37,24 +40,6 @@ TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted s
 
 class ToolError(MemoraError):
     """A tool called with arguments it cannot answer (the message says what would work)."""
-
-
-_BLAS_LIMITED = False
-
-
-def _single_thread_blas() -> None:
-    """Tool calls do small matrix products (a query against <= 1.4k rows); on the 2-core
-    machines this project targets, OpenBLAS' worker threads make such a product many times
-    slower (the same spin as torch's; docs/performance.md). Limit BLAS to one thread, once per process."""
-    global _BLAS_LIMITED
-    if _BLAS_LIMITED:
-        return
-    _BLAS_LIMITED = True
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return
-    threadpool_limits(limits=1, user_api="blas")
 
 
 def _config(config: SearchConfig | str) -> SearchConfig:
@@ -80,7 +65,7 @@ class MemoryView:
         instead of Kùzu for what they hold) and `open_store()` to open the database when a tool
         needs something else (`MemoryView.open` does that). `config`: a recipe name (RECIPES) or a
         SearchConfig; None picks one by the memory's size (`auto_recipe`)."""
-        _single_thread_blas()
+        single_thread_blas()
         self._store = store
         self._open_store = open_store
         self._persisted = persisted
@@ -335,6 +320,26 @@ class MemoryView:
 def _writable(bank: Path) -> bool:
     cache = bank / ".cache"
     return os.access(cache if cache.is_dir() else bank, os.W_OK)
+
+
+@dataclass
+class Persisted:
+    written: list[Path] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -> Persisted:
+    """Write the persisted tool stores of each participant (all by default) whose files are
+    missing or stale (after a build or `memora consolidate`); returns the directories written."""
+    t0 = time.perf_counter()
+    bank = Bank(bank_path)
+    out = Persisted()
+    for p in bank.participants() if participants is None else participants:
+        with MemoryView.open(bank_path, p, persist=True) as view:
+            if view.persisted_written is not None:
+                out.written.append(view.persisted_written)
+    out.seconds = time.perf_counter() - t0
+    return out
 
 
 class ObservationGraph:

@@ -1,10 +1,8 @@
-"""`memora serve` and `memora perf serve`: parse, call the library, render."""
+"""`memora serve`: parse, call the library, render."""
 
 from __future__ import annotations
 
 import click
-
-from memora_graph.output import output_options, render
 
 
 def _confinement() -> str:
@@ -86,36 +84,3 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
                 f"memora serve: {bank} ({who}) at {url}", err=True))
     finally:
         service.close()
-
-
-@click.command("serve")
-@click.argument("bank", type=click.Path(exists=True, file_okay=False))
-@click.option("--participant", required=True, help="Whose memory the server serves (P01).")
-@click.option("--repeat", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Timed calls of each argument set.")
-@click.option("--cypher-repeat", type=click.IntRange(min=0), default=3, show_default=True,
-              help="Timed calls of the cypher tool (a child process per call: about half a second each).")
-@click.option("--output-schemas", is_flag=True,
-              help="Time the server with `--output-schemas` (the client then validates every result).")
-@output_options
-def perf_serve_cmd(bank, participant, repeat, cypher_repeat, output_schemas, fmt):
-    """Warm tool-call latency of `memora serve` over streamable HTTP on loopback.
-
-    Starts `memora serve BANK --participant P --transport http --port 0` as a child process,
-    connects with the `mcp` SDK's client, calls every tool once to warm it, then times each
-    call (client-side: request to parsed result) and prints p50 / p95 per tool, next to the same
-    calls made in process (no protocol), so the protocol's share shows.
-
-    \b
-    Examples:
-      memora perf serve banks/epic --participant P01
-      memora perf serve banks/epic --participant P03 --repeat 50 --json
-      memora perf serve banks/epic --participant P01 --output-schemas
-    """
-    from memora_graph.serve.perf import run_perf
-
-    report = run_perf(bank, participant, repeat=repeat, cypher_repeat=cypher_repeat, output_schemas=output_schemas)
-    click.echo(render(report.frame, fmt))
-    if fmt == "table":
-        for line in report.summary:
-            click.echo(line)

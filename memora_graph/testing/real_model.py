@@ -204,7 +204,7 @@ class LlamaServer:
 
 
 @dataclass
-class Step:
+class CheckStep:
     """One command of the check and what it cost."""
 
     name: str
@@ -229,12 +229,12 @@ class CheckResult:
     run: Path
     server_log: Path
     base_url: str
-    steps: list[Step]
+    steps: list[CheckStep]
     seconds: float
     counts_before: dict[str, int] = field(default_factory=dict)  # P09's graph, before consolidation
     counts_after: dict[str, int] = field(default_factory=dict)
 
-    def step(self, name: str) -> Step:
+    def step(self, name: str) -> CheckStep:
         return next(s for s in self.steps if s.name == name)
 
     def rows(self) -> list[dict[str, Any]]:
@@ -248,7 +248,7 @@ def memora_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "memora_graph.cli", *args]
 
 
-def _run(step: Step, timeout_s: float, log: Callable[[str], None]) -> Step:
+def _run(step: CheckStep, timeout_s: float, log: Callable[[str], None]) -> CheckStep:
     shown = ["memora", *step.command[3:]] if step.command[1:3] == ["-m", "memora_graph.cli"] else step.command
     log("$ " + " ".join(shown))
     t0 = time.perf_counter()
@@ -274,7 +274,7 @@ def _graph_counts(bank: Path, participant: str) -> dict[str, int]:
     return counts
 
 
-def _bench_figures(step: Step, run: Path) -> None:
+def _bench_figures(step: CheckStep, run: Path) -> None:
     from memora_graph.llm import CallLog
 
     calls = CallLog.read_jsonl(run / "model_calls.jsonl") if (run / "model_calls.jsonl").exists() else []
@@ -300,7 +300,7 @@ def _bench_figures(step: Step, run: Path) -> None:
     }
 
 
-def _consolidation_figures(step: Step, bank: Path, participant: str) -> None:
+def _consolidation_figures(step: CheckStep, bank: Path, participant: str) -> None:
     from memora_graph.stats import call_stats
 
     by_role = call_stats(bank, [participant], "role")
@@ -341,7 +341,7 @@ def run_check(
     bank, run = workdir / "bank", workdir / "run"
     participants = sorted({*bench_participants, consolidate_participant})
     t0 = time.perf_counter()
-    steps = [_run(Step("build", memora_command("build", str(bank), "--participants", ",".join(participants),
+    steps = [_run(CheckStep("build", memora_command("build", str(bank), "--participants", ",".join(participants),
                                                "--quiet")), step_timeout_s, log)]
     if steps[0].returncode != 0:
         raise MemoraError(f"memora build failed (exit {steps[0].returncode}):\n{steps[0].output[-3000:]}")
@@ -353,12 +353,12 @@ def run_check(
         common = ("--backend", "openai", "--base-url", srv.base_url, "--model", server.model_alias)
         client_opts = ("-o", "max_retries", str(client.max_retries), "-o", "timeout_s", str(client.timeout_s),
                        "-o", "temperature", str(client.temperature))
-        bench = _run(Step("bench run", memora_command(
+        bench = _run(CheckStep("bench run", memora_command(
             "bench", "run", str(bank), "--out", str(run), "--conditions", ",".join(conditions),
             "--participants", ",".join(bench_participants), "--limit", str(limit), *common, *client_opts,
             "-o", "max_tokens", str(client.answer_max_tokens), "--concurrency", "1", "--quiet")), step_timeout_s, log)
         steps.append(bench)
-        consolidate = _run(Step("consolidate --processor llm", memora_command(
+        consolidate = _run(CheckStep("consolidate --processor llm", memora_command(
             "consolidate", str(bank), "--participants", consolidate_participant, "--processor", "llm", *common,
             *client_opts, "-o", "max_tokens", str(client.structured_max_tokens),
             "-o", "structured_output", "json_object", "--concurrency", "1", "--quiet")), step_timeout_s, log)

@@ -66,7 +66,7 @@ def video(body: dict[str, Any]) -> Turn:
     """The video build's models: perception (a plausible layered record, objects moving between
     places), the entity editor (ADD for every observation group), and the smallest valid reply
     for any other structured step (consolidation, enrichment)."""
-    from memora_graph.perf_video import scripted_perception
+    from memora_graph.testing.synthetic import scripted_perception
 
     fmt = (body.get("response_format") or {})
     schema = (fmt.get("json_schema") or {}).get("schema") or fmt.get("schema") or {}

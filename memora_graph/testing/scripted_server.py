@@ -133,10 +133,6 @@ class ScriptedServer:
             raise RuntimeError("ScriptedServer was never started; use it as a context manager")
         return f"http://127.0.0.1:{self._port}/v1"
 
-    @property
-    def last_request(self) -> dict[str, Any]:
-        return self.requests[-1]
-
     # -- lifecycle ----------------------------------------------------------------------------
 
     def start(self) -> "ScriptedServer":

@@ -83,9 +83,6 @@ class ParticipantDump:
         return {FORMAT_KEY: FORMAT_VERSION, "participant": self.participant, "exported_at": self.exported_at,
                 "bank": self.bank, "manifest": self.manifest, "migrations": self.migrations}
 
-    def table_rows(self) -> dict[str, int]:
-        return {t.key: t.frame.height for t in self.tables}
-
     def nodes(self) -> list[Table]:
         return [t for t in self.tables if t.kind == "NODE"]
 

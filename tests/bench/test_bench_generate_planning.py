@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from memora_graph.bench.behaviour import Action, Step, build_behaviours, noun_text
+from memora_graph.bench.behaviour import Action, ActionRow, build_behaviours, noun_text
 from memora_graph.bench.generate_generalize import FAMILIES, generate_generalize
 from memora_graph.bench.generate_replay import (
     ReplayConfig, classify_task, enrich_narration, generate_replay, match_object, match_score, repeat_rate,
@@ -50,8 +50,8 @@ def test_typing_thresholds_worked_by_hand():
     assert classify_task(["take", "put"], ["milk", "cup"]) == "routine_reproduction"
 
 
-def _step(i: int, start: float, verb: str = "take", stop: float | None = None) -> Step:
-    return Step(f"P00_100_{i}", "P00_100", start, start + 1 if stop is None else stop, f"{verb} thing", verb, "thing",
+def _step(i: int, start: float, verb: str = "take", stop: float | None = None) -> ActionRow:
+    return ActionRow(f"P00_100_{i}", "P00_100", start, start + 1 if stop is None else stop, f"{verb} thing", verb, "thing",
                 Action(verb, "thing"), "", "", "annotation")
 
 

@@ -14,7 +14,7 @@ import pytest
 from memora_graph.bench.behaviour import FILLER_VERB_KEYS, noun_text
 from memora_graph.bench.generate import generate_suite
 from memora_graph.bench.generate_qa import (
-    Candidate, QaConfig, QaGenerator, VectorCache, allocate, apply_type_cap, balanced_letters, control_quota,
+    QuestionCandidate, QaConfig, QaGenerator, VectorCache, allocate, apply_type_cap, balanced_letters, control_quota,
     rank_candidates, rewrite_participant, select_answerable,
 )
 from memora_graph.bench.tasks import OPTION_E
@@ -218,8 +218,8 @@ class _FakeEmbedder:
         return np.stack(out)
 
 
-def _cand(stem: str, answer: str, strength: float = 1.0) -> Candidate:
-    return Candidate("SHabit", 1, "t", stem, answer, ["x", "y", "z"], ["V1", "V2"], strength, {}, [], topic=stem)
+def _cand(stem: str, answer: str, strength: float = 1.0) -> QuestionCandidate:
+    return QuestionCandidate("SHabit", 1, "t", stem, answer, ["x", "y", "z"], ["V1", "V2"], strength, {}, [], topic=stem)
 
 
 def test_semantic_dedup_drops_a_near_duplicate_only_when_it_makes_the_same_claim():
@@ -252,14 +252,14 @@ def test_semantic_dedup_with_the_bundled_minilm(cohort_annotations, embedder):
 def test_rank_removes_exact_duplicates_and_spreads_topics():
     a = _cand("After X, what next?", "Y", 5)
     b = _cand("after x,  what next", "y", 4)  # same text once normalized
-    c = Candidate("SHabit", 1, "t", "After Z?", "W", ["1", "2", "3"], ["V"], 4.5, {}, [], topic="other")
+    c = QuestionCandidate("SHabit", 1, "t", "After Z?", "W", ["1", "2", "3"], ["V"], 4.5, {}, [], topic="other")
     ranked = rank_candidates([a, b, c], random.Random(0))
     assert [x.stem for x in ranked[("SHabit", 1)]] == ["After X, what next?", "After Z?"]
 
 
 def test_type_cap_allocation_and_rewrite():
     items = [_cand(f"s{i}", "a") for i in range(6)] + [
-        Candidate("SPref", 1, "t", "p", "a", ["x", "y", "z"], ["V"], 1, {}, []) for _ in range(2)]
+        QuestionCandidate("SPref", 1, "t", "p", "a", ["x", "y", "z"], ["V"], 1, {}, []) for _ in range(2)]
     capped, dropped = apply_type_cap(items, 0.5)
     assert dropped == 4 and Counter(c.qa_type for c in capped) == {"SHabit": 2, "SPref": 2}
     assert allocate(7, {"SPref": 3, "SHabit": 3, "SRoutine": 1, "ERecall": 0}) == {"SPref": 3, "SHabit": 3, "SRoutine": 1, "ERecall": 0}

@@ -101,3 +101,23 @@ def test_memora_conditions_use_the_typed_tools(small_bank, small_episodic_bank):
     assert "P09_" not in str(out)
     assert "unknown tool" in epi.call("get_routine_skill", {"goal_query": "wash"}).error
     assert "time_seconds" in full.call("get_state_at_time", {"time_seconds": "soon"}).error
+
+
+@pytest.mark.parametrize("family", ["flat1d", "graph2d"])
+def test_a_damaged_baseline_cache_is_rebuilt_not_trusted(family, small_bank, tmp_path):
+    """Both baselines share one cache-or-build path: a cache whose JSON is cut short is rebuilt
+    from the bank (and written whole again), and the memory read back matches the first one."""
+    import shutil
+
+    from memora_graph.retrieve.registry import get_family
+
+    src, _ = small_bank
+    bank = tmp_path / "bank"
+    shutil.copytree(src, bank, ignore=shutil.ignore_patterns(".cache"))
+    first = get_family(family).open(bank, "P37").search("wash the plate").model_dump(mode="json")
+    (cached,) = (bank / ".cache").glob(f"{family}-P37-*.json")
+    cached.write_text(cached.read_text()[:100])  # a write cut short
+    again = get_family(family).open(bank, "P37").search("wash the plate").model_dump(mode="json")
+    assert again == first
+    assert cached.read_text()[:100] != cached.read_text(), "the cache was written whole again"
+    assert get_family(family).open(bank, "P37").search("wash the plate").model_dump(mode="json") == first

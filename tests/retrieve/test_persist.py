@@ -13,7 +13,8 @@ from click.testing import CliRunner
 from memora_graph.bank import Bank
 from memora_graph.cli import main
 from memora_graph.retrieve import MemoryView, call_tool
-from memora_graph.retrieve.persist import PersistedStores, StaleStores, persist_bank, store_dir
+from memora_graph.retrieve.persist import PersistedStores, StaleStores, store_dir
+from memora_graph.retrieve.view import persist_bank
 
 P = "P37"
 CALLS = [("search", {"query": "wash the pan"}), ("search_objects", {"query": "knife", "top_k": 10}),

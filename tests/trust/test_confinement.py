@@ -28,7 +28,7 @@ from memora_graph.cli import main
 from memora_graph.confine import NO_GUARD_ENV, NO_LANDLOCK_ENV, mode
 from memora_graph.errors import QueryRefused, StoreError
 from memora_graph.serve import MemoryService
-from memora_graph.serve.perf import ServerProcess
+from memora_graph.perf.serve import ServerProcess
 from memora_graph.serve.service import Busy
 
 pytestmark = pytest.mark.skipif(not mode().confined, reason="this kernel offers no Landlock: " + mode().why)
@@ -109,7 +109,7 @@ def test_with_the_guard_off_the_kernel_stops_every_escape(bank, monkeypatch):
 
 def test_the_issue_repros_fail_through_the_cli_and_mcp(bank):
     path, _ = bank
-    from memora_graph.retrieve.persist import persist_bank
+    from memora_graph.retrieve.view import persist_bank
 
     persist_bank(path, ["P37"])  # the tool stores the issue read P37's (there P09's) rows from
     cache = sorted((path / ".cache").rglob("rows*.json"))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from memora_graph.perf_video import make_synthetic_video
+from memora_graph.testing.synthetic import make_synthetic_video
 
 SHORT_SECONDS = 23.0  # three clips: 0-10, 10-20, 20-23 s
 TONE_HZ = 440.0

@@ -12,7 +12,7 @@ from support.scripted_server import ScriptedServer, Turn
 from memora_graph.bank import Bank
 from memora_graph.errors import DataError
 from memora_graph.perceive.video import probe_video
-from memora_graph.perf_video import make_synthetic_video
+from memora_graph.testing.synthetic import make_synthetic_video
 from memora_graph.pipeline import build_from_video
 
 PERCEPTION = json.dumps({

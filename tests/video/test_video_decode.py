@@ -95,7 +95,7 @@ def test_unreadable_files_fail_clearly(tmp_path, short_video, kind):
 
 
 def test_a_truncated_stream_is_caught_before_and_while_decoding(tmp_path):
-    from memora_graph.perf_video import make_synthetic_video
+    from memora_graph.testing.synthetic import make_synthetic_video
 
     whole = make_synthetic_video(tmp_path / "whole.mkv", SHORT_SECONDS, width=160, height=120, fps=10)
     cut = tmp_path / "cut.mkv"

@@ -18,7 +18,7 @@ from memora_graph.consolidate.llm.replies import ConsolidationReply
 from memora_graph.consolidate.llm.reply_records import _merge_videos, _prep, _records, _Support
 from memora_graph.consolidate.memory import ParticipantMemory, Step, display
 from memora_graph.consolidate.records import Consolidation, VideoConsolidation
-from memora_graph.consolidate.rules import _uniq
+from memora_graph.text import uniq
 
 
 @dataclass
@@ -166,9 +166,9 @@ class LLMConsolidator(_ModelStep):
             """Finding handles -> what the findings rest on; a reference that is no finding of this
             prompt is passed on for the collector to drop."""
             fs, raw = _resolve(refs, handles, _Finding)
-            return _Support(episodes=_uniq([x for f in fs for x in f.record.supporting_episodes] + raw),
-                            segments=_uniq([x for f in fs for x in f.segments] + raw),
-                            entities=_uniq(e for f in fs for e in f.record.entities),
+            return _Support(episodes=uniq([x for f in fs for x in f.record.supporting_episodes] + raw),
+                            segments=uniq([x for f in fs for x in f.segments] + raw),
+                            entities=uniq(e for f in fs for e in f.record.entities),
                             videos=_merge_videos(f.record.videos for f in fs),
                             count=max(sum(f.record.count for f in fs), 1))
 

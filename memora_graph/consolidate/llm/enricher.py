@@ -16,7 +16,8 @@ from memora_graph.consolidate.memory import ParticipantMemory
 from memora_graph.consolidate.records import (
     ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, RoutineSkill,
 )
-from memora_graph.consolidate.rules import RuleEnricher, _uniq
+from memora_graph.consolidate.rules import RuleEnricher
+from memora_graph.text import uniq
 
 
 @dataclass
@@ -43,10 +44,10 @@ class LLMEnricher(_ModelStep):
         lines = []
         shown = _sample(episodes, lim.episodes)
         for ep in shown:
-            video, segments = ep[0].video, _uniq(s.segment for s in ep)
+            video, segments = ep[0].video, uniq(s.segment for s in ep)
             item = _Evidence(segments, {video: 1},
                              Episode(video=video, t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2), segments=segments),
-                             _uniq(o.entity for s in ep for o in s.objects))
+                             uniq(o.entity for s in ep for o in s.objects))
             acts = "; ".join(_action(s) for s in ep[: lim.steps_per_episode])
             if len(ep) > lim.steps_per_episode:
                 acts += f"; ... ({len(ep) - lim.steps_per_episode} more)"
@@ -112,7 +113,7 @@ class LLMEnricher(_ModelStep):
     @staticmethod
     def _cited(refs: list[str], handles: Handles) -> tuple[list[_Evidence], list[str]]:
         items, raw = _resolve(refs, handles, _Evidence)
-        return items, _uniq(raw)
+        return items, uniq(raw)
 
     def _skill(self, it: SkillItem, handles: Handles, names: _Names) -> RoutineSkill:
         items, raw = self._cited(it.supporting_evidence_ids, handles)
@@ -121,8 +122,8 @@ class LLMEnricher(_ModelStep):
         steps = [_clip(s, 80) for s in it.canonical_steps][: self.limits.steps_per_skill]
         return RoutineSkill(
             goal=it.goal, activity_type=_activity(it.activity_type, steps), canonical_steps=steps,
-            key_objects=it.key_objects, supporting_episodes=_uniq(first + raw),
-            segments=_uniq([s for i in items for s in i.segments] + raw), episodes=episodes, count=max(len(items), 1),
+            key_objects=it.key_objects, supporting_episodes=uniq(first + raw),
+            segments=uniq([s for i in items for s in i.segments] + raw), episodes=episodes, count=max(len(items), 1),
             confidence=it.confidence, entities=names.entities(it.key_objects),
             videos=_merge_videos(i.videos for i in items))
 
@@ -131,8 +132,8 @@ class LLMEnricher(_ModelStep):
         subtype = it.subtype.strip().lower()
         return GeneratedPreference(
             subtype=subtype if subtype in ALLOWED_SUBTYPES else "other", preference=it.preference,
-            keywords=_uniq(k.lower() for k in it.keywords)[:12], objects=it.objects, context=it.context,
+            keywords=uniq(k.lower() for k in it.keywords)[:12], objects=it.objects, context=it.context,
             count=max(len(items), 1), confidence=it.confidence,
             evidence_summary=it.evidence_summary or f"{len(items)} evidence item(s)",
-            supporting_evidence_ids=_uniq([s for i in items for s in i.segments] + raw),
+            supporting_evidence_ids=uniq([s for i in items for s in i.segments] + raw),
             entities=names.entities(it.objects), videos=_merge_videos(i.videos for i in items))

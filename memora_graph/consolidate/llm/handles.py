@@ -10,7 +10,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from memora_graph.consolidate.memory import Step, display
-from memora_graph.consolidate.rules import _uniq
+from memora_graph.text import uniq
 
 
 _HANDLE = re.compile(r"^\[?\s*([A-Za-z]?)\s*0*(\d+)\s*\]?$")
@@ -70,7 +70,7 @@ def _segment_refs(refs: Iterable[str], handles: Handles) -> list[str]:
     for r in refs:
         v = handles.get(r)
         out.append(v if v is not None else r)
-    return _uniq(out)
+    return uniq(out)
 
 
 def _resolve(refs: list[str], handles: Handles, kind: type) -> tuple[list, list[str]]:

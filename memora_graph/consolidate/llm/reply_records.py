@@ -15,7 +15,7 @@ from memora_graph.consolidate.llm.replies import ConsolidationReply
 from memora_graph.consolidate.records import (
     ActionSequence, OrganizationalHabit, StoragePreference, WorkflowPattern,
 )
-from memora_graph.consolidate.rules import _uniq
+from memora_graph.text import uniq
 
 
 def _context(value: str) -> str:
@@ -85,20 +85,20 @@ def _records(reply: ConsolidationReply, support: Callable[[list[str]], _Support]
         out["storage_preferences"].append(StoragePreference(
             object=_slug(obj), object_name=obj, statement=_storage_statement(obj, where, ctx), preferred_location=where,
             context=ctx, count=sp.count, total=sp.count, confidence=it.confidence, supporting_episodes=sp.episodes,
-            entities=_uniq(sp.entities + names.entities([it.object])), videos=sp.videos))
+            entities=uniq(sp.entities + names.entities([it.object])), videos=sp.videos))
     for it in reply.organizational_habits[:cap]:
         sp = support(it.supporting_episodes)
         out["organizational_habits"].append(OrganizationalHabit(
             trigger=it.trigger or it.habit, next_action=it.next_action, habit=it.habit, count=sp.count,
             trigger_count=sp.count, objects_involved=it.objects_involved, confidence=it.confidence,
-            supporting_episodes=sp.episodes, entities=_uniq(sp.entities + names.entities(it.objects_involved)),
+            supporting_episodes=sp.episodes, entities=uniq(sp.entities + names.entities(it.objects_involved)),
             videos=sp.videos))
     for it in reply.workflow_patterns[:cap]:
         sp = support(it.supporting_episodes)
         out["workflow_patterns"].append(WorkflowPattern(
             pattern=it.pattern, category=it.category or "objects", use=it.use, then=it.then, objects=it.objects,
             count=sp.count, confidence=it.confidence, supporting_episodes=sp.episodes,
-            entities=_uniq(sp.entities + names.entities(it.objects)), videos=sp.videos))
+            entities=uniq(sp.entities + names.entities(it.objects)), videos=sp.videos))
     for it in reply.action_sequences[:cap]:
         sp = support(it.supporting_episodes)
         steps = [_clip(x, 80) for x in it.key_steps][: lim.steps_per_skill]
@@ -106,5 +106,5 @@ def _records(reply: ConsolidationReply, support: Callable[[list[str]], _Support]
             title=it.goal or it.pattern_name or " -> ".join(steps[:4]), steps=steps,
             activity_type=_activity(it.activity_type, steps), key_objects=it.key_objects, count=sp.count,
             confidence=it.confidence, supporting_episodes=sp.episodes, segments=sp.segments,
-            entities=_uniq(sp.entities + names.entities(it.key_objects)), videos=sp.videos))
+            entities=uniq(sp.entities + names.entities(it.key_objects)), videos=sp.videos))
     return out

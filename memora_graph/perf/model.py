@@ -92,7 +92,7 @@ def bench_rows(bank: Path, base_url: str, conditions: str, limit: int | None, le
 
 
 def video_rows(base_url: str, seconds: float, levels: list[int], tmp: Path) -> list[dict]:
-    from memora_graph.perf_video import make_synthetic_video
+    from memora_graph.testing.synthetic import make_synthetic_video
     from memora_graph.pipeline import build_from_video
 
     videos = tmp / "videos"

@@ -69,7 +69,7 @@ def run_encoder_perf(bank: str | Path, participants: list[str] | None = None, ro
     from memora_graph.bank import Bank
     from memora_graph.embed import QUERY_ENCODERS, CachedEmbedder, SentenceTransformerEmbedder, SplitEmbedder
     from memora_graph.onnx_embed import OnnxEmbedder, export_dir
-    from memora_graph.retrieve.perf import _benchmark_queries, _encoder_agreement
+    from memora_graph.perf.tools import _benchmark_queries, _encoder_agreement
     from memora_graph.retrieve.view import MemoryView
 
     pids = participants or Bank(bank).participants()

@@ -1,6 +1,6 @@
 """Evaluations on Ray: one task per (condition, participant) shard.
 
-A task runs the shard's items with the runner's own code (`bench.run._run_plan`, so each record
+A task runs the shard's items with the runner's own code (`items.run_plan`, so each record
 is what a local run writes) into a scratch run folder, and hands back the records files and its
 model calls. The driver appends them to the run folder as each shard arrives (a killed driver
 keeps the shards it merged; a re-run skips their `ok` items, as a local run does). Items already
@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from memora_graph.bench.conditions import BankSet, get_condition
-from memora_graph.bench.run import KINDS, RunSummary, _one_torch_thread, _run_plan, make_policy, read_records, \
-    record_path
+from memora_graph.bench.items import KINDS, RunSummary, make_policy, one_torch_thread, read_records, record_path, \
+    run_plan
 from memora_graph.executors import Executor, TasksFailed
 from memora_graph.executors.tasks import cluster, run_tasks
 
@@ -37,8 +37,8 @@ def shard_task(banks: BankSet, condition: str, kinds: tuple[str, ...], plan: lis
             policy = make_policy(backend, options, scratch)  # its calls go to scratch/model_calls.jsonl
         summary = RunSummary(scratch)
         t0 = time.perf_counter()
-        with _one_torch_thread():
-            _run_plan(scratch, banks, [get_condition(condition)], kinds, plan, memories, policy, summary,
+        with one_torch_thread():
+            run_plan(scratch, banks, [get_condition(condition)], kinds, plan, memories, policy, summary,
                       lambda rec: progress(rec["item_id"], {k: rec.get(k) for k in ("condition", "item_id", "status")}))
         files = {}
         for kind in kinds:
@@ -56,7 +56,7 @@ def run_shards_on_ray(ex: Executor, out: Path, banks: BankSet, conds: list, kind
                       memories: dict, backend: str, options: dict[str, Any], summary: RunSummary,
                       on_item: Callable[[dict], None] | None = None,
                       on_notice: Callable[[str], None] | None = None) -> None:
-    """The Ray side of `run_bench`: what `_run_plan` would do for `conds` x `plan`, as shards."""
+    """The Ray side of `run_bench`: what `run_plan` would do for `conds` x `plan`, as shards."""
     banks = BankSet(edited=Path(banks.edited).resolve(), raw=Path(banks.raw).resolve() if banks.raw else None,
                     episodic=Path(banks.episodic).resolve() if banks.episodic else None)
     jobs = []

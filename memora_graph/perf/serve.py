@@ -23,9 +23,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import click
 import polars as pl
 
 from memora_graph.errors import MemoraError
+from memora_graph.output import output_options, render
 from memora_graph.serve.service import MemoryService
 
 TARGET_P50_MS = 10.0
@@ -238,3 +240,34 @@ def _mcp_version() -> str:
     from importlib.metadata import version
 
     return version("mcp")
+
+
+@click.command("serve")
+@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.option("--participant", required=True, help="Whose memory the server serves (P01).")
+@click.option("--repeat", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Timed calls of each argument set.")
+@click.option("--cypher-repeat", type=click.IntRange(min=0), default=3, show_default=True,
+              help="Timed calls of the cypher tool (a child process per call: about half a second each).")
+@click.option("--output-schemas", is_flag=True,
+              help="Time the server with `--output-schemas` (the client then validates every result).")
+@output_options
+def perf_serve_cmd(bank, participant, repeat, cypher_repeat, output_schemas, fmt):
+    """Warm tool-call latency of `memora serve` over streamable HTTP on loopback.
+
+    Starts `memora serve BANK --participant P --transport http --port 0` as a child process,
+    connects with the `mcp` SDK's client, calls every tool once to warm it, then times each
+    call (client-side: request to parsed result) and prints p50 / p95 per tool, next to the same
+    calls made in process (no protocol), so the protocol's share shows.
+
+    \b
+    Examples:
+      memora perf serve banks/epic --participant P01
+      memora perf serve banks/epic --participant P03 --repeat 50 --json
+      memora perf serve banks/epic --participant P01 --output-schemas
+    """
+    report = run_perf(bank, participant, repeat=repeat, cypher_repeat=cypher_repeat, output_schemas=output_schemas)
+    click.echo(render(report.frame, fmt))
+    if fmt == "table":
+        for line in report.summary:
+            click.echo(line)
