@@ -42,7 +42,7 @@ from memora_graph.agent.policies import is_model_policy
 from memora_graph.agent.prompts import PROMPT_VERSION
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import BankSet, Condition, resolve_conditions
-from memora_graph.bench.answers import extract_plan, parse_answer_letter
+from memora_graph.bench.answers import extract_plan, parse_answer_letter, parse_confidence, parse_reader_features
 from memora_graph.bench.metrics import score_plan
 from memora_graph.bench.tasks import BenchSuite, load_suite
 from memora_graph.errors import MemoraError
@@ -189,6 +189,8 @@ def _run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any
         if kind == "eam_qa":
             base["predicted"] = parse_answer_letter(res.final_text, view["choices"])
             base["is_correct"] = base["predicted"] == item.correct_answer
+            base["confidence"] = parse_confidence(res.final_text)
+            base["reader_features"] = parse_reader_features(res.final_text)
         else:
             steps = extract_plan(res.final_text)
             base["plan_text"] = "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1))
