@@ -127,7 +127,8 @@ class OfflinePolicy:
         if evidence_budget is not None and int(evidence_budget) < 1:
             raise MemoraError(f"evidence_budget must be at least 1 record, got {evidence_budget}")
         self.evidence_budget = int(evidence_budget) if evidence_budget is not None else None
-        self.calibration = None if str(calibration).lower() == "none" else load_calibration(calibration)
+        off = calibration is not None and str(calibration).lower() == "none"
+        self.calibration = None if off else load_calibration(calibration)
 
     def respond(self, messages, tools, *, forced: bool, state: AgentState) -> PolicyReply:
         if state.task_kind == "eam_qa":

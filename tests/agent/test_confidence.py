@@ -139,3 +139,12 @@ def test_the_evidence_budget_reads_the_calls_records_in_turn(lex):
     assert read(1) == ["cup"]
     assert read(3) == ["cup", "knife", "plate"]
     assert read(None) == ["cup", "plate", "bowl", "knife", "spoon"] and sorted(read(100)) == sorted(read(None))
+
+
+def test_the_offline_policy_answers_with_the_package_calibration_unless_told_not_to():
+    from memora_graph.agent.offline import OfflinePolicy
+
+    assert OfflinePolicy().calibration is not None
+    assert OfflinePolicy(calibration="none").calibration is None
+    with pytest.raises(MemoraError, match="evidence_budget"):
+        OfflinePolicy(evidence_budget=0)
