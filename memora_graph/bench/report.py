@@ -126,7 +126,7 @@ def _abstention(records: list[dict]) -> dict[str, Any]:
     reasons: Counter = Counter()
     for r in ans:
         if r.get("predicted") == "E":
-            m = re.search(r"; (no record of the subject|the evidence[^;(\n]*)", r.get("final_text") or "")
+            m = re.search(r"; (no record of the [a-z ]+|the evidence[^;(\n]*)", r.get("final_text") or "")
             reasons[m.group(1).strip() if m else "other"] += 1
     return {"answerable_n": len(ans), "controls_n": len(ctl),
             "answerable_abstained": sum(r.get("predicted") == "E" for r in ans) / len(ans) if ans else None,
