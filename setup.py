@@ -15,7 +15,7 @@ setup(
     package_dir=BUNDLED,
     package_data={
         "memora_graph.explore": ["*.html", "*.js", "*.css"],
-        "memora_graph.agent": ["open_calibration.json"],
+        "memora_graph.agent": ["open_calibration.json", "calibration.json"],
         **{name: ["**/*"] for name in BUNDLED},
     },
 )

@@ -28,17 +28,41 @@ _STEP_T = re.compile(r"^([\d.]+)")
 
 def events_of(result: ToolResult, lex: Lexicon) -> list[Event]:
     """Every action and object a tool result holds, as events."""
-    out: list[Event] = []
+    return [e for group in record_events(result, lex) for e in group]
+
+
+def record_events(result: ToolResult, lex: Lexicon) -> list[list[Event]]:
+    """The events of a tool result, one list per record, in the result's order."""
+    out: list[list[Event]] = []
     for kind, rec in result.records():
-        out += _record_events(kind, rec, lex)
+        out.append(_record_events(kind, rec, lex))
     if isinstance(result, ObjectHistoryResult) and result.found and result.state_history:
         nouns = tuple(lex.noun_classes(result.name or "")) or ()
         for h in result.state_history:
-            out.append(Event(h.video, float(h.time_seconds), lex.verb(h.action), nouns, (h.event_id, h.segment_id)))
+            out.append([Event(h.video, float(h.time_seconds), lex.verb(h.action), nouns, (h.event_id, h.segment_id))])
     if isinstance(result, VideoActivitiesResult):
         for o in result.objects:
-            out.append(Event(result.video, -1.0, None, tuple(lex.noun_classes(o.kind.replace("_", " ") or o.name)),
-                             (), origin="object"))
+            out.append([Event(result.video, -1.0, None, tuple(object_classes(o.kind, lex) if o.kind else lex.noun_classes(o.name)),
+                              (), origin="object")])
+    return out
+
+
+def budgeted_events(results: list[ToolResult], lex: Lexicon, budget: int | None = None) -> list[Event]:
+    """The events of the records a reader limited to `budget` records reads (None: all of them):
+    the calls' records taken in turn, each call's best-ranked first, as a model's context would
+    hold the first K records of its tool results. The experiment of how much each memory says in
+    few records (MEMORA's consolidated habits and routines against MEMORA-Episodic's episodes)."""
+    groups = [record_events(r, lex) for r in results]
+    if budget is None:
+        return [e for g in groups for rec in g for e in rec]
+    out: list[Event] = []
+    taken, depth = 0, 0
+    while taken < budget and any(depth < len(g) for g in groups):
+        for g in groups:
+            if depth < len(g) and taken < budget:
+                out += g[depth]
+                taken += 1
+        depth += 1
     return out
 
 
@@ -66,11 +90,25 @@ def _weight(count: int | None) -> float:
     return 1.0 + math.log(max(1, count or 1))
 
 
+def object_classes(name: str, lex: Lexicon) -> list[str]:
+    """A memory's object name as noun classes: a class key as itself ("board:chopping",
+    "liquid:washing"), a compound read in English order ("washing liquid"), else its words."""
+    o = name.strip().lower().replace("_", " ")
+    if o in lex.noun_category:
+        return [o]
+    parts = [p.strip() for p in o.split(":") if p.strip()]
+    if len(parts) > 1:
+        hit = lex.noun_classes(" ".join([*reversed(parts[1:]), parts[0]]))
+        if hit:
+            return hit
+    return lex.noun_classes(o.replace(":", " "))
+
+
 def _step_action(a: Action, lex: Lexicon) -> tuple[str | None, tuple[str, ...]]:
     nouns = [n for n in (a.noun, a.instrument, a.place) if n]
     classes = []
     for n in nouns:
-        classes += lex.noun_classes(n.replace("_", " ").replace(":", " ")) or [n]
+        classes += object_classes(n, lex) or [n]
     return lex.verb(a.verb), tuple(dict.fromkeys(classes))
 
 
@@ -78,7 +116,7 @@ def _record_events(kind: str, rec, lex: Lexicon) -> list[Event]:
     if isinstance(rec, ActivityRecord):
         return _activity_events(rec, lex)
     if isinstance(rec, ObjectRecord):
-        nouns = tuple(lex.noun_classes(rec.kind.replace("_", " ")) or lex.noun_classes(rec.name))
+        nouns = tuple(object_classes(rec.kind, lex) or lex.noun_classes(rec.name))
         return [Event("", -1.0, None, nouns, (rec.entity_id,), origin="object")]
     if isinstance(rec, PreferenceRecord):
         return _preference_events(rec, lex)
@@ -125,7 +163,7 @@ def _activity_events(rec: ActivityRecord, lex: Lexicon) -> list[Event]:
     for s in rec.action_breakdown:
         m = _STEP_T.match(s.t)
         t = t0 + (float(m.group(1)) if m else 0.0)
-        nouns = lex.noun_classes(s.object.replace("_", " ").replace(":", " ")) if s.object else []
+        nouns = object_classes(s.object, lex) if s.object else []
         if s.narration:
             nouns += [n for c in lex.parse(s.narration) for n in c.nouns if n not in nouns]
         verb = lex.verb(s.action) or next((c.verb for c in lex.parse(s.narration) if c.verb), None)
@@ -152,12 +190,12 @@ def _preference_events(p: PreferenceRecord, lex: Lexicon) -> list[Event]:
         if trig and nxt:
             return [Event("", -1.0, trig[0][0], trig[0][1], ids, weight, "habit", tuple(nxt[:1]), text=p.preference)]
     if p.subtype == "storage" and p.object and p.preferred_location:
-        nouns = lex.noun_classes(p.object.replace("_", " ")) + lex.noun_classes(p.preferred_location)
+        nouns = object_classes(p.object, lex) + lex.noun_classes(p.preferred_location)
         verb = None if p.context == "during_use" else "put"  # "usually uses X at Y" is where it is used, not kept
         return [Event("", -1.0, verb, tuple(dict.fromkeys(nouns)), ids, weight, "storage", text=p.preference)]
     if p.subtype == "workflow" and p.use:
         verb, _, where = p.use.partition(" @ ")
-        nouns = [n for o in p.objects for n in lex.noun_classes(o)] + lex.noun_classes(where)
+        nouns = [n for o in p.objects for n in object_classes(o, lex)] + lex.noun_classes(where)
         after = _actions(p.then or "", lex)
         return [Event("", -1.0, lex.verb(verb.strip()), tuple(dict.fromkeys(nouns)), ids, weight, "storage",
                       tuple(after[:1]), text=p.preference)]

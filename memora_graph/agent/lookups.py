@@ -69,6 +69,10 @@ def plan(intent: Intent, tools: list[str]) -> list[list[tuple[str, dict[str, Any
         call = episodes(subject if intent.kind != "recall" else f"{' '.join(intent.videos)} {subject}")
         if call and call not in first:
             second.append(call)
+    if subject and subject != query and intent.kind in ("habit", "preference", "routine") and has("get_preferences"):
+        # the person's consolidated habits and storage about the object itself: the situation's
+        # wording ("briefly sets the garlic down during preparation") finds records about others
+        second.append(("get_preferences", {"query": subject, "top_k": 10}))
     if subject:
         if has("search_objects"):
             second.append(("search_objects", {"query": subject, "top_k": 5}))

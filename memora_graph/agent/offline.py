@@ -38,13 +38,15 @@ from typing import Any
 import numpy as np
 
 from memora_graph.agent import lookups
-from memora_graph.agent.evidence import events_of
+from memora_graph.agent.confidence import load_calibration
+from memora_graph.agent.evidence import budgeted_events
 from memora_graph.agent.loop import AgentState, PolicyReply
 from memora_graph.agent.planner import (  # noqa: F401  (_step, apply_preferences, generic_plan: kept importable here)
     _step, _task_text, apply_preferences, compose_structured, generic_plan, plan_lookups, plan_text,
 )
 from memora_graph.agent.reading import Decision, parse_question, score
 from memora_graph.embed import get_embedder
+from memora_graph.errors import MemoraError
 from memora_graph.retrieve.results import ToolResult
 from memora_graph.perceive.lexicon import Lexicon
 
@@ -110,8 +112,16 @@ class OfflinePolicy:
 
     name = "offline"
 
-    def __init__(self):
+    def __init__(self, evidence_budget: int | None = None, calibration: str | None = None):
+        """`evidence_budget`: the reader reads at most this many records of its tool results (the
+        budget experiment; None: all). `calibration`: a calibration file (default: the package's
+        `agent/calibration.json`), or "none" for the fixed rules without a probability."""
         self.embedder = get_embedder()
+        if evidence_budget is not None and int(evidence_budget) < 1:
+            raise MemoraError(f"evidence_budget must be at least 1 record, got {evidence_budget}")
+        self.evidence_budget = int(evidence_budget) if evidence_budget is not None else None
+        off = calibration is not None and str(calibration).lower() == "none"
+        self.calibration = None if off else load_calibration(calibration)
 
     def respond(self, messages, tools, *, forced: bool, state: AgentState) -> PolicyReply:
         if state.task_kind == "eam_qa":
@@ -142,8 +152,10 @@ class OfflinePolicy:
 
     def decide(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> Decision:
         """The typed reader's decision over the tool results of the calls made."""
-        events = [e for c in calls for e in events_of(c["result"], self.lexicon)]
-        return score(view["question"], view["choices"], events, self.lexicon, embed=self.embed)
+        results = [c["result"] for c in calls if isinstance(c["result"], ToolResult)]
+        events = budgeted_events(results, self.lexicon, self.evidence_budget)
+        return score(view["question"], view["choices"], events, self.lexicon, embed=self.embed,
+                     calibration=self.calibration)
 
     def choose(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> tuple[str, str]:
         choices = view["choices"][:4]
@@ -155,6 +167,11 @@ class OfflinePolicy:
         d = self.decide(view, calls)
         cited = d.support["ABCD".index(d.letter)] if d.letter in "ABCD" else []
         detail = f"{d.text()}" + (f"; evidence: {', '.join(cited[:8])}" if cited else "")
+        if d.probability is not None:
+            detail += f"\nConfidence: {d.probability:.4f}"
+        best = max(range(len(d.scores)), key=lambda i: (d.scores[i], -i))
+        features = {k: round(v, 5) for k, v in d.features.items()} | {"best_letter": "ABCD"[best]}
+        detail += f"\nFeatures: {json.dumps(features, sort_keys=True)}"
         return d.letter, detail
 
     # -- Planning ---------------------------------------------------------------------------

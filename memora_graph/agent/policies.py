@@ -53,7 +53,11 @@ def make_answer_policy(name: str, options: dict[str, Any] | None = None, call_lo
 def _offline(options: dict[str, Any], call_log: Path | None):
     from memora_graph.agent.offline import OfflinePolicy
 
-    return OfflinePolicy()
+    known = {"evidence_budget", "calibration"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise MemoraError(f"the offline policy has no option {', '.join(unknown)}; it takes {', '.join(sorted(known))}")
+    return OfflinePolicy(**options)
 
 
 register_answer_policy("offline", _offline)

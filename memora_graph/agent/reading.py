@@ -30,13 +30,14 @@ import math
 import re
 from bisect import bisect_left, bisect_right
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 from memora_graph.perceive.lexicon import Clause, Lexicon
 
 KINDS = ("habit", "preference", "routine", "recall")
 OPTION_E = "E"
-_VIDEO = re.compile(r"\bP\d{2}_\d{2,3}\b")
+NO_SITUATION = "no record of the situation asked about"  # the subject is in memory, never in this situation
+_VIDEO = re.compile(r"\bP\d{2}_(?:\d{2,3}\b|\?+)")  # a masked id ("P01_???") names a video too
 _PARTICIPANT = re.compile(r"\bP\d{2}\b(?:'s)?")
 _NEXT = frozenset({"next", "follow", "afterwards", "afterward", "lead", "subsequently", "then"})
 _WHERE = frozenset({"where", "keep", "store", "storage", "kept", "stored", "put", "place"})
@@ -93,6 +94,10 @@ class Decision:
     support: list[list[str]]  # evidence ids behind each option's score
     intent: Intent
     events: int = 0
+    features: dict[str, float] = field(default_factory=dict)  # the evidence features the calibration reads
+    probability: float | None = None  # P(the answer given is right), when a calibration decided
+    p_best: float | None = None  # P(the best option is right)
+    p_e: float | None = None  # P(E is right: memory does not hold the answer)
 
     @property
     def abstained(self) -> bool:
@@ -100,7 +105,8 @@ class Decision:
 
     def text(self) -> str:
         s = ", ".join(f"{'ABCD'[i]}={x:.3f}" for i, x in enumerate(self.scores))
-        return f"{self.intent.kind}/{self.intent.relation}: {s}; {self.reason}"
+        conf = f"; P(right)={self.probability:.3f}" if self.probability is not None else ""
+        return f"{self.intent.kind}/{self.intent.relation}: {s}; {self.reason}{conf}"
 
 
 def stem_of(question: str) -> str:
@@ -209,25 +215,34 @@ def _sequences(events: list[Event]) -> dict[str, list[Event]]:
     return by_video
 
 
-def _is_trigger(e: Event, trigger: Clause, nouns: set[str], lex: Lexicon) -> bool:
-    if trigger.verb and e.verb != trigger.verb and not (e.verb and lex.same_category(e.verb, trigger.verb)
-                                                         and trigger.verb in ("put", "insert", "take", "lift")):
+def _is_trigger(e: Event, trigger: Clause | None, nouns: set[str], lex: Lexicon, relax: int = 0) -> bool:
+    verb = trigger.verb if trigger is not None and relax < 2 else None
+    if verb and e.verb != verb and not (e.verb and lex.same_category(e.verb, verb)
+                                        and (relax >= 1 or verb in ("put", "insert", "take", "lift"))):
         return False
     return not nouns or bool(nouns & set(e.nouns))
 
 
-def habit_windows(intent: Intent, events: list[Event], lex: Lexicon) -> list[tuple[set[Item], float, tuple[str, ...]]]:
+RELAX_LEVELS = 3  # 0: the trigger as asked; 1: any verb of its category; 2: any action on its objects
+
+
+def habit_windows(intent: Intent, events: list[Event], lex: Lexicon,
+                  relax: int = 0) -> list[tuple[set[Item], float, tuple[str, ...]]]:
     """What followed the question's trigger action: per occurrence in the activity log, the items
     of the next actions (within HABIT_WINDOW s); per consolidated habit with that trigger, its next
-    step, weighted by how often it was counted."""
+    step, weighted by how often it was counted. `relax` widens the trigger when memory never shows
+    it as asked ("shifts a container" where memory says "moves" or "takes" it): 1 accepts any verb
+    of the same category, 2 any action on the trigger's objects."""
     trigger = intent.trigger
-    if trigger is None:
+    if trigger is None and relax < 2:
         return []
-    nouns = set(trigger.objects() or trigger.nouns) or set(intent.subject_nouns)
+    nouns = set((trigger.objects() or trigger.nouns) if trigger else ()) or set(intent.subject_nouns)
+    if relax >= 2 and not nouns:
+        return []
     out = []
     for seq in _sequences(events).values():
         for i, e in enumerate(seq):
-            if not _is_trigger(e, trigger, nouns, lex):
+            if not _is_trigger(e, trigger, nouns, lex, relax):
                 continue
             have: set[Item] = set()
             ids: list[str] = list(e.ids)
@@ -245,7 +260,7 @@ def habit_windows(intent: Intent, events: list[Event], lex: Lexicon) -> list[tup
             if have:
                 out.append((have, 1.0, tuple(dict.fromkeys(ids))))
     for e in events:
-        if e.origin == "habit" and e.follows and _is_trigger(e, trigger, nouns, lex):
+        if e.origin == "habit" and e.follows and _is_trigger(e, trigger, nouns, lex, relax):
             have = set()
             for verb, ns in e.follows:
                 have |= ({("v", verb)} if verb else set()) | {("n", n) for n in ns}
@@ -324,52 +339,181 @@ SEMANTIC = 3.0  # weight of the options' closeness in meaning to the evidence re
 MAX_TEXTS = 80  # evidence records compared in meaning with the options
 
 
-def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, embed=None) -> Decision:
+def _head(noun: str) -> str:
+    return noun.split(":")[0]
+
+
+def subject_mentions(subject: set[str], events: list[Event]) -> int:
+    """How many evidence events name one of the subject's objects, at the class level or as a
+    compound of the same head ("board:chopping" and "board"; "liquid:washing" and "liquid"): the
+    memory's own classes and the question's may name one object at different depths."""
+    if not subject:
+        return 0
+    heads = {_head(n) for n in subject}
+    return sum(1 for e in events if subject & set(e.nouns) or heads & {_head(n) for n in e.nouns})
+
+
+def situation_windows(intent: Intent, events: list[Event], lex: Lexicon):
+    """The windows of the question's situation and how far the situation had to be widened to find
+    any (0: as asked): a habit's trigger by `habit_windows`' levels; where something is kept, by
+    the actions around it when memory never shows it put anywhere."""
+    if intent.kind == "habit":
+        for relax in range(RELAX_LEVELS):
+            windows = habit_windows(intent, events, lex, relax)
+            if windows:
+                return windows, relax
+        return [], RELAX_LEVELS
+    windows = context_windows(intent, events, lex)
+    if not windows and intent.relation == "where":
+        windows = context_windows(replace(intent, relation="method"), events, lex)
+        return windows, 1 if windows else RELAX_LEVELS
+    return windows, 0 if windows else RELAX_LEVELS
+
+
+def _at_memory_depth(intent: Intent, events: list[Event], lex: Lexicon) -> Intent:
+    """The question's subject at the depth memory names it: where memory holds none of the
+    subject's classes but holds a compound or head of one ("board" for "board:chopping",
+    "board:chopping" for "board"), those classes become the subject (and the trigger's objects)."""
+    subject = set(intent.subject_nouns)
+    if not subject or any(subject & set(e.nouns) for e in events):
+        return intent
+    heads = {_head(n): n for n in intent.subject_nouns}
+    # a subject that names its whole category ("utensil", "container", "cutlery") is any of its classes
+    general = {lex.noun_category[n]: n for n in intent.subject_nouns
+               if lex.noun_category.get(n, "").startswith(_head(n))}
+    alias: dict[str, list[str]] = defaultdict(list)
+    for e in events:
+        for n in e.nouns:
+            src = heads.get(_head(n)) or general.get(lex.noun_category.get(n, ""))
+            if src and n not in alias[src]:
+                alias[src].append(n)
+    if not alias:
+        return intent
+
+    def swap(nouns: list[str]) -> list[str]:
+        return list(dict.fromkeys(m for n in nouns for m in (alias.get(n) or [n])))
+
+    clauses = [Clause(c.verb, swap(c.nouns), c.place, c.instrument, c.negated, list(c.words)) for c in intent.clauses]
+    return Intent(intent.kind, intent.relation, clauses, swap(intent.subject_nouns), intent.subject_verbs,
+                  intent.place, intent.videos, intent.text)
+
+
+def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, embed=None,
+          calibration=None) -> Decision:
     """Score the options against the events and decide. `embed(texts) -> unit vectors` (optional)
     adds how close each option is in meaning to the evidence records the typed lookups selected:
-    paraphrases the classes miss ("a squeeze of washing-up liquid" for "pour soap")."""
-    intent = parse_question(question, lex)
+    paraphrases the classes miss ("a squeeze of washing-up liquid" for "pour soap").
+    `calibration` (`agent.confidence.Calibration`) turns the evidence features into the probability
+    that the best option is right and decides E by a threshold on it; without one the fixed rules
+    (MIN_SUPPORT, CLASS_SURE) decide and no probability is given."""
+    intent = _at_memory_depth(parse_question(question, lex), events, lex)
     parsed = [option_items(c, intent, lex) for c in choices[:4]]
     w = _weights([p[0] for p in parsed])
     spec = _specificity(events, intent)
     w = {x: v * spec(x) for x, v in w.items()}
-    build = habit_windows if intent.kind == "habit" else context_windows
-    windows = build(intent, events, lex)
+    windows, relaxed = situation_windows(intent, events, lex)
     subject = set(intent.subject_nouns)
-    if subject and not any(subject & set(e.nouns) for e in events):
-        return Decision(OPTION_E, "no record of the subject", [0.0] * 4, [[] for _ in range(4)], intent, len(events))
-    if not windows:
-        return Decision(OPTION_E, "no record of the subject", [0.0] * 4, [[] for _ in range(4)], intent, len(events))
-    scores, support = [], []
-    for clauses, negated in parsed:
-        if not clauses:
-            scores.append(0.0)
-            support.append([])
-            continue
-        if intent.kind == "recall":
-            s, ids = _presence(clauses, windows, w, lex)
-            if len(clauses) > 1:  # a sequence: the order the video holds them in counts too
-                a, aids = _aligned(clauses, _recall_sequence(intent, events), w, lex)
-                s, ids = 0.4 * s + 0.6 * a, aids or ids
-        else:
-            s, ids = _frequency(clauses, windows, w, lex)
-        if negated:
-            neg, _ = _frequency([sorted(negated)], windows, {x: 1.0 for x in negated}, lex)
-            s *= max(0.0, 1.0 - neg)
-        scores.append(s)
-        support.append(ids)
+    mentions = subject_mentions(subject, events)
+    no_subject = bool(subject) and not mentions
+    scores, support = [0.0] * 4, [[] for _ in range(4)]
     classes = list(scores)
-    if embed is not None and SEMANTIC:
-        for i, sim in enumerate(_closeness(choices[:4], _context_texts(events, windows), embed)):
-            if parsed[i][0] or sim:
-                scores[i] += SEMANTIC * sim
+    sims = [0.0] * 4
+    if windows and not no_subject:
+        scores, support = [], []
+        for clauses, negated in parsed:
+            if not clauses:
+                scores.append(0.0)
+                support.append([])
+                continue
+            if intent.kind == "recall":
+                s, ids = _presence(clauses, windows, w, lex)
+                if len(clauses) > 1:  # a sequence: the order the video holds them in counts too
+                    a, aids = _aligned(clauses, _recall_sequence(intent, events), w, lex)
+                    s, ids = 0.4 * s + 0.6 * a, aids or ids
+            else:
+                s, ids = _frequency(clauses, windows, w, lex)
+            if negated:
+                neg, _ = _frequency([sorted(negated)], windows, {x: 1.0 for x in negated}, lex)
+                s *= max(0.0, 1.0 - neg)
+            scores.append(s)
+            support.append(ids)
+        scores += [0.0] * (4 - len(scores))
+        support += [[] for _ in range(4 - len(support))]
+        classes = list(scores)
+        if embed is not None and SEMANTIC:
+            for i, sim in enumerate(_closeness(choices[:4], _context_texts(events, windows), embed)):
+                if parsed[i][0] or sim:
+                    sims[i] = sim
+                    scores[i] += SEMANTIC * sim
     order = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
     best, second = scores[order[0]], scores[order[1]] if len(order) > 1 else 0.0
-    if best < MIN_SUPPORT and classes[order[0]] < CLASS_SURE:
-        return Decision(OPTION_E, "the evidence is too weak to support any option", scores, support, intent, len(events))
-    if best == second:
-        return Decision(OPTION_E, "the evidence does not separate the options", scores, support, intent, len(events))
-    return Decision("ABCD"[order[0]], "supported", scores, support, intent, len(events))
+    feats = evidence_features(intent, events, windows, mentions, scores, classes, sims, order, support)
+    feats["rule_supported"] = float(best >= MIN_SUPPORT or classes[order[0]] >= CLASS_SURE)  # the fixed rule's cut
+    for level in range(1, RELAX_LEVELS):
+        feats[f"relaxed_{level}"] = float(relaxed == level)  # the situation had to be widened this far
+    d = Decision(OPTION_E, "", scores, support, intent, len(events), features=feats)
+    if calibration is not None:
+        p = calibration.probabilities(feats)
+        d.p_best, d.p_e = p["best"], p["E"]
+        if no_subject:
+            d.reason = "no record of the subject"
+        elif not windows:
+            d.reason = NO_SITUATION
+        elif best == second:
+            d.reason = "the evidence does not separate the options"
+        elif p["best"] < calibration.threshold:
+            d.reason = f"the evidence is too weak to support any option (P(best)={p['best']:.2f})"
+        else:
+            d.letter, d.reason = "ABCD"[order[0]], "supported"
+        d.probability = d.p_best if d.letter != OPTION_E else d.p_e
+        return d
+    if no_subject:
+        d.reason = "no record of the subject"
+    elif not windows:
+        d.reason = NO_SITUATION
+    elif best < MIN_SUPPORT and classes[order[0]] < CLASS_SURE:
+        d.reason = "the evidence is too weak to support any option"
+    elif best == second:
+        d.reason = "the evidence does not separate the options"
+    else:
+        d.letter, d.reason = "ABCD"[order[0]], "supported"
+    return d
+
+
+def _share_found(nouns: list[str], events: list[Event]) -> float:
+    """The share of the question's objects (and places) some evidence event names (at head level)."""
+    if not nouns:
+        return 1.0
+    have = {_head(n) for e in events for n in e.nouns}
+    return sum(_head(n) in have for n in nouns) / len(nouns)
+
+
+def evidence_features(intent: Intent, events: list[Event], windows, mentions: int, scores: list[float],
+                      classes: list[float], sims: list[float], order: list[int],
+                      support: list[list[str]]) -> dict[str, float]:
+    """What the calibration reads: how much of the subject memory holds, how strongly and how
+    clearly the best option is supported (in classes and in meaning), and the question's kind."""
+    b, s = order[0], order[1]
+    f = {
+        "subject_found": 0.0 if intent.subject_nouns and not mentions else 1.0,
+        "subject_share": _share_found(intent.subject_nouns, events),
+        "log_mentions": math.log1p(mentions),
+        "log_events": math.log1p(len(events)),
+        "log_windows": math.log1p(len(windows)),
+        "best": scores[b],
+        "second": scores[s],
+        "margin": scores[b] - scores[s],
+        "log_support": math.log1p(len(support[b])),
+        "best_class": classes[b],
+        "class_margin": classes[b] - max(classes[i] for i in range(len(classes)) if i != b),
+        "best_sim": sims[b],
+        "sim_margin": sims[b] - max(sims[i] for i in range(len(sims)) if i != b),
+        "consolidated": float(sum(1 for e in events if e.origin in ("habit", "storage", "tool", "routine")) > 0),
+    }
+    for k in KINDS:
+        f[f"kind_{k}"] = float(intent.kind == k)
+        f[f"margin_{k}"] = f["margin"] * f[f"kind_{k}"]  # how much a clear best option says differs by kind
+    return f
 
 
 def _context_texts(events: list[Event], windows) -> list[str]:

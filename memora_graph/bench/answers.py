@@ -53,6 +53,30 @@ def parse_answer_letter(text: str | None, choices: list[str] | None = None) -> s
     return ""
 
 
+_CONFIDENCE = re.compile(r"^Confidence:\s*([01](?:\.\d+)?)\s*$", re.M)
+_FEATURES = re.compile(r"^Features:\s*(\{.*\})\s*$", re.M)
+
+
+def parse_confidence(text: str | None) -> float | None:
+    """The probability a reply gives its answer ("Confidence: 0.734" on a line of its own), or None."""
+    m = _CONFIDENCE.findall(text or "")
+    return float(m[-1]) if m else None
+
+
+def parse_reader_features(text: str | None) -> dict | None:
+    """The evidence features the offline reader reports ("Features: {json}"), or None."""
+    import json
+
+    m = _FEATURES.findall(text or "")
+    if not m:
+        return None
+    try:
+        data = json.loads(m[-1])
+    except json.JSONDecodeError:
+        return None
+    return data if isinstance(data, dict) else None
+
+
 MAX_PLAN_STEPS = 15
 _STRIP = [
     re.compile(r"<tool_call>.*?</tool_call>", re.S | re.I),

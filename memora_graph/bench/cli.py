@@ -300,6 +300,47 @@ def report_cmd(run_dir, show):
     click.echo("Wrote " + ", ".join(str(p) for p in paths.values()))
 
 
+@bench_group.command("calibrate")
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@participants_option(default="P01,P02,P03", help="Whose records to fit on (keep the held-out participants out).")
+@click.option("--conditions", default="memora_full,memora_episodic", show_default=True,
+              help="The conditions whose records are fitted on (comma-separated).")
+@click.option("--out", "out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Where to write the calibration (default: the package's memora_graph/agent/calibration.json).")
+@output_options
+def calibrate_cmd(run_dir, participants, conditions, out, fmt):
+    """Refit the offline reader's confidence from a run's EAM-QA records: a multinomial logistic
+    model over the evidence features each record carries (best option right / E right / another
+    option right) and the threshold on P(best) that decides E, chosen for accuracy on the same
+    records. Fit on the calibration cohort's P01-P03; check on P04 with `memora bench report`
+    after a new run.
+
+    \b
+    Example:
+      memora bench run banks/cal --episodic-bank banks/cal-epi --conditions memora_full,memora_episodic \\
+          --participants P01,P02,P03 --kinds eam_qa --out runs/fit -o calibration none
+      memora bench calibrate runs/fit --participants P01,P02,P03
+    """
+    import polars as pl
+
+    from memora_graph.bench.calibration import calibration_summary, fit, save
+    from memora_graph.bench.run import load_run
+
+    names = [c.strip() for c in conditions.split(",") if c.strip()]
+    records = [r for c, rs in load_run(run_dir)["eam_qa"].items() if c in names for r in rs
+               if participants is None or r["participant"] in participants]
+    try:
+        cal = fit(records, fitted_on={"run": str(run_dir), "participants": participants or "all", "conditions": names})
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    path = save(cal, out)
+    rows = [{"feature": f, "w_best": round(cal.coef["best"][i], 3), "w_E": round(cal.coef["E"][i], 3)}
+            for i, f in enumerate(cal.features)]
+    click.echo(render(pl.DataFrame(rows), fmt))
+    if fmt == "table":
+        click.echo(f"fitted on {cal.fitted_on['n']} records; E below P(best) = {cal.threshold:.2f}; wrote {path}")
+
+
 @bench_group.command("compare")
 @click.argument("run_a", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("run_b", type=click.Path(exists=True, file_okay=False, path_type=Path))

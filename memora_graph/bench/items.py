@@ -14,7 +14,7 @@ from typing import Any
 
 from memora_graph.agent.loop import run_agent
 from memora_graph.agent.policies import is_model_policy
-from memora_graph.bench.answers import extract_plan, parse_answer_letter
+from memora_graph.bench.answers import extract_plan, parse_answer_letter, parse_confidence, parse_reader_features
 from memora_graph.bench.conditions import BankSet, Condition
 from memora_graph.bench.metrics import score_plan
 
@@ -101,6 +101,8 @@ def run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any,
         if kind == "eam_qa":
             base["predicted"] = parse_answer_letter(res.final_text, view["choices"])
             base["is_correct"] = base["predicted"] == item.correct_answer
+            base["confidence"] = parse_confidence(res.final_text)
+            base["reader_features"] = parse_reader_features(res.final_text)
         else:
             steps = extract_plan(res.final_text)
             base["plan_text"] = "\n".join(f"{i}. {s}" for i, s in enumerate(steps, 1))

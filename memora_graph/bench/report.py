@@ -90,6 +90,11 @@ def build_report(run: str | Path) -> dict[str, Any]:
         else:
             out["eam_qa"]["views"] = None
             out["eam_qa"]["note"] = "the three views need the memora_full condition in the run"
+    if conds:
+        out["eam_qa"]["abstention"] = {c: _abstention(eam[c]) for c in conds}
+        cal = _calibration_section(eam, conds)
+        if cal:
+            out["eam_qa"]["calibration"] = cal
     plan = data["planning"]
     for c in _order(plan):
         per_split = {}
@@ -117,6 +122,42 @@ def build_report(run: str | Path) -> dict[str, Any]:
     out["latency_s"] = {c: {k: round(mean(v), 4) for k, v in lat[c].items()} | {"items": len(lat[c]["total_s"])}
                         for c in _order(lat)}
     return out
+
+
+def _abstention(records: list[dict]) -> dict[str, Any]:
+    """How often E is answered where it is wrong (answerable questions) and where it is right
+    (the E-correct controls), and why the reader abstained on answerable ones."""
+    ans = [r for r in records if r["correct_answer"] != "E"]
+    ctl = [r for r in records if r["correct_answer"] == "E"]
+    reasons: Counter = Counter()
+    for r in ans:
+        if r.get("predicted") == "E":
+            m = re.search(r"; (no record of the [a-z ]+|the evidence[^;(\n]*)", r.get("final_text") or "")
+            reasons[m.group(1).strip() if m else "other"] += 1
+    return {"answerable_n": len(ans), "controls_n": len(ctl),
+            "answerable_abstained": sum(r.get("predicted") == "E" for r in ans) / len(ans) if ans else None,
+            "controls_answered_e": sum(r.get("predicted") == "E" for r in ctl) / len(ctl) if ctl else None,
+            "abstain_reasons": dict(reasons.most_common())}
+
+
+def _calibration_section(eam: dict[str, list[dict]], conds: list[str]) -> dict[str, Any] | None:
+    """Per condition whose records carry a confidence: ECE, reliability bins, coverage accuracy,
+    over the participants the installed calibration was fitted on and over the others (held out)."""
+    from memora_graph.agent.confidence import load_calibration
+    from memora_graph.bench.calibration import calibration_summary
+
+    cal = load_calibration()
+    fitted = set((cal.fitted_on.get("participants") or []) if cal else [])
+    out: dict[str, Any] = {"fitted_on": sorted(fitted), "conditions": {}}
+    for c in conds:
+        groups = {"all": eam[c]}
+        if fitted:
+            groups["fitted"] = [r for r in eam[c] if r["participant"] in fitted]
+            groups["held_out"] = [r for r in eam[c] if r["participant"] not in fitted]
+        per = {g: calibration_summary(rs) for g, rs in groups.items()}
+        if per["all"] is not None:
+            out["conditions"][c] = per
+    return out if out["conditions"] else None
 
 
 # the store each tool reads (the paper's per-store tool-use figure) comes from its ToolSpec: a
@@ -327,6 +368,29 @@ def render_markdown(rep: dict[str, Any]) -> str:
                             f"{(eam.get('consolidation_lift_pp') or {}).get(view, {}).get(t):+.1f}"
                             if (eam.get('consolidation_lift_pp') or {}).get(view, {}).get(t) is not None else "-"
                             for t in QA_TYPES]]]))
+    if eam.get("abstention"):
+        parts += ["", "## EAM-QA: abstention (E answers)", ""]
+        parts.append(_table(["Condition", "answerable abstained %", "E-controls answered E %", "reasons (answerable)"], [
+            [_label(c), _pct(a["answerable_abstained"]), _pct(a["controls_answered_e"]),
+             "; ".join(f"{k}: {v}" for k, v in a["abstain_reasons"].items()) or "-"]
+            for c, a in eam["abstention"].items()]))
+    if eam.get("calibration"):
+        cal = eam["calibration"]
+        parts += ["", "## EAM-QA: confidence (probability the answer is right)", ""]
+        if cal["fitted_on"]:
+            parts.append(f"Calibration fitted on {', '.join(cal['fitted_on'])}; \"held out\" is every other participant. "
+                         "ECE: expected calibration error over ten equal-width bins. Accuracy at a coverage: over the "
+                         "most confident answers only.\n")
+        rows = []
+        for c, per in cal["conditions"].items():
+            for g, sm in per.items():
+                if sm is None:
+                    continue
+                cov = sm["coverage_accuracy"]
+                rows.append([_label(c), g.replace("_", " "), sm["n"], f"{sm['ece']:.3f}", _pct(sm["mean_confidence"]),
+                             _pct(cov.get("100")), _pct(cov.get("80")), _pct(cov.get("50"))])
+        parts.append(_table(["Condition", "participants", "n", "ECE", "mean confidence %", "acc % (100% coverage)",
+                             "acc % (80%)", "acc % (50%)"], rows))
     if rep.get("planning"):
         for split in ("replay", "generalize"):
             rows = []
@@ -420,6 +484,26 @@ def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
             ax.set_ylim(0, max([r[2] for r in rows] + [0.1]) * 1.2)
         fig.tight_layout()
         paths.append(_save(fig, out / "rgp.png", plt))
+    cal = ((rep.get("eam_qa") or {}).get("calibration") or {}).get("conditions") or {}
+    if MEMORA in cal:
+        groups = [(g, sm) for g, sm in cal[MEMORA].items() if sm is not None and (g != "all" or len(cal[MEMORA]) == 1)]
+        fig, ax = plt.subplots(figsize=(4.8, 4.2))
+        ax.plot([0, 1], [0, 1], color="tab:gray", linestyle=":", linewidth=1, label="perfectly calibrated")
+        for (g, sm), color in zip(groups, ("tab:blue", "tab:red", "tab:green")):
+            bins = sm["reliability"]
+            ax.plot([b["confidence"] for b in bins], [b["accuracy"] for b in bins], marker="o", color=color,
+                    label=f"{g.replace('_', ' ')} (n={sm['n']}, ECE {sm['ece']:.3f})")
+            for b in bins:
+                ax.annotate(str(b["n"]), (b["confidence"], b["accuracy"]), xytext=(3, -9), textcoords="offset points",
+                            fontsize=6, color=color)
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.set_xlabel("confidence (P the answer is right)")
+        ax.set_ylabel("accuracy")
+        ax.set_title("MEMORA reliability diagram (10 bins; labels: items)", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
+        fig.tight_layout()
+        paths.append(_save(fig, out / "reliability.png", plt))
     form = rep.get("memory_formation")
     if form:
         import numpy as np

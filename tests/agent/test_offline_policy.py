@@ -153,7 +153,7 @@ def test_the_reader_asks_typed_tools_round_by_round(embedder):
     assert "empties the wok" in first[1]["function"]["arguments"]
     state.iteration = 1
     second = policy.respond([], tool_schemas(names), forced=False, state=state).tool_calls
-    assert [c["function"]["name"] for c in second] == ["search_activities", "search_objects"]
+    assert [c["function"]["name"] for c in second] == ["search_activities", "get_preferences", "search_objects"]
     # a condition without the typed tools asks the same things through its one search
     flat = policy.respond([], tool_schemas(["search"], "flat1d"), forced=False, state=AgentState("eam_qa", view))
     assert [c["function"]["name"] for c in flat.tool_calls] == ["search"]

@@ -56,7 +56,8 @@ def test_lookups_use_whatever_tools_a_condition_has(lex):
     intent = parse_question("After P37 takes the chicken, what do they usually do next?", lex)
     memora = plan(intent, ["search", "search_objects", "search_activities", "get_preferences", "get_routine_skill"])
     assert [n for n, _ in memora[0]] == ["get_preferences", "search_activities"]
-    assert [n for n, _ in memora[1]] == ["search_activities", "search_objects"]
+    assert [n for n, _ in memora[1]] == ["search_activities", "get_preferences", "search_objects"]
+    assert memora[1][1][1]["query"] == "chicken"  # the consolidated knowledge about the object itself
     flat = plan(intent, ["search"])
     assert {n for r in flat for n, _ in r} == {"search"} and flat[0][0][1]["top_k"] == 30
     recall = plan(parse_question("In video P37_101, P37 handled the bowl. What did they do?", lex),
