@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from memora_graph.agent import lookups
+from memora_graph.agent.confidence import load_calibration
 from memora_graph.agent.open_answer import OpenAnswer, answer_open
 from memora_graph.agent.evidence import events_of
 from memora_graph.agent.reading import (
@@ -45,10 +46,11 @@ class AskResult:
     evidence: list[dict] = field(default_factory=list)  # {id, text} of the records behind the answer
     calls: list[dict] = field(default_factory=list)  # {tool, arguments}
     typed: OpenAnswer | None = None  # without choices, over MEMORA: the answer in the type asked
+    probability: float | None = None  # with choices: the calibrated reader's P(the answer given is right)
 
     @property
     def confidence(self) -> float | None:
-        return self.typed.confidence if self.typed is not None else None
+        return self.typed.confidence if self.typed is not None else self.probability
 
     @property
     def in_memory(self) -> bool:
@@ -131,14 +133,15 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
     events = [e for r in results for e in events_of(r, lex)]
     if choices:
         opts = list(choices[:4])
-        d = score(question, opts + [""] * (4 - len(opts)), events, lex, embed=embed or _embedder())
+        d = score(question, opts + [""] * (4 - len(opts)), events, lex, embed=embed or _embedder(),
+                  calibration=load_calibration())
         if d.letter == OPTION_E:
             return AskResult(question, participant, NOT_IN_MEMORY, OPTION_E, intent.kind, d.reason, d.scores[:len(opts)],
-                             _cite([i for s in d.support for i in s], events), calls)
+                             _cite([i for s in d.support for i in s], events), calls, probability=d.probability)
         i = "ABCD".index(d.letter)
         return AskResult(question, participant, f"{d.letter}) {opts[i]}", d.letter, intent.kind, d.reason,
                          d.scores[:len(opts)],
-                         _cite(d.support[i], events), calls)
+                         _cite(d.support[i], events), calls, probability=d.probability)
     subject = set(intent.subject_nouns)
     if subject and not any(subject & set(e.nouns) for e in events):
         return AskResult(question, participant, NOT_IN_MEMORY, None, intent.kind, "no record of the subject",

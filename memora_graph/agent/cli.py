@@ -59,7 +59,8 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
             click.echo(render(pl.DataFrame(result.evidence), fmt))
         return
     if fmt == "table":
-        click.echo(f"{result.answer}\n({result.kind} question; {result.reason})")
+        sure = "" if result.confidence is None else f"; confidence {result.confidence:.2f}"
+        click.echo(f"{result.answer}\n({result.kind} question; {result.reason}{sure})")
         if result.evidence:
             click.echo(render(pl.DataFrame(result.evidence), fmt))
         return

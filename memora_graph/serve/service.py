@@ -114,7 +114,8 @@ class AskAnswer(BaseModel):
     scores: dict[str, float] = Field(description="With choices: each choice's score, by its letter (A, B, ...).")
     evidence: list[EvidenceItem] = Field(description="The records behind the answer.")
     calls: list[ToolCall] = Field(description="The typed lookups the reader made.")
-    confidence: float | None = Field(None, description="Without choices: the probability that the answer is right.")
+    confidence: float | None = Field(None, description="The probability that the answer is right (with choices: "
+                                                            "the calibrated reader's, for the letter given).")
     typed: dict[str, Any] | None = Field(None, description="Without choices: the answer in the type asked (a place, "
                                                            "a video and time, a count, yes/no, next actions with "
                                                            "their share, steps, states; or the not-in-memory reason).")

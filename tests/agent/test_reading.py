@@ -92,6 +92,9 @@ def test_worked_examples_answer_from_typed_memory_with_real_evidence(small_bank,
     bank, _ = small_bank
     result = ask(bank, "P37", question, choices)
     assert result.letter == gold, (result.answer, result.scores, result.reason)
+    # the calibrated reader's probability comes with a multiple-choice answer, as in the benchmark's records
+    assert result.confidence is not None and 0.0 < result.confidence < 1.0
+    assert result.as_dict()["confidence"] == result.confidence
     with MemoryView.open(bank, "P37") as view:
         assert _ids_in_bank(view, [e["id"] for e in result.evidence])
 
