@@ -22,7 +22,7 @@ def display(kind: str) -> str:
     return kind.replace("_", " ").strip()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Obj:
     kind: str
     entity: str  # the entity id (a merged duplicate resolves to what it was merged into)
@@ -30,8 +30,8 @@ class Obj:
     is_fixture: bool
 
 
-@dataclass
-class Step:
+@dataclass(slots=True)
+class Step:  # slots: a 1,000 h participant has about a million steps
     video: str
     segment: str
     t: float
@@ -109,6 +109,8 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
     merged = dict(events.filter((pl.col("status") == "merged") & (pl.col("merged_into").fill_null("") != ""))
                   .select("entity", "merged_into").iter_rows())
 
+    objs: dict[tuple, Obj] = {}  # one Obj per distinct (kind, entity, category, fixture), shared by its steps
+
     def resolve(entity: str) -> str:
         seen = set()
         while entity in merged and entity not in seen:
@@ -121,7 +123,10 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
     key = None
     for e in events.iter_rows(named=True):  # ordered by video, t, ord: one narration's entries are adjacent
         k = (e["video"], e["t"], e["narration"])
-        obj = Obj(e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+        okey = (e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+        obj = objs.get(okey)
+        if obj is None:
+            obj = objs[okey] = Obj(*okey)
         if k != key:
             current = Step(video=e["video"], segment=e["segment"], t=float(e["t"]), verb=e["action"], objects=[obj],
                            location=e["location"] or "", zone=e["zone"] or "", destination=e["relative_to"] or "",
