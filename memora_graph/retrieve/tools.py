@@ -550,11 +550,9 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
     transitions = [{"video": r["video"], "t": r["t"], "from": r["prev"], "to": r["location"],
                     "across_videos": r["video"] != r["prev_video"], "segment_id": segment_id(r["video"], int(r["turn"])),
                     "event_id": r["id"]} for r in moved.iter_rows(named=True)]
-    shown_ids = outline["id"].tail(keep).to_list() if keep else []
-    full = {r["id"]: r for r in view.fetch("_tool_history_entries", entity=e["id"], ids=shown_ids)} if shown_ids else {}
+    tail = view.fetch("_tool_history_tail", entity=e["id"], limit=keep)[::-1] if keep else []  # (video, t, ord) is unique
     shown = []
-    for i in shown_ids:
-        r = full[i]
+    for r in tail:
         shown.append({"event_id": r["id"], "segment_id": segment_id(r["video"], int(r["turn"])), "video": r["video"],
                       "turn_id": r["turn"], "time_seconds": r["t"], "state": r["state"], "location": r["location"],
                       "zone": r["zone"] or None, "held_by": r["held_by"] or None, "relative_to": r["relative_to"] or None,

@@ -214,7 +214,7 @@ class MemoryView:
 
     def frame(self, name: str, **params):
         """A named query's rows as a polars frame (one columnar fetch: for many thin rows)."""
-        return self.store.run(name, participant=self.participant, **params)
+        return self.store.fetch_frame(name, participant=self.participant, **params)
 
     def _from_persisted(self, read):
         """`read(persisted)`, or None (and the persisted stores dropped, with a warning) when a
