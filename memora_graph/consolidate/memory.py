@@ -105,7 +105,11 @@ class ParticipantMemory:
 def load_memory(store: Store, participant: str) -> ParticipantMemory:
     segments = store.run("_consolidate_segments", participant=participant).to_dicts()
     events = store.run("_consolidate_events", participant=participant)  # read row by row: at 1,000 h a
-    # participant has over a million state events, and a dict per row at once would cost gigabytes
+    # participant has over a million state events, and a dict per row at once would cost gigabytes.
+    # Sorted again here: Kùzu's ORDER BY was seen to return one row of 11,757 out of place (a 10 h
+    # synthetic participant; where depends on how the rows lie on disk), which moved a narration's
+    # entries apart and changed a routine; (video, t, ord) is unique, so this order is the intended one.
+    events = events.sort("video", "t", "ord", maintain_order=True)
     merged = dict(events.filter((pl.col("status") == "merged") & (pl.col("merged_into").fill_null("") != ""))
                   .select("entity", "merged_into").iter_rows())
 
