@@ -251,6 +251,26 @@ class RuleConsolidator:
             ))
         return out
 
+    def _sequence_evidence(self, steps: list[Step], recurring: set[tuple[str, ...]],
+                           evidence: dict[tuple[str, ...], _SequenceEvidence]) -> None:
+        """What `_sequences` would cite for one video, added to the chosen sequences' evidence
+        (keyed by their steps' texts, as the merge groups them), without building the records:
+        a video's windows are grouped by their tokens, a group takes the texts of its first window."""
+        found: dict[tuple[str, ...], tuple] = {}
+        for tokens, window in self._windows(steps):
+            if tokens not in recurring:
+                continue
+            rec = found.get(tokens)
+            if rec is None:
+                rec = found[tokens] = (evidence.get(tuple(s.text() for s in window)), [], [], [])
+            if rec[0] is not None:
+                rec[1].append(window[0].segment)
+                rec[2].extend(s.segment for s in window)
+                rec[3].extend(s.main.entity for s in window)
+        for ev, first, segments, entities in found.values():
+            if ev is not None:
+                ev.extend(first, segments, entities)
+
     # -- per participant ---------------------------------------------------------------
     def consolidate_participant(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> Consolidation:
         return Consolidation(
@@ -282,10 +302,7 @@ class RuleConsolidator:
         if evidence:
             by_video, recurring = memory.steps_by_video(), self.recurring(memory)
             for video in videos:  # the second read: only the chosen sequences' evidence is kept
-                for a in self._sequences(video, by_video.get(video, []), recurring):
-                    ev = evidence.get(tuple(a.steps))
-                    if ev is not None:
-                        ev.add(a)
+                self._sequence_evidence(by_video.get(video, []), recurring, evidence)
         return Consolidation(
             participant=memory.participant, videos=list(videos), storage_preferences=self._merge_storage(storage),
             organizational_habits=self._merge_habits(habits), workflow_patterns=self._merge_workflows(workflows),
@@ -452,9 +469,12 @@ class _SequenceEvidence:
         self.episodes, self.segments, self.entities = {}, {}, {}
 
     def add(self, a: ActionSequence) -> None:
-        self.episodes.update(dict.fromkeys(a.supporting_episodes))
-        self.segments.update(dict.fromkeys(a.segments))
-        self.entities.update(dict.fromkeys(a.entities))
+        self.extend(a.supporting_episodes, a.segments, a.entities)
+
+    def extend(self, episodes, segments, entities) -> None:
+        self.episodes.update(dict.fromkeys(episodes))
+        self.segments.update(dict.fromkeys(segments))
+        self.entities.update(dict.fromkeys(entities))
 
 
 def _longest_cover(videos: dict[tuple[str, ...], int]) -> dict[tuple[str, ...], int]:
