@@ -33,8 +33,6 @@ def _dummy(param: str, cypher: str = ""):
         return [{f: _sample(f) for f in sorted(set(re.findall(r"\br\.(\w+)", cypher)))}]
     if param == "ids":
         return ["nothing"]
-    if param == "limit":
-        return 1
     if param == "vector":
         return [0.0] * 384
     if param == "applied_at":

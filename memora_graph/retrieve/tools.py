@@ -256,7 +256,7 @@ def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> l
     for c in kept:
         video, turn = c.id.rsplit("#t", 1)
         wanted |= {segment_id(video, int(turn) - 1), segment_id(video, int(turn) + 1)}
-    rows = {r["id"]: r for r in view.fetch("_tool_segments", ids=sorted(wanted))}
+    rows = {r["id"]: r for r in view.by_id("_tool_segment", sorted(wanted))}
     return [_activity_record(view, rows[c.id], rows, c) for c in kept if c.id in rows]
 
 
@@ -550,7 +550,7 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
     transitions = [{"video": r["video"], "t": r["t"], "from": r["prev"], "to": r["location"],
                     "across_videos": r["video"] != r["prev_video"], "segment_id": segment_id(r["video"], int(r["turn"])),
                     "event_id": r["id"]} for r in moved.iter_rows(named=True)]
-    tail = view.fetch("_tool_history_tail", entity=e["id"], limit=keep)[::-1] if keep else []  # (video, t, ord) is unique
+    tail = view.by_id("_tool_history_entry", outline["id"].tail(keep).to_list() if keep else [])
     shown = []
     for r in tail:
         shown.append({"event_id": r["id"], "segment_id": segment_id(r["video"], int(r["turn"])), "video": r["video"],
@@ -629,7 +629,7 @@ def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None =
     visible.sort(key=lambda v: (-v.since_seconds, v.entity_id))
     turn = int(t // 10)
     seg_ids = [segment_id(video, turn)]
-    segs = {s["id"]: s for s in view.fetch("_tool_segments", ids=seg_ids)}
+    segs = {s["id"]: s for s in view.by_id("_tool_segment", seg_ids)}
     seg = segs.get(seg_ids[0])
     return _envelope(
         view, StateAtTimeResult, "get_state_at_time", args, segment_id=seg["id"] if seg else None,

@@ -212,6 +212,11 @@ class MemoryView:
                 return got
         return self.store.fetch(name, participant=self.participant, **params)
 
+    def by_id(self, name: str, ids: list[str]) -> list[dict]:
+        """The rows of a one-id named query for each id, in order (an id not found gives none):
+        a prepared lookup by key each, where a filter over ids reads the whole table."""
+        return [r for i in ids for r in self.store.fetch(name, participant=self.participant, id=i)]
+
     def frame(self, name: str, **params):
         """A named query's rows as a polars frame (one columnar fetch: for many thin rows)."""
         return self.store.fetch_frame(name, participant=self.participant, **params)
