@@ -513,11 +513,13 @@ class Bank:
             raise BankError(f"participant must look like P01, not {participant!r}")
         return self.path / f"{participant}.kuzu"
 
-    def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None) -> Store:
+    def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None,
+             op: str = "write") -> Store:
         """Open a participant's database after checking it (`check`): against its integrity
         record before Kùzu opens it, then its record counts against the manifest. `verify=False`
         (`--no-verify`; default: on unless MEMORA_NO_VERIFY is set) skips every check knowingly.
-        A read-write store records the database's integrity again when it closes."""
+        A read-write store records the database's integrity again when it closes; until then the
+        manifest's write mark names `op` (a live writer's is "live")."""
         from memora_graph.store import Store
 
         data = self.manifest()
@@ -534,7 +536,7 @@ class Bank:
                 with Store(self.db_path(participant), read_only=True) as store:
                     self.verify_counts(participant, store, data["participants"][participant].get("counts", {}))
         if not read_only and not ours:
-            self.mark_writing(participant, "write")
+            self.mark_writing(participant, op)
         try:
             store = Store(self.db_path(participant), read_only=read_only,
                           on_close=None if read_only or ours else (lambda s: self.record_integrity(participant)),

@@ -57,6 +57,8 @@ COMMANDS = {
                "their texts; it is rebuilt on demand), and their manifest entry."),
     "import": ("memora_graph.transfer.cli:import_cmd",
                "Import a JSON or Parquet export (`memora export`) into BANK as a new participant."),
+    "remember": ("memora_graph.form.cli:remember_cmd",
+                 "Remember what just happened: perceive a narration, embed it, run the online editor and commit."),
     "serve": ("memora_graph.serve.cli:serve_cmd",
               "Serve a memory bank to agents over the Model Context Protocol (MCP)."),
     "tool": ("memora_graph.retrieve.cli:tool_cmd",
