@@ -51,6 +51,10 @@ OP = "live"  # the write mark a live writer holds (BANK/manifest.json "writing")
 log = logging.getLogger("memora_graph.integrity")
 
 
+_OPEN: set[tuple[str, str]] = set()  # (bank, participant) of the writers open in this process
+_OPEN_LOCK = threading.Lock()
+
+
 class WriterBusy(BankError):
     """Another writer (a live writer, a build, a reader holding the file) has the participant."""
 
@@ -166,6 +170,12 @@ class LiveWriter:
         from memora_graph.embed import get_embedder
 
         p = self.participant
+        mine = (str(self.bank.path.resolve()), p)
+        with _OPEN_LOCK:  # POSIX locks are the process's: a second writer here must be refused by hand
+            if mine in _OPEN:  # (two read-write Kùzu databases on one file in one process corrupt it)
+                raise WriterBusy(self._busy_message("a writer of this process has it open"))
+            _OPEN.add(mine)
+        self._stack.callback(lambda: _OPEN.discard(mine))
         try:
             self._stack.enter_context(self.bank.participant_lock(p, wait_s=lock_wait_s))
         except BankError:
