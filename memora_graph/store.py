@@ -122,6 +122,18 @@ class Store:
         self._catalog: dict[str, str] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
+    def reader(self) -> Store:
+        """A second connection on this open database, read-only by this class's checks, for
+        another thread of the same process (live memory consolidates off the request path):
+        Kùzu serves it a committed snapshot while this connection writes. Closing it closes
+        only the connection."""
+        other = Store.__new__(Store)
+        other.path, other.read_only, other.on_close, other.on_fail, other._broken = self.path, True, None, None, None
+        other._db, other._shared = self._db, True
+        other._conn = kuzu.Connection(self._db)
+        other._in_tx, other._prepared, other._catalog = False, {}, None
+        return other
+
     def close(self) -> None:
         if self._broken is not None:  # abandoned after a full disk: nothing may touch these handles again
             self._failed()
@@ -131,7 +143,8 @@ class Store:
                 if not self.read_only:
                     self._execute("CHECKPOINT")
                 self._conn.close()
-                self._db.close()
+                if not getattr(self, "_shared", False):
+                    self._db.close()
             except BaseException:
                 self._failed()
                 raise

@@ -25,17 +25,9 @@ from memora_graph.form.live import LiveWriter, Moment, WriterBusy
 from memora_graph.integrity.verify import verify_bank
 from memora_graph.perceive.narrations import NarrationReader, load_narrations
 from memora_graph.store import Store
+from support.live import KITCHEN, moments
 
 ROOT = Path(__file__).resolve().parents[1]
-KITCHEN = ["open the fridge", "take the milk from the fridge", "pour milk into the cup", "put the milk in the fridge",
-           "close the fridge", "wash the cup in the sink", "put the cup on the drying rack", "take a knife from the drawer",
-           "cut the bread with the knife", "put the knife in the sink"]
-
-
-def moments(n: int, video: str = "home-1", offset: float = 0.0) -> list[Moment]:
-    return [Moment(video, offset + 4.0 * i, offset + 4.0 * i + 3.0, KITCHEN[i % len(KITCHEN)]) for i in range(n)]
-
-
 def _rows(bank: Path, participant: str, cypher: str) -> list[dict]:
     with Store(Bank(bank).db_path(participant), read_only=True) as store:
         return store.query(cypher, {"p": participant}).to_dicts()

@@ -428,7 +428,7 @@ class LiveWriter:
                                                 "result": json.dumps(answer), "at": _now()}])
         delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
                  "places": [pp.location_id for pp in new_places + changed_places],
-                 "observations": [(ev["entity"], ev["location"]) for ev in result.events]}
+                 "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]]}
         return ops, delta
 
     def _add(self, name: str, rows: list[dict]) -> None:

@@ -103,6 +103,23 @@ class VectorTable:
         order = sorted(part, key=lambda i: (-float(s[i]), self.ids[i]))
         return [(self.ids[i], float(s[i])) for i in order]
 
+    def appended(self, rid: str, vector: np.ndarray) -> VectorTable:
+        """This table with one more row (a remembered segment). The matrix grows by doubling
+        behind the rows in use, so a stream of appends copies it O(log n) times, not per row."""
+        v = np.asarray(vector, dtype=np.float32).reshape(-1)
+        norm = float(np.linalg.norm(v))
+        v = v / norm if norm > 0 else v
+        n = len(self.ids)
+        store = self.__dict__.get("_store")
+        if store is None or store.shape[0] <= n or store.shape[1] != v.shape[0]:
+            width = v.shape[0] if n == 0 else self.mat.shape[1]
+            store = np.zeros((max(64, 2 * (n + 1)), width), dtype=np.float32)
+            store[:n] = self.mat
+        store[n] = v
+        out = VectorTable.normalized([*self.ids, rid], store[: n + 1])
+        out._store = store
+        return out
+
     def vec(self, rid: str) -> np.ndarray | None:
         n = self.index.get(rid)
         return None if n is None else self.mat[n]
@@ -136,6 +153,18 @@ class Bm25:
         bm.postings = {t: [tuple(p) for p in plist] for t, plist in state["postings"].items()}
         bm.n = len(bm.ids)
         return bm
+
+    def added(self, rid: str, text: str) -> Bm25:
+        """This index with one more document (a remembered segment), updated in place."""
+        toks = index_tokens(text)
+        n = len(self.ids)
+        self.ids = [*self.ids, rid]
+        for t, c in Counter(toks).items():
+            self.postings.setdefault(t, []).append((n, c))
+        self.lengths.append(len(toks))
+        self.avg = sum(self.lengths) / len(self.lengths)
+        self.n = len(self.ids)
+        return self
 
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
         scores: dict[int, float] = defaultdict(float)

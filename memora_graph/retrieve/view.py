@@ -322,6 +322,47 @@ class MemoryView:
             cache[table] = Bm25([d[0] for d in docs], [d[1] for d in docs])
         return cache[table]
 
+    # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
+    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words")
+
+    def absorb(self, delta: dict) -> None:
+        """Bring what this view loaded up to date with one remembered moment (form/live.py's
+        `Remembered.delta`), without reloading the participant: the new segment's vector and text
+        are appended, the new observations join the observation graph, and the small
+        participant-wide tables the moment touched (entities, places, videos) are read again on
+        their next use. Called by the one thread that writes, under the lock the readers take."""
+        loaded = self.__dict__
+        sid = delta["segment"]
+        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
+        if "segment" in vectors or "segment" in bm25:
+            row = self.store.fetch("_live_segment_row", participant=self.participant, id=sid)[0]
+            if "segment" in vectors:
+                vectors["segment"] = vectors["segment"].appended(sid, np.asarray(row["emb"], dtype=np.float32))
+            if "segment" in bm25:
+                bm25["segment"] = bm25["segment"].added(sid, f"{row['summary']} {row['narrative']}")
+        if delta.get("entities"):
+            for name in self._ENTITY_DERIVED:
+                loaded.pop(name, None)
+            vectors.pop("entity", None)
+            bm25.pop("entity", None)
+        if delta.get("places"):
+            loaded.pop("places", None)
+            vectors.pop("place", None)
+            bm25.pop("place", None)
+        loaded.pop("videos", None)
+        if "graph" in loaded:
+            loaded["graph"].add(sid, delta.get("observations", []))
+
+    def reload_inferred(self) -> None:
+        """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
+        links), after a consolidation replaced it: the next call reads the new records."""
+        loaded = self.__dict__
+        for name in ("routines", "preferences", "_links"):
+            loaded.pop(name, None)
+        for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
+            cache.pop("routine", None)
+            cache.pop("preference", None)
+
     def warm(self) -> None:
         """Load everything the tools read once (what the first call would otherwise pay)."""
         for t in TABLES:
@@ -372,13 +413,38 @@ class ObservationGraph:
         keys = np.concatenate(a_parts) * n + np.concatenate(b_parts)
         return np.unique(keys, return_counts=True)
 
+    def add(self, segment: str, observations: list[tuple[str, str]]) -> None:
+        """A remembered segment's observations ((entity, location) of each state event with an
+        action): its edges, and the pairs it adds to the co-occurrence counts (kept apart from
+        the sorted arrays, which are not rebuilt)."""
+        seen = [(e, loc) for e, loc in observations if e]
+        if not seen:
+            return
+        extra = self.__dict__.setdefault("_extra", Counter())
+        new = {e for e, _ in seen} - self.segment_entities[segment]
+        old = self.segment_entities[segment]
+        for e, loc in seen:
+            self.entity_segments[e].add(segment)
+            if loc:
+                self.entity_places[e][loc] += 1
+        for a in new:
+            for b in old | (new - {a}):
+                extra[(a, b)] += 1
+                if b in old:
+                    extra[(b, a)] += 1
+        self.segment_entities[segment] |= new
+
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""
+        counts: Counter[str] = Counter()
         i = self._row.get(entity)
-        if i is None:
-            return []
-        n = len(self.entities)
-        lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
-        row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
-        order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
-        return [(self.entities[j], int(c)) for j, c in order]
+        if i is not None:
+            n = len(self.entities)
+            lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
+            for j, c in zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist()):
+                counts[self.entities[j]] += int(c)
+        for (a, b), c in self.__dict__.get("_extra", {}).items():
+            if a == entity:
+                counts[b] += c
+        order = sorted(counts.items(), key=lambda kc: (-kc[1], kc[0]))[:k]
+        return [(e, int(c)) for e, c in order]

@@ -14,7 +14,7 @@ def _recipes() -> list[str]:
 
 
 @click.command("serve")
-@click.argument("bank", type=click.Path(exists=True, file_okay=False))
+@click.argument("bank", type=click.Path(file_okay=False))
 @click.option("--participant", help="Bind every call to this person's memory (P01). Without it, each call names one "
                                     "with its `participant` argument.")
 @click.option("--transport", type=click.Choice(["stdio", "http"]), default="stdio", show_default=True,
@@ -29,12 +29,23 @@ def _recipes() -> list[str]:
 @click.option("--output-schemas", is_flag=True,
               help="Also advertise each tool's result JSON schema. Results carry structured JSON either way; a "
                    "client that validates them against the schema (the mcp SDK's does) pays 5-40 ms per call.")
+@click.option("--writable", is_flag=True,
+              help="Also serve the `remember` tool: this server holds the participant's writer (one per participant; "
+                   "others are told it is busy) and reads what was just remembered. Needs --participant; over HTTP, "
+                   "a --token. The bank and the participant are created if need be.")
+@click.option("--token", envvar="MEMORA_SERVE_TOKEN", metavar="TOKEN",
+              help="With --transport http: every request must send `Authorization: Bearer TOKEN` (required with "
+                   "--writable; default: $MEMORA_SERVE_TOKEN).")
+@click.option("--consolidate-every", type=click.IntRange(min=1), metavar="N",
+              help="With --writable: update routines and preferences (incremental consolidation) after every N new "
+                   "segments, in the background; readers see the old records or the new, never half.")
 @click.pass_context
-def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_schemas):
+def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_schemas, writable, token,
+              consolidate_every):
     """Serve a memory bank to agents over the Model Context Protocol (MCP).
 
-    The bank is opened read-only, checked against its integrity record, and kept open across
-    calls. Tools: every typed retrieval tool (argument schemas from the tool registry; JSON
+    The bank is opened read-only (unless --writable), checked against its integrity record, and
+    kept open across calls. Tools: every typed retrieval tool (argument schemas from the tool registry; JSON
     results), `ask` (the typed question reader), `cypher` (one read-only statement through the
     guard of `memora query`) and the named queries as `query_<name>` (`memora queries`). Nothing
     served writes. Bad arguments are MCP errors naming the field.
@@ -45,6 +56,8 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
       memora serve banks/epic --transport http                        # every call names its participant
       memora serve banks/epic --participant P03 --transport http --port 8765
       memora serve banks/epic --transport http --host 0.0.0.0 --port 8765   # reachable from other machines
+      memora serve banks/home --participant P01 --writable --consolidate-every 100   # + remember, over stdio
+      memora serve banks/home --participant P01 --writable --transport http --token "$(openssl rand -hex 16)"
     \b
     A desktop client (Claude Desktop's claude_desktop_config.json):
       {"mcpServers": {"memora": {"command": "/path/to/.venv/bin/memora",
@@ -57,18 +70,25 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
              if ctx.get_parameter_source(p) is not click.core.ParameterSource.DEFAULT]
     if transport == "stdio" and given:
         raise click.UsageError(f"{' and '.join(given)} apply to --transport http")
-    if transport == "http" and host not in ("127.0.0.1", "localhost", "::1"):
+    if writable and not participant:
+        raise click.UsageError("--writable serves one participant's memory: add --participant P01")
+    if consolidate_every and not writable:
+        raise click.UsageError("--consolidate-every applies with --writable")
+    if writable and transport == "http" and not token:
+        raise click.UsageError("--writable over HTTP needs --token TOKEN (or MEMORA_SERVE_TOKEN): clients send it as "
+                               "`Authorization: Bearer TOKEN`")
+    if transport == "http" and host not in ("127.0.0.1", "localhost", "::1") and not token:
         click.echo(f"warning: listening on {host}: the server has no authentication; anyone who can reach this "
                    "port can read this memory", err=True)
-    service = MemoryService(bank, participant, recipe=recipe)
+    service = MemoryService(bank, participant, recipe=recipe, writable=writable, consolidate_every=consolidate_every)
     who = participant or f"each call names one of {', '.join(service.participants)}"
     try:
         if transport == "stdio":
             click.echo(f"memora serve: {bank} ({who}) on stdio", err=True)
             serve_stdio(service, output_schemas)
         else:
-            serve_http(service, host, port, output_schemas=output_schemas, on_ready=lambda url: click.echo(
-                f"memora serve: {bank} ({who}) at {url}", err=True))
+            serve_http(service, host, port, output_schemas=output_schemas, token=token if transport == "http" else None,
+                       on_ready=lambda url: click.echo(f"memora serve: {bank} ({who}) at {url}", err=True))
     finally:
         service.close()
 
