@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from memora_graph.output import output_options, render
@@ -80,6 +82,15 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
     if transport == "http" and host not in ("127.0.0.1", "localhost", "::1") and not token:
         click.echo(f"warning: listening on {host}: the server has no authentication; anyone who can reach this "
                    "port can read this memory", err=True)
+    stopped: list[int] = []
+    if writable:  # SIGTERM (a client or a supervisor stopping the server) closes the writer cleanly:
+        import signal  # uvicorn re-raises the signal after its shutdown, which would skip the close below
+
+        def stop(signum, frame):
+            stopped.append(128 + signum)
+            raise SystemExit(128 + signum)
+
+        signal.signal(signal.SIGTERM, stop)
     service = MemoryService(bank, participant, recipe=recipe, writable=writable, consolidate_every=consolidate_every)
     who = participant or f"each call names one of {', '.join(service.participants)}"
     try:
@@ -91,6 +102,11 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
                        on_ready=lambda url: click.echo(f"memora serve: {bank} ({who}) at {url}", err=True))
     finally:
         service.close()
+        if stopped:  # closed and recorded: leave now (idle worker threads would hold the exit for 10 s)
+            import os
+
+            sys.stderr.flush()
+            os._exit(stopped[0])
 
 
 @click.command("serve")
