@@ -77,6 +77,8 @@ PERF_COMMANDS = {
     "encoders": ("memora_graph.retrieve.perf_encoders:perf_encoders_cmd",
                  "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
+    "live": ("memora_graph.perf_live:perf_live_cmd",
+             "Live memory: remember latency, tool latency while remembering, incremental consolidation."),
     "model": ("memora_graph.perf_model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
     "ray": ("memora_graph.perf_ray:perf_ray",
