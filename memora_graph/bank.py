@@ -371,6 +371,11 @@ class Bank:
             return (f"{db}: its build was interrupted ({since}, process {pid} failed or is gone), so {participant}'s memory is "
                     f"incomplete. Resume it with `memora build {self.path} --participants {participant}` (or "
                     f"`memora build {self.path} --rebuild {participant}`).")
+        if op == "live":
+            return (f"{db}: its live writer ({since}, process {pid}) stopped without closing; what it acknowledged is in "
+                    f"its write-ahead log. The next writer replays it (`memora remember {self.path} --participant "
+                    f"{participant} ...`, `memora serve {self.path} --participant {participant} --writable`), as does "
+                    f"`memora verify {self.path} --accept {participant}`.")
         return (f"{db}: a write to it ({op}, {since}) did not finish (process {pid} failed or is gone). `memora verify {self.path}` "
                 f"reports it; `memora verify {self.path} --accept {participant}` keeps what that write committed, "
                 f"or rebuild: `memora build {self.path} --rebuild {participant}`.")
