@@ -74,7 +74,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
     from memora_graph.serve import MemoryService
     from memora_graph.serve.perf import call_set
 
-    texts = _narrations(participant, remembers + 260)
+    texts = _narrations(participant, 2000)
     service = MemoryService(bank, participant, writable=True)
     counts = service.bank.manifest()["participants"][participant]["counts"]
     out = {"segments_before": counts.get("segments"), "state_events_before": counts.get("state_events")}
@@ -83,7 +83,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
     def remember() -> tuple[float, float]:
         i = step[0]
         step[0] += 1
-        m = Moment("live-perf", 3.0 * i, 3.0 * i + 2.5, texts[i])
+        m = Moment("live-perf", 3.0 * i, 3.0 * i + 2.5, texts[i % len(texts)])
         t0, c0 = time.perf_counter(), time.thread_time()
         service.call("remember", {"text": m.text, "video": m.video, "start": m.start, "end": m.end})
         return (time.perf_counter() - t0) * 1e3, (time.thread_time() - c0) * 1e3
@@ -133,6 +133,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
                    tool_stream_p95_ms=_pct(busy, .95), stream_rate_achieved=round(achieved, 2),
                    stream_remember_p95_ms=_pct(streamed, .95), tool_calls=len(idle))
         out["tool_p95_ratio"] = round(out["tool_stream_p95_ms"] / out["tool_idle_p95_ms"], 2)
+        echo("  " + json.dumps(out))
 
         echo("  incremental consolidation")
         from memora_graph.consolidate.live import BackgroundConsolidation

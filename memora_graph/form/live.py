@@ -37,6 +37,7 @@ import polars as pl
 
 from memora_graph import schema
 from memora_graph.bank import Bank, _alive
+from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
 from memora_graph.form.build import _entity_row, _place_row
 from memora_graph.form.editor import EntityEditor, EntityState, get_editor_policy, identity_text
@@ -313,7 +314,9 @@ class LiveWriter:
             # state the writer changes only once the transaction committed: on failure it is rebuilt
             snapshot = self._snapshot(segment)
             try:
-                result, rows = self._write(key, segment, v, turn)
+                # one short text at a time: torch's thread pool only spins against the readers' threads
+                with torch_threads(1, self.embedder, kind="passage"):
+                    result, rows = self._write(key, segment, v, turn)
             except BaseException:
                 self._restore(snapshot)
                 raise
