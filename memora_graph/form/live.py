@@ -126,6 +126,12 @@ def recover(bank: Bank, participant: str) -> bool:
     if mark.get("op") == "build":
         raise BankError(bank.interrupted_message(participant, mark))
     db = bank.db_path(participant)
+    if participant not in data["participants"]:  # killed while creating the participant: nothing acknowledged
+        for f in [db, *side_files(db)]:
+            f.unlink(missing_ok=True)
+        bank.update_manifest(lambda d: (d.get("writing", {}).pop(participant, None),
+                                        d.pop("writing", None) if not d.get("writing") else None))
+        return True
     if side_files(db):
         from memora_graph.integrity.files import probe
 
@@ -443,21 +449,3 @@ class LiveWriter:
         if got != len(rows):
             raise StoreError(f"{self.store.path}: {name} wrote {got} of {len(rows)} rows (a missing entity, place or "
                              "segment); nothing of this moment was kept")
-
-    # -- reading -----------------------------------------------------------------------
-    @property
-    def lock(self) -> threading.RLock:
-        """Held while a remember writes; a reader of `store` in this process takes it too."""
-        return self._lock
-
-
-def remember_many(writer: LiveWriter, moments, on_done=None) -> list[Remembered]:
-    """Remember a stream of moments in order (each committed before the next is read)."""
-    out = []
-    for m in moments:
-        r = writer.remember(m) if isinstance(m, Moment) else writer.remember_segment(m)
-        out.append(r)
-        if on_done is not None:
-            on_done(r)
-    return out
-

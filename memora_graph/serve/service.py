@@ -338,6 +338,13 @@ class MemoryService:
         if text is not None and (arguments.get("video") is None or arguments.get("start") is None):
             missing = [f for f in ("video", "start") if arguments.get(f) is None]
             raise ArgumentError("remember", [(f, "required with text") for f in missing])
+        if seg is not None:
+            from memora_graph.records import LayeredSegment
+
+            try:
+                seg = LayeredSegment.model_validate(seg)
+            except ValidationError as exc:
+                raise ArgumentError("remember", [(f"segment.{f}", m) for f, m in _problems(exc)]) from None
         with self._lock:
             if seg is not None:
                 done = self.writer.remember_segment(seg, arguments.get("id"))
