@@ -159,8 +159,13 @@ class LiveWriter:
     """A participant's memory held open for writing, one moment at a time (see the module)."""
 
     def __init__(self, bank: str | Path, participant: str, embedder=None, reader: NarrationReader | None = None,
-                 lock_wait_s: float = 0.5):
+                 lock_wait_s: float = 0.5, store_lock=None, on_commit=None):
+        """`store_lock`: taken around every use of the store (the readers of a server share it,
+        so perception, embedding and the editor's decision run outside it); `on_commit(delta)`
+        runs inside it right after each commit (a server updates its readers' caches there)."""
         self.bank = Bank(bank)
+        self._store_lock = store_lock if store_lock is not None else threading.RLock()
+        self._on_commit = on_commit
         self.participant = participant
         self.bank.db_path(participant)  # a malformed id fails here
         self._stack = ExitStack()
@@ -307,7 +312,8 @@ class LiveWriter:
             if self.store is None:
                 raise BankError(f"{self.bank.path}: this writer of {self.participant} is closed")
             p = self.participant
-            done = self.store.fetch("_live_remembered", participant=p, id=key)
+            with self._store_lock:
+                done = self.store.fetch("_live_remembered", participant=p, id=key)
             if done:
                 answer = json.loads(done[0]["result"])
                 return Remembered(**{**answer, "duplicate": True}, seconds=time.perf_counter() - t0)
@@ -402,6 +408,21 @@ class LiveWriter:
         answer = {"key": key, "participant": p, "segment": sid, "video": seg.video_id, "turn": turn, "ops": ops}
         # Row by row (UNWIND ... CREATE): a COPY writes whole pages straight into the file and costs
         # 100-300 ms to commit where a small CREATE transaction costs a few (measured here).
+        with self._store_lock:
+            self._transaction(key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, place_vecs,
+                              new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
+                              duration, n_actions)
+            delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
+                     "places": [pp.location_id for pp in new_places + changed_places],
+                     "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]]}
+            if self._on_commit is not None:
+                self._on_commit(delta)
+        return ops, delta
+
+    def _transaction(self, key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, place_vecs,
+                     new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged, duration,
+                     n_actions) -> None:
+        p, dim, sid = self.participant, self.embedder.dim, seg.segment_id
         with self.store.transaction():
             if seg.video_id not in self.videos:
                 self._add("_live_add_video", [{"id": seg.video_id, "duration": duration, "n_turns": turn + 1,
@@ -435,10 +456,6 @@ class LiveWriter:
             self._add("_live_add_merged", merged)
             self._add("_live_add_remembered", [{"id": key, "video": seg.video_id, "t": seg.t_start, "segment": sid,
                                                 "result": json.dumps(answer), "at": _now()}])
-        delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
-                 "places": [pp.location_id for pp in new_places + changed_places],
-                 "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]]}
-        return ops, delta
 
     def _add(self, name: str, rows: list[dict]) -> None:
         """Run one of the live writer's CREATE queries; every row must land (a row whose

@@ -193,13 +193,16 @@ class MemoryService:
         segments, incremental consolidation runs in a background thread (consolidate/live.py)."""
         self.writer = None
         self.consolidator = None
+        self._lock = threading.Lock()
         if writable:
             if participant is None:
                 raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
             from memora_graph.form.live import LiveWriter
 
             participant = check_participant(participant, "--participant")
-            self.writer = LiveWriter(bank, participant)  # creates the bank or the participant if need be
+            # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
+            # and commits and updates the readers' caches inside it
+            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb)
         elif consolidate_every is not None:
             raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)
@@ -213,7 +216,6 @@ class MemoryService:
         self.recipe = recipe
         self.max_rows = max_rows
         self._views: dict[str, MemoryView] = {}
-        self._lock = threading.Lock()
         self._endpoints = {e.name: e for e in self._build_endpoints()}
         if self.writer is not None and consolidate_every is not None:
             from memora_graph.consolidate.live import BackgroundConsolidation
@@ -345,20 +347,22 @@ class MemoryService:
                 seg = LayeredSegment.model_validate(seg)
             except ValidationError as exc:
                 raise ArgumentError("remember", [(f"segment.{f}", m) for f, m in _problems(exc)]) from None
-        with self._lock:
-            if seg is not None:
-                done = self.writer.remember_segment(seg, arguments.get("id"))
-            else:
-                start = arguments["start"]
-                end = start if arguments.get("end") is None else arguments["end"]
-                done = self.writer.remember(self.writer.moment(arguments["video"], start, end, text, arguments.get("id"),
-                                                               where="remember"))
-            view = self._views.get(participant)
-            if view is not None and not done.duplicate:
-                view.absorb(done.delta)
+        if seg is not None:
+            done = self.writer.remember_segment(seg, arguments.get("id"))
+        else:
+            start = arguments["start"]
+            end = start if arguments.get("end") is None else arguments["end"]
+            done = self.writer.remember(self.writer.moment(arguments["video"], start, end, text, arguments.get("id"),
+                                                           where="remember"))
         if self.consolidator is not None and not done.duplicate:
             self.consolidator.added(1)
         return RememberResult.model_validate(done.as_dict()).model_dump(mode="json")
+
+    def _absorb(self, delta: dict) -> None:
+        """Right after a remember committed, inside the readers' lock: their caches take it in."""
+        view = self._views.get(self.participant)
+        if view is not None:
+            view.absorb(delta)
 
     def _consolidated(self) -> None:
         """After a background consolidation committed (under the lock): readers load the new records."""
