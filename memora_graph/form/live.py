@@ -433,7 +433,11 @@ class LiveWriter:
                                n_turns=turn + 1, n_actions=n_actions)
             self._add("_live_add_segment", [{**seg_row, "emb": _floats(seg_vec)}])
             if v.last_segment is not None:
-                self._add("_live_add_next", [{"from": v.last_segment, "to": sid}])
+                # scalar ids: Kùzu looks them up in the primary-key index (an UNWIND row's id scanned the table)
+                got = self.store.write("_live_add_next", participant=p, from_id=v.last_segment, to_id=sid)
+                if int(got[0]["n"]) != 1:
+                    raise StoreError(f"{self.store.path}: the previous segment {v.last_segment} is missing; nothing of "
+                                     "this moment was kept")
             self._add("_live_add_places", [{**_place_row(pp), "emb": _floats(vec)}
                                            for pp, vec in zip(new_places, place_vecs[: len(new_places)])])
             if changed_places:
