@@ -389,6 +389,11 @@ class Bank:
             return (f"{db}: its build was interrupted ({since}, process {pid} failed or is gone), so {participant}'s memory is "
                     f"incomplete. Resume it with `memora build {self.path} --participants {participant}` (or "
                     f"`memora build {self.path} --rebuild {participant}`).")
+        if op == "live":
+            return (f"{db}: its live writer ({since}, process {pid}) stopped without closing; what it acknowledged is in "
+                    f"its write-ahead log. The next writer replays it (`memora remember {self.path} --participant "
+                    f"{participant} ...`, `memora serve {self.path} --participant {participant} --writable`), as does "
+                    f"`memora verify {self.path} --accept {participant}`.")
         return (f"{db}: a write to it ({op}, {since}) did not finish (process {pid} failed or is gone). `memora verify {self.path}` "
                 f"reports it; `memora verify {self.path} --accept {participant}` keeps what that write committed, "
                 f"or rebuild: `memora build {self.path} --rebuild {participant}`.")
@@ -551,11 +556,13 @@ class Bank:
             raise BankError(f"{db}: resolves to {db.resolve()}, outside the bank {self.path.resolve()}; refused")
         return db
 
-    def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None) -> Store:
+    def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None,
+             op: str = "write") -> Store:
         """Open a participant's database after checking it (`check`): against its integrity
         record before Kùzu opens it, then its record counts against the manifest. `verify=False`
         (`--no-verify`; default: on unless MEMORA_NO_VERIFY is set) skips every check knowingly.
-        A read-write store records the database's integrity again when it closes."""
+        A read-write store records the database's integrity again when it closes; until then the
+        manifest's write mark names `op` (a live writer's is "live")."""
         from memora_graph.store import Store
 
         data = self.manifest()
@@ -574,7 +581,7 @@ class Bank:
                 with Store(self.db_path(participant), read_only=True) as store:
                     self.verify_counts(participant, store, data["participants"][participant].get("counts", {}))
         if not read_only and not ours:
-            self.mark_writing(participant, "write")
+            self.mark_writing(participant, op)
         try:
             store = Store(self.db_path(participant), read_only=read_only,
                           on_close=None if read_only or ours else (lambda s: self.record_integrity(participant)),

@@ -59,6 +59,8 @@ COMMANDS = {
                "Import a JSON or Parquet export (`memora export`) into BANK as a new participant."),
     "plan": ("memora_graph.agent.cli:plan_cmd",
              "Plan a goal from one person's memory, with the offline planner (deterministic, no model)."),
+    "remember": ("memora_graph.form.cli:remember_cmd",
+                 "Remember what just happened: perceive a narration, embed it, run the online editor and commit."),
     "serve": ("memora_graph.serve.cli:serve_cmd",
               "Serve a memory bank to agents over the Model Context Protocol (MCP)."),
     "tool": ("memora_graph.retrieve.cli:tool_cmd",
@@ -81,6 +83,8 @@ PERF_COMMANDS = {
     "encoders": ("memora_graph.perf.encoders:perf_encoders_cmd",
                  "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
+    "live": ("memora_graph.perf.live:perf_live_cmd",
+             "Live memory: remember latency, tool latency while remembering, incremental consolidation."),
     "model": ("memora_graph.perf.model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
     "ray": ("memora_graph.perf.ray:perf_ray",
@@ -124,13 +128,18 @@ def main():
 @click.argument("bank", type=click.Path(file_okay=False))
 @participants_option()
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False), help="EPIC-style CSV (default: the bundled subset).")
+@click.option("--narrations", type=click.Path(exists=True, dir_okay=False),
+              help="Free-text narrations instead: CSV, JSONL or Parquet with video_id, start, end, text and optional "
+                   "participant (Ego4D-style '#C C takes a cup' works as given). Words are read into EPIC verb / noun "
+                   "classes; those no class covers are kept and reported.")
 @click.option("--mode", type=EDITOR_POLICY, default="edited", show_default=True,
               help="'raw' stores one record per observation, unedited (baselines, compression figure).")
 @click.option("--backend", type=BACKEND, default="offline", show_default=True,
               help="Memory processors: 'offline' is the deterministic CPU policy (annotations only); 'openai' "
                    "any OpenAI-compatible server (vllm serve, llama.cpp); 'vllm' an in-process engine.")
 @click.option("--video", "video", type=click.Path(exists=True), help="Build from a video file, or every video in a directory.")
-@click.option("--participant", help="With --video: whose memory the video goes into (P01).")
+@click.option("--participant", help="With --video (or --narrations without a participant column): whose memory it "
+                                    "goes into (P01).")
 @click.option("--video-id", help="With --video FILE: the id to store it under (default: the file name).")
 @click.option("--base-url", help="With --backend openai: the server, e.g. http://127.0.0.1:8000/v1.")
 @click.option("--perception-model", help="The vision-language model (default: the first the server lists).")
@@ -159,7 +168,7 @@ def main():
                    "videos one after another) and consolidation calls in flight (default 8; 1: one call at a time).")
 @quiet_option
 @executor_options
-def build(bank, participants, annotations, mode, backend, video, participant, video_id, base_url, perception_model,
+def build(bank, participants, annotations, narrations, mode, backend, video, participant, video_id, base_url, perception_model,
           editor_model, editor_base_url, consolidation, consolidation_model, audio, embed_model, episodic, fts, jobs,
           rebuild, concurrency, quiet, executor, ray_address, retries, ray_shared):
     """Build (or resume) a memory bank from action annotations, or from video with --video.
@@ -175,6 +184,7 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
       memora build banks/episodic --episodic          # MEMORA-Episodic: no routines / preferences
       memora build banks/epic --fts                   # also the full-text indexes (recipes fts, kuzu)
       memora build banks/epic --rebuild P01_102       # rebuild P01 (e.g. its annotations changed)
+      memora build banks/ego --narrations narrations.csv --participant P01   # video_id,start,end,text
       memora build banks/home --video kitchen.mp4 --participant P01 --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --perception-model Qwen/Qwen2.5-VL-7B-Instruct \\
           --editor-model Qwen/Qwen3-30B-A3B-Instruct-2507   # the same server consolidates with it
@@ -192,9 +202,9 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
         if rebuild:
             raise click.UsageError("--rebuild applies to annotation builds; to rebuild a participant from video, "
                                    "`memora forget BANK --participant P` and build it again with all its videos")
-        if annotations or mode != "edited" or participants is not None or jobs:
-            raise click.UsageError("--video builds one --participant, edited; drop --annotations, --mode, --participants "
-                                   "and --jobs")
+        if annotations or narrations or mode != "edited" or participants is not None or jobs:
+            raise click.UsageError("--video builds one --participant, edited; drop --annotations, --narrations, --mode, "
+                                   "--participants and --jobs")
         if ex.remote:  # one task per participant: --participant, or a directory of P01/, P02/ ... folders
             return _build_video_ray(bank, video, backend, embed_model, quiet, ex,
                                    {**video_opts, "episodic": episodic, "fts": fts})
@@ -204,6 +214,11 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
                                                                         "concurrency": concurrency or 8})
     if concurrency is not None:
         raise click.UsageError("--concurrency applies to --video builds (annotation builds use --jobs)")
+    if narrations and annotations:
+        raise click.UsageError("give --annotations (EPIC's columns) or --narrations (free text), not both")
+    if narrations and rebuild:
+        raise click.UsageError("--rebuild applies to annotation builds")
+    narration_participant = video_opts.pop("participant") if narrations else None
     given = [f"--{k.replace('_', '-')}" for k, v in video_opts.items() if v is not None]
     if given:
         raise click.UsageError(f"{', '.join(given)} only apply with --video")
@@ -227,12 +242,15 @@ def build(bank, participants, annotations, mode, backend, video, participant, vi
     with progress:
         result = build_bank(bank, participants, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
                             episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None, isolate=True,
-                            on_notice=lambda text: click.echo(text, err=True), executor=ex)
+                            on_notice=lambda text: click.echo(text, err=True), executor=ex, narrations=narrations,
+                            participant=narration_participant)
     stores = persist_bank(bank, [r.participant for r in result.participants])
     frame, lines = build_summary(result, bank, episodic=episodic, mode=mode, fts=fts)
     click.echo(render(frame))
     for line in lines:
         click.echo(line)
+    if result.unknown is not None:
+        click.echo(f"narrations: {result.unknown.summary()}")
     click.echo(f"tool stores (what one-shot tools map instead of querying Kùzu): {counted(len(stores.written), 'participant')} "
                f"in {stores.seconds:.1f} s")
 

@@ -26,7 +26,7 @@ from memora_graph.paths import QUERIES_DIR
 
 PARTICIPANT_TABLES = (
     "Participant", "Video", "Segment", "Place", "Entity", "StateEvent", "EditOp", "Routine", "Preference",
-    "ModelCall",
+    "ModelCall", "Remembered",
 )
 _TOKEN = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 _LABEL = re.compile(r":\s*(" + "|".join(PARTICIPANT_TABLES) + r")\b")

@@ -122,6 +122,18 @@ class Store:
         self._catalog: dict[str, str] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
+    def reader(self) -> Store:
+        """A second connection on this open database, read-only by this class's checks, for
+        another thread of the same process (live memory consolidates off the request path):
+        Kùzu serves it a committed snapshot while this connection writes. Closing it closes
+        only the connection."""
+        other = Store.__new__(Store)
+        other.path, other.read_only, other.on_close, other.on_fail, other._broken = self.path, True, None, None, None
+        other._db, other._shared = self._db, True
+        other._conn = kuzu.Connection(self._db)
+        other._in_tx, other._prepared, other._catalog = False, {}, None
+        return other
+
     def close(self) -> None:
         if self._broken is not None:  # abandoned after a full disk: nothing may touch these handles again
             self._failed()
@@ -131,7 +143,8 @@ class Store:
                 if not self.read_only:
                     self._execute("CHECKPOINT")
                 self._conn.close()
-                self._db.close()
+                if not getattr(self, "_shared", False):
+                    self._db.close()
             except BaseException:
                 self._failed()
                 raise
@@ -239,6 +252,17 @@ class Store:
         q = get_query(name)
         if q.writes:
             raise StoreError(f"query '{q.name}' writes; fetch() is for reads")
+        return self._fetch(q, params)
+
+    def write(self, name: str, **params) -> list[dict]:
+        """A named write query, prepared once per Store and reused (the live writer's hot path:
+        preparing costs about as much as running one of its small statements)."""
+        q = get_query(name)
+        if self.read_only:
+            raise StoreError(f"{self.path}: query '{q.name}' writes; the database is open read-only.")
+        return self._fetch(q, params)
+
+    def _fetch(self, q: NamedQuery, params: dict) -> list[dict]:
         bound = bind(q, params)
         if self._broken is not None:
             raise self._broken
@@ -248,6 +272,8 @@ class Store:
                 prepared = self._prepared[q.name] = kuzu.PreparedStatement(self._conn, q.cypher, bound)
             result = self._conn.execute(prepared, bound)
         except RuntimeError as exc:
+            if q.writes and disk_full(exc, self.path):
+                raise self._abandon(exc) from exc
             raise translate_error(exc, self.path, q.cypher) from exc
         return result
 

@@ -1,7 +1,9 @@
 import re
+from datetime import datetime
 
 import pytest
 
+from memora_graph import schema
 from memora_graph.errors import QueryError, StoreError
 from memora_graph.queries import load_queries, parse_query
 from memora_graph.store import Store
@@ -17,15 +19,15 @@ def empty_store(tmp_path):
 
 
 def _sample(field: str):
-    if field == "emb":
+    """A value of the column's type in the schema (where a column of that name exists), else text."""
+    types = {c.name: c.type for t in schema.schema_tables().values() for c in t.columns}
+    kind = types.get(field, "STRING")
+    if kind.startswith("FLOAT["):
         return [0.0] * 384
-    if field in ("zones", "features"):
+    if kind.endswith("[]"):
         return ["sink"]
-    if field in ("last_seen",):
-        return 1.0
-    if field in ("last_turn", "n_observations", "turn_count"):
-        return 1
-    return "x"
+    return {"DOUBLE": 1.0, "INT64": 1, "BOOLEAN": True,
+            "TIMESTAMP": datetime(2025, 1, 1)}.get(kind, "x")
 
 
 def _dummy(param: str, cypher: str = ""):
@@ -54,7 +56,9 @@ def test_write_queries_prepare_in_a_rolled_back_transaction(empty_store):
         if q.writes:
             with pytest.raises(RuntimeError):
                 with empty_store.transaction():
-                    empty_store.run(q, **{p: _dummy(p, q.cypher) for p in q.params})
+                    empty_store.run(q, **{p: _dummy(p, q.cypher) if p in ("rows", "ids", "participant", "vector", "applied_at")
+                                          else _sample(p)
+                                          for p in q.params})
                     raise RuntimeError("rollback")
 
 

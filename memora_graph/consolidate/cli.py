@@ -29,11 +29,15 @@ _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 @backend_option_pairs
 @click.option("--concurrency", type=int, default=8, show_default=True,
               help="With --processor llm: per-video model calls in flight at once (the bank does not depend on it).")
+@click.option("--incremental", is_flag=True,
+              help="Update from what was added since the last run (live memory): only the videos whose steps changed "
+                   "are consolidated again; what spans videos is recomputed, so the records equal a full run's. "
+                   "Deterministic processor only.")
 @quiet_option
 @executor_options
 @output_options
 def consolidate_cmd(bank, participants, processor, backend, base_url, model, enrichment_model, api_key, options,
-                    concurrency, quiet, executor, ray_address, retries, ray_shared, fmt):
+                    concurrency, incremental, quiet, executor, ray_address, retries, ray_shared, fmt):
     """Re-run offline consolidation and enrichment on an existing bank.
 
     Each participant's routines and preferences are replaced in one transaction (a failed or
@@ -46,6 +50,7 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
     \b
     Examples:
       memora consolidate banks/epic --participants P01,P02
+      memora consolidate banks/home --incremental          # after `memora remember`: changed videos only
       vllm serve Qwen/Qwen3.6-35B-A3B --port 8000          # on a machine with a GPU
       memora consolidate banks/epic --participants P01 --processor llm --backend openai \\
           --base-url http://127.0.0.1:8000/v1 --model Qwen/Qwen3.6-35B-A3B
@@ -67,6 +72,15 @@ def consolidate_cmd(bank, participants, processor, backend, base_url, model, enr
             raise click.UsageError(f"{', '.join(extra)} only apply with --processor llm")
     b = Bank(bank)
     pids = consolidation_targets(b, participants)
+    if incremental:
+        if processor != "deterministic" or executor != "local":
+            raise click.UsageError("--incremental runs the deterministic processor in this process")
+        from memora_graph.consolidate.live import consolidate_bank_incremental
+
+        rows = consolidate_bank_incremental(b, pids)
+        persist_bank(b.path, pids)
+        click.echo(render(pl.DataFrame(rows), fmt))
+        return
 
     progress = progress_bar(quiet)
     task = progress.add_task("consolidating", total=len(pids))

@@ -224,3 +224,55 @@ def perceive_video(
             objects=objects,
             working_summary=carried,
         )
+
+
+class MomentContext(_Context):
+    """What perception carries between the moments of one video that `perceive_moment` reads
+    one at a time (the live path: `memora remember`)."""
+
+
+def perceive_moment(participant: str, video_id: str, turn: int, action: dict, ctx: MomentContext,
+                    classes: ClassTables) -> LayeredSegment:
+    """One narrated moment (an action row, as `load_annotations` or perceive/narrations.py make
+    it) -> one layered record spanning the action's own start and end, with `ctx` carried from
+    the video's earlier moments (place, objects in hand, recent actions). The observation is
+    read exactly as `perceive_video` reads an action; what differs is the span: a 10 s turn
+    there, the moment here."""
+    t0 = float(action["start_s"])
+    carried = ctx.summary(participant)
+    start_place = ctx.place
+    obs, place, relations = _observe_action(action, t0, ctx, classes)
+    for o in obs:
+        if o.object_id in ctx.held and ctx.held[o.object_id][1] == -1:
+            ctx.held[o.object_id] = (ctx.held[o.object_id][0], turn)
+    seen = {o.object_id for o in obs}
+    objects = list(obs)
+    for object_id, (held_obs, since) in list(ctx.held.items()):
+        if since == -1:
+            ctx.held[object_id] = (held_obs, turn)
+        elif turn - since > HELD_CARRY_TURNS:
+            del ctx.held[object_id]
+        elif object_id not in seen:
+            objects.append(held_obs.model_copy(update={
+                "state": "held", "held_by": "hand", "location": start_place, "zone": "", "relative_to": "",
+                "relation": "", "t_rel": 0.0, "action": "", "narration": "(still in hand)", "narration_id": ""}))
+    zones: dict[str, Zone] = {}
+    for o in objects:
+        if o.is_fixture:
+            zones.setdefault(o.zone, Zone(anchor=o.object_id, position=o.location))
+    for o in objects:
+        if not o.is_fixture and o.zone in zones and o.object_id not in zones[o.zone].contents:
+            zones[o.zone].contents.append(o.object_id)
+    end = max(float(action["stop_s"]), t0)
+    step = ActionStep(timestamp=0.0, end=round(end - t0, 2), action=action["verb"], object=noun_phrase(action["noun"]),
+                      narration=action["narration"], narration_id=action["narration_id"])
+    ctx.recent.append(action["narration"][:80])
+    return LayeredSegment(
+        participant_id=participant, video_id=video_id, turn_id=turn, t_start=t0, t_end=end,
+        environment=EnvironmentLayer(
+            layout_description=f"{PLACE_NAMES.get(place, place)}" + (f" ({', '.join(zones)})" if zones else ""),
+            location_id=place, places=[place], zones=zones, spatial_relations=relations, features=sorted(zones)),
+        activity=ActivityLayer(summary=action["narration"], detailed_narrative=f"[0.0-{min(end - t0, 99.9):.1f}s] "
+                               f"{action['narration']}.", action_breakdown=[step]),
+        objects=objects, working_summary=carried,
+    )

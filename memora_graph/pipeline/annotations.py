@@ -34,6 +34,7 @@ class BankBuild:
     embed_threads: dict[int, int] = field(default_factory=dict)  # torch threads -> encode calls
     setup_seconds: float = 0.0  # per participant: opening its database, reloading its registry, checkpoint on close
     finish: dict[str, float] = field(default_factory=dict)  # the step after each bulk load, summed (finish_participant)
+    unknown: object = None  # with `narrations`: the words no class covers (perceive/narrations.py Unknown)
 
     @property
     def segments(self) -> int:
@@ -170,6 +171,8 @@ def build_bank(
     isolate: bool = False,
     on_notice: Callable[[str], None] | None = None,
     executor=None,
+    narrations: str | Path | None = None,
+    participant: str | None = None,
 ) -> BankBuild:
     """Build (or resume) a bank. `participants=None` means every participant in the annotations
     (with `rebuild`, only the participants rebuilt). After each participant, offline
@@ -190,20 +193,31 @@ def build_bank(
     files of participants new to the bank, and the bank itself if this build created it; a full
     disk is reported as such. `on_notice(text)` hears what the build decided (rebuilds).
     `executor` (memora_graph.executors.Executor) 'ray' builds each participant in a Ray task
-    instead (executors/build.py); everything before and after the building is the same."""
+    instead (executors/build.py); everything before and after the building is the same.
+    `narrations`: a free-text narration table (CSV, JSONL or Parquet: video_id, start, end, text,
+    optional participant; perceive/narrations.py) instead of EPIC annotations; `participant`
+    names whose memory it is where the table has no participant column."""
     t_start = time.perf_counter()
     if participants is not None and not list(participants):
         raise DataError("no participants given: name some (P01,P02), or pass None for every participant")
     check_writable(bank_path)  # before anything slow: a path no build can write fails now, not after the model loads
     out = BankBuild()
     t0 = time.perf_counter()
-    df = load_annotations(annotations, participants=participants)
-    meta = Path(annotations).parent if annotations else None
     from memora_graph.paths import epic_dir
 
-    meta = meta or epic_dir()
-    classes = load_class_tables(meta)
-    durations = dict(load_video_info(meta).select("video_id", "duration").iter_rows())
+    if narrations is not None:
+        from memora_graph.perceive.narrations import NarrationReader, load_narrations
+
+        reader = NarrationReader()
+        df, durations, out.unknown = load_narrations(narrations, participant, reader, participants=participants)
+        classes = reader.classes
+        annotations = narrations
+    else:
+        df = load_annotations(annotations, participants=participants)
+        meta = Path(annotations).parent if annotations else None
+        meta = meta or epic_dir()
+        classes = load_class_tables(meta)
+        durations = dict(load_video_info(meta).select("video_id", "duration").iter_rows())
     found = sorted(df["participant_id"].unique().to_list())
     if not found:
         raise DataError(f"{annotations or 'bundled annotations'}: no actions to build")

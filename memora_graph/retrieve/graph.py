@@ -75,14 +75,48 @@ class ObservationGraph:
 
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""
+        counts: Counter[str] = Counter()
         i = self._row.get(entity)
-        if i is None:
-            return []
-        n = len(self.entities)
-        lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
-        row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
-        order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
-        return [(self.entities[j], int(c)) for j, c in order]
+        if i is not None:
+            n = len(self.entities)
+            lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
+            for j, c in zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist()):
+                counts[self.entities[j]] += int(c)
+        added = self.__dict__.get("_added")
+        if added is not None:
+            for b, c in added.pairs.get(entity, {}).items():
+                counts[b] += c
+        order = sorted(counts.items(), key=lambda ec: (-ec[1], ec[0]))[:k]
+        return [(e, int(c)) for e, c in order]
+
+    def add(self, segment: str, observations: list[tuple[str, str]]) -> None:
+        """A remembered segment's observations ((entity, location) of each state event with an
+        action): its edges, places and the pairs it adds to the co-occurrence counts, kept in a
+        small overlay beside the arrays (sorted, perhaps memory-mapped: not rebuilt per moment)."""
+        seen = [(e, loc) for e, loc in observations if e]
+        if not seen:
+            return
+        added = self.__dict__.setdefault("_added", _Added())
+        old = set(self.segment_entities.get(segment, ()) or ())
+        new = {e for e, _ in seen} - old
+        for e, loc in seen:
+            if loc:
+                added.places[e][loc] += 1
+        for a in new:
+            for b in old | (new - {a}):
+                added.pairs[a][b] += 1
+                if b in old:
+                    added.pairs[b][a] += 1
+        added.segments[segment] = old | new
+
+
+class _Added:
+    """What remembered segments added to an observation graph since its arrays were made."""
+
+    def __init__(self):
+        self.segments: dict[str, set[str]] = {}
+        self.places: dict[str, Counter[str]] = defaultdict(Counter)
+        self.pairs: dict[str, Counter[str]] = defaultdict(Counter)
 
 
 class _SegmentEntities:
@@ -93,16 +127,22 @@ class _SegmentEntities:
 
     def get(self, segment: str, default=None):
         g = self._g
+        added = g.__dict__.get("_added")
+        if added is not None and segment in added.segments:
+            return set(added.segments[segment])
         i = g._segment(segment)
         if i is None:
             return default
         return {g.entities[j] for j in g._seg_entities[g._seg_offsets[i]:g._seg_offsets[i + 1]].tolist()}
 
     def __contains__(self, segment: str) -> bool:
-        return self._g._segment(segment) is not None
+        added = self._g.__dict__.get("_added")
+        return (added is not None and segment in added.segments) or self._g._segment(segment) is not None
 
     def __len__(self) -> int:
-        return len(self._g._segments)
+        added = self._g.__dict__.get("_added")
+        extra = 0 if added is None else sum(1 for s in added.segments if self._g._segment(s) is None)
+        return len(self._g._segments) + extra
 
 
 class _EntityPlaces:
@@ -113,13 +153,16 @@ class _EntityPlaces:
 
     def get(self, entity: str, default=None):
         g = self._g
+        added = g.__dict__.get("_added")
+        more = added.places.get(entity) if added is not None else None
         i = g._row.get(entity)
-        if i is None:
+        lo, hi = (0, 0) if i is None else (int(g._place_offsets[i]), int(g._place_offsets[i + 1]))
+        if lo == hi and not more:
             return default
-        lo, hi = int(g._place_offsets[i]), int(g._place_offsets[i + 1])
-        if lo == hi:
-            return default
-        return Counter(dict(zip((g.locations[j] for j in g._place_loc[lo:hi].tolist()), g._place_n[lo:hi].tolist())))
+        out = Counter(dict(zip((g.locations[j] for j in g._place_loc[lo:hi].tolist()), g._place_n[lo:hi].tolist())))
+        if more:
+            out.update(more)
+        return out
 
 
 def _csr(lists: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:

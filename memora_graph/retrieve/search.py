@@ -98,6 +98,23 @@ class VectorTable:
         order = sorted(part, key=lambda i: (-float(s[i]), self.ids[i]))
         return [(self.ids[i], float(s[i])) for i in order]
 
+    def appended(self, rid: str, vector: np.ndarray) -> VectorTable:
+        """This table with one more row (a remembered segment). The matrix grows by doubling
+        behind the rows in use, so a stream of appends copies it O(log n) times, not per row."""
+        v = np.asarray(vector, dtype=np.float32).reshape(-1)
+        norm = float(np.linalg.norm(v))
+        v = v / norm if norm > 0 else v
+        n = len(self.ids)
+        store = self.__dict__.get("_store")
+        if store is None or store.shape[0] <= n or store.shape[1] != v.shape[0]:
+            width = v.shape[0] if n == 0 else self.mat.shape[1]
+            store = np.zeros((max(64, 2 * (n + 1)), width), dtype=np.float32)
+            store[:n] = self.mat
+        store[n] = v
+        out = VectorTable.normalized([*self.ids, rid], store[: n + 1])
+        out._store = store
+        return out
+
     def vec(self, rid: str) -> np.ndarray | None:
         n = self.index.get(rid)
         return None if n is None else self.mat[n]
@@ -151,27 +168,47 @@ class Bm25:
                 header["avg"], header["k1"], header["b"])
         return bm
 
+    def _slice(self, term: str) -> tuple[np.ndarray, np.ndarray]:
+        """(documents, term counts) of `term`: the arrays' posting list, then the documents added since."""
+        i = self.vocab.get(term)
+        lo, hi = (0, 0) if i is None else (int(self.offsets[i]), int(self.offsets[i + 1]))
+        docs, tfs = self.docs[lo:hi], self.tfs[lo:hi]
+        more = self.__dict__.get("_added", {}).get(term)
+        if more:
+            docs = np.concatenate([docs, np.asarray([d for d, _ in more], dtype=np.int32)])
+            tfs = np.concatenate([tfs, np.asarray([c for _, c in more], dtype=np.int32)])
+        return docs, tfs
+
     def postings(self, term: str) -> list[tuple[int, int]]:
         """(document number, term count) of every document containing `term`."""
-        i = self.vocab.get(term)
-        if i is None:
-            return []
-        lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
-        return list(zip(self.docs[lo:hi].tolist(), self.tfs[lo:hi].tolist()))
+        docs, tfs = self._slice(term)
+        return list(zip(docs.tolist(), tfs.tolist()))
+
+    def added(self, rid: str, text: str) -> Bm25:
+        """This index with one more document (a remembered segment), updated in place: its postings
+        wait in a small overlay beside the arrays (sorted, perhaps memory-mapped: not rebuilt per
+        document); the lengths grow by one."""
+        toks = index_tokens(text)
+        n = len(self.ids)
+        self.ids = [*self.ids, rid]
+        extra = self.__dict__.setdefault("_added", {})
+        for t, c in Counter(toks).items():
+            extra.setdefault(t, []).append((n, c))
+        self.lengths = np.append(np.asarray(self.lengths, dtype=np.int64), len(toks))
+        self.avg = float(self.lengths.sum()) / len(self.lengths)
+        self.n = len(self.ids)
+        return self
 
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
         if k < 1:
             return []
         scores = None
         for t in set(index_tokens(query)):
-            i = self.vocab.get(t)
-            if i is None:
+            docs, tf = self._slice(t)
+            if not len(docs):
                 continue
-            lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
-            if lo == hi:
-                continue
-            docs, tf = self.docs[lo:hi], self.tfs[lo:hi].astype(np.float64)
-            df = hi - lo
+            tf = tf.astype(np.float64)
+            df = len(docs)
             idf = math.log(1 + (self.n - df + 0.5) / (df + 0.5))
             norm = tf + self.k1 * (1 - self.b + self.b * self.lengths[docs] / self.avg)
             if scores is None:

@@ -330,6 +330,47 @@ class MemoryView:
             cache[table] = Bm25([d[0] for d in docs], [d[1] for d in docs])
         return cache[table]
 
+    # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
+    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words")
+
+    def absorb(self, delta: dict) -> None:
+        """Bring what this view loaded up to date with one remembered moment (form/live.py's
+        `Remembered.delta`), without reloading the participant: the new segment's vector and text
+        are appended, the new observations join the observation graph, and the small
+        participant-wide tables the moment touched (entities, places, videos) are read again on
+        their next use. Called by the one thread that writes, under the lock the readers take."""
+        loaded = self.__dict__
+        sid = delta["segment"]
+        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
+        if "segment" in vectors or "segment" in bm25:
+            row = self.store.fetch("_live_segment_row", participant=self.participant, id=sid)[0]
+            if "segment" in vectors:
+                vectors["segment"] = vectors["segment"].appended(sid, np.asarray(row["emb"], dtype=np.float32))
+            if "segment" in bm25:
+                bm25["segment"] = bm25["segment"].added(sid, f"{row['summary']} {row['narrative']}")
+        if delta.get("entities"):
+            for name in self._ENTITY_DERIVED:
+                loaded.pop(name, None)
+            vectors.pop("entity", None)
+            bm25.pop("entity", None)
+        if delta.get("places"):
+            loaded.pop("places", None)
+            vectors.pop("place", None)
+            bm25.pop("place", None)
+        loaded.pop("videos", None)
+        if "graph" in loaded:
+            loaded["graph"].add(sid, delta.get("observations", []))
+
+    def reload_inferred(self) -> None:
+        """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
+        links), after a consolidation replaced it: the next call reads the new records."""
+        loaded = self.__dict__
+        for name in ("routines", "preferences", "_links"):
+            loaded.pop(name, None)
+        for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
+            cache.pop("routine", None)
+            cache.pop("preference", None)
+
     def warm(self) -> None:
         """Load everything the tools read once (what the first call would otherwise pay)."""
         for t in TABLES:

@@ -25,6 +25,8 @@ from memora_graph.serve.service import ArgumentError, MemoryService, UnknownTool
 
 READ_ONLY = types.ToolAnnotations(read_only_hint=True, destructive_hint=False, idempotent_hint=True,
                                   open_world_hint=False)
+WRITES = types.ToolAnnotations(read_only_hint=False, destructive_hint=False, idempotent_hint=True,
+                               open_world_hint=False)
 HTTP_PATH = "/mcp"
 
 
@@ -41,7 +43,8 @@ def instructions(service: MemoryService) -> str:
     return ("Embodied action memory of a person (memora-graph): their places, objects and how their state changed, "
             "10 s activity records, routines and preferences. " + who + " Start with `search` or `ask`; "
             "`get_routine_skill` and `get_preferences` before planning; `cypher` and the `query_*` tools read the "
-            "graph directly. Everything is read-only.")
+            "graph directly. " + ("`remember` writes what just happened (a narration with its video and time); the "
+                                  "next call reads it." if service.writer is not None else "Everything is read-only."))
 
 
 def build_server(service: MemoryService, output_schemas: bool = False) -> Server:
@@ -51,7 +54,8 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
     pure-Python jsonschema) spends several times the call itself on it (`memora perf serve
     --output-schemas`; docs/performance.md)."""
     tools = [types.Tool(name=e.name, description=e.description, input_schema=e.input_schema,
-                        output_schema=e.output_schema if output_schemas else None, annotations=READ_ONLY)
+                        output_schema=e.output_schema if output_schemas else None,
+                        annotations=WRITES if e.kind == "remember" else READ_ONLY)
              for e in service.endpoints()]
 
     async def on_list_tools(ctx, params) -> types.ListToolsResult:
@@ -106,13 +110,40 @@ def listen(host: str, port: int) -> socket.socket:
     return sock
 
 
+class BearerAuth:
+    """ASGI middleware: every HTTP request must carry `Authorization: Bearer TOKEN` (a writable
+    server's token, given at start); others get 401 before the MCP app sees them."""
+
+    def __init__(self, app, token: str):
+        import hmac
+
+        self.app, self._token, self._eq = app, f"Bearer {token}".encode(), hmac.compare_digest
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http":
+            got = dict(scope.get("headers") or []).get(b"authorization", b"")
+            if not self._eq(got, self._token):
+                body = b'{"error": "unauthorized: this memora server needs Authorization: Bearer <token>"}'
+                await send({"type": "http.response.start", "status": 401,
+                            "headers": [(b"content-type", b"application/json"), (b"www-authenticate", b"Bearer"),
+                                        (b"content-length", str(len(body)).encode())]})
+                await send({"type": "http.response.body", "body": body})
+                return
+        await self.app(scope, receive, send)
+
+
 def serve_http(service: MemoryService, host: str = "127.0.0.1", port: int = 8765, on_ready=None,
-               output_schemas: bool = False) -> None:
+               output_schemas: bool = False, token: str | None = None) -> None:
     """Serve streamable HTTP at http://HOST:PORT/mcp until interrupted. `on_ready(url)` is called
-    once the socket is bound (the CLI prints the URL, with the actual port for --port 0)."""
+    once the socket is bound (the CLI prints the URL, with the actual port for --port 0). With
+    `token`, every request must carry it as a bearer token (a writable server requires one)."""
     import uvicorn
 
+    if service.writer is not None and not token:
+        raise MemoraError("a writable server over HTTP needs a bearer token (--token, or MEMORA_SERVE_TOKEN)")
     app = build_server(service, output_schemas).streamable_http_app(streamable_http_path=HTTP_PATH, json_response=True, host=host)
+    if token:
+        app = BearerAuth(app, token)
     sock = listen(host, port)
     bound = sock.getsockname()[1]
     shown = f"[{host}]" if ":" in host else host

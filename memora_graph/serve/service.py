@@ -149,6 +149,42 @@ class PlanAnswer(BaseModel):
     calls: list[ToolCall] = Field(description="The typed lookups the planner made.")
 
 
+class RememberArgs(_Args):
+    text: str | None = Field(None, min_length=1, max_length=2000,
+                             description="What just happened, in words (e.g. 'put the kettle on the counter', or Ego4D "
+                                         "style '#C C takes a knife from the drawer'). Give this or `segment`.")
+    video: str | None = Field(None, min_length=1, max_length=200,
+                              description="The video, episode or session the moment belongs to (with `text`).")
+    start: float | None = Field(None, ge=0, allow_inf_nan=False, description="Seconds from the start of the video.")
+    end: float | None = Field(None, ge=0, allow_inf_nan=False, description="Seconds from the start (default: start).")
+    id: str | None = Field(None, min_length=1, max_length=200,
+                           description="Idempotency key: a retried call with the same key (default: video and start) "
+                                       "returns its first answer and writes nothing.")
+    segment: dict[str, Any] | None = Field(None, description="Instead of text: a segment record perceived elsewhere "
+                                                             "(the project's LayeredSegment schema).")
+
+
+class EditOpResult(BaseModel):
+    id: str
+    op: str = Field(description="ADD, UPDATE, DELETE or NOOP.")
+    entity: str
+    object: str
+    reason: str
+    changes: dict[str, str]
+    merged_into: str | None = None
+
+
+class RememberResult(BaseModel):
+    key: str
+    participant: str
+    segment: str = Field(description="The activity record written (or found, for a duplicate).")
+    video: str
+    turn: int
+    ops: list[EditOpResult] = Field(description="The online editor's decisions, with the entity ids they wrote.")
+    duplicate: bool = Field(description="True when the key was remembered before: nothing was written now.")
+    unknown_words: list[str] = Field(description="Words no verb or noun class covers (kept in the text).")
+
+
 class Rows(BaseModel):
     participant: str
     columns: list[str]
@@ -194,11 +230,31 @@ class MemoryService:
 
     def __init__(self, bank: str | Path, participant: str | None = None, recipe: str = DEFAULT_RECIPE,
                  max_rows: int = MAX_ROWS, unconfined_cypher: bool = False, cypher_in_flight: int = CYPHER_IN_FLIGHT,
-                 cypher_queue: int = CYPHER_QUEUE):
+                 cypher_queue: int = CYPHER_QUEUE, writable: bool = False, consolidate_every: int | None = None):
         """`unconfined_cypher`: offer the cypher tool even where the kernel cannot confine its
-        child process (memora_graph/confine.py); by default it is offered only where it can."""
+        child process (memora_graph/confine.py); by default it is offered only where it can.
+        `writable` (one participant only) also serves the `remember` tool: this process then
+        holds the participant's live writer (form/live.py) and every read goes through the
+        writer's own store, so the next call sees what was just remembered (no other process can
+        open the database meanwhile: Kùzu locks it, so no confined child can either, and the cypher
+        tool is then offered only with `unconfined_cypher`). `consolidate_every`: after that many
+        new segments, incremental consolidation runs in a background thread (consolidate/live.py)."""
         from memora_graph.confine import mode
 
+        self.writer = None
+        self.consolidator = None
+        self._lock = threading.Lock()
+        if writable:
+            if participant is None:
+                raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
+            from memora_graph.form.live import LiveWriter
+
+            participant = check_participant(participant, "--participant")
+            # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
+            # and commits and updates the readers' caches inside it
+            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb)
+        elif consolidate_every is not None:
+            raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)
         self.bank.manifest()  # a missing or damaged bank fails here, naming the file
         self.participants = self.bank.participants()
@@ -210,14 +266,19 @@ class MemoryService:
         self.recipe = recipe
         self.max_rows = max_rows
         self.confinement = mode()
-        self.cypher_offered = self.confinement.confined or unconfined_cypher
+        # a writable server holds the database open, so Cypher could only run in this process, unconfined
+        self.cypher_offered = (self.confinement.confined and self.writer is None) or unconfined_cypher
         self._cypher_slots = threading.BoundedSemaphore(cypher_in_flight)
         self._cypher_waiting = 0
         self._cypher_bound = cypher_in_flight + cypher_queue
         self._cypher_count = threading.Lock()
         self._views: dict[str, MemoryView] = {}
-        self._lock = threading.Lock()
         self._endpoints = {e.name: e for e in self._build_endpoints()}
+        if self.writer is not None and consolidate_every is not None:
+            from memora_graph.consolidate.live import BackgroundConsolidation
+
+            self.consolidator = BackgroundConsolidation(self.writer, every=consolidate_every, lock=self._lock,
+                                                        on_done=self._consolidated)
         if participant is not None:
             self.warm(participant)  # a damaged database is refused now, before the first call
 
@@ -230,7 +291,9 @@ class MemoryService:
     def _view(self, participant: str) -> MemoryView:
         """The participant's memory, opened read-only (integrity checked) on first use and kept."""
         view = self._views.get(participant)
-        if view is None:
+        if view is None and self.writer is not None:
+            view = self._views[participant] = MemoryView(self.writer.store, participant, config=self.recipe)
+        elif view is None:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view
 
@@ -243,10 +306,14 @@ class MemoryService:
             view.embed("warm up the query encoder")
 
     def close(self) -> None:
+        if self.consolidator is not None:
+            self.consolidator.stop()
         with self._lock:
             for view in self._views.values():
                 view.close()
             self._views.clear()
+            if self.writer is not None:
+                self.writer.close()
 
     def __enter__(self) -> MemoryService:
         return self
@@ -294,6 +361,13 @@ class MemoryService:
                           "schema/*.cypher). Writes, file access, extensions and other databases are refused; at most "
                           f"{self.max_rows} rows come back.",
                 CypherArgs, Rows.model_json_schema(mode="serialization"), "cypher", self._cypher))
+        if self.writer is not None:
+            out.append(self._endpoint(
+                "remember", "Remember what just happened: a narration (text, video, start, end) or a segment record is "
+                            "perceived (offline, deterministic), embedded, edited into the memory (ADD / UPDATE / DELETE "
+                            "/ NOOP per object) and committed before the answer; the next call reads it. Idempotent by "
+                            "`id` (default: video and start).",
+                RememberArgs, RememberResult.model_json_schema(mode="serialization"), "remember", self._remember))
         for q in load_queries().values():
             if q.name.startswith("_") or q.writes or "participant" not in q.params:
                 continue
@@ -331,13 +405,67 @@ class MemoryService:
             result = plan_memory(self._view(participant), participant, arguments["goal"])
         return PlanAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
+    def _remember(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        seg, text = arguments.get("segment"), arguments.get("text")
+        if (seg is None) == (text is None):
+            raise ArgumentError("remember", [("text", "give the narration `text` (with video and start), or `segment`")])
+        if text is not None and (arguments.get("video") is None or arguments.get("start") is None):
+            missing = [f for f in ("video", "start") if arguments.get(f) is None]
+            raise ArgumentError("remember", [(f, "required with text") for f in missing])
+        if seg is not None:
+            from memora_graph.records import LayeredSegment
+
+            try:
+                seg = LayeredSegment.model_validate(seg)
+            except ValidationError as exc:
+                raise ArgumentError("remember", [(f"segment.{f}", m) for f, m in _problems(exc)]) from None
+        if seg is not None:
+            done = self.writer.remember_segment(seg, arguments.get("id"))
+        else:
+            start = arguments["start"]
+            end = start if arguments.get("end") is None else arguments["end"]
+            done = self.writer.remember(self.writer.moment(arguments["video"], start, end, text, arguments.get("id"),
+                                                           where="remember"))
+        if self.consolidator is not None and not done.duplicate:
+            self.consolidator.added(1)
+        return RememberResult.model_validate(done.as_dict()).model_dump(mode="json")
+
+    def _absorb(self, delta: dict) -> None:
+        """Right after a remember committed, inside the readers' lock: their caches take it in."""
+        view = self._views.get(self.participant)
+        if view is not None:
+            view.absorb(delta)
+
+    def _consolidated(self) -> None:
+        """After a background consolidation committed (under the lock): readers load the new records."""
+        for view in self._views.values():
+            view.reload_inferred()
+
     def _cypher(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.adhoc import run_query
 
-        # the guarded ad-hoc path of `memora query`, read-only, on this participant's database only
-        # (a `participant` parameter that names someone else is refused there)
         from memora_graph.cypher_guard import for_agents
 
+        if self.writer is not None:  # offered only --unconfined-cypher: no other process can open the database
+            from memora_graph.adhoc import bind_params
+            from memora_graph.cypher_guard import check_query
+
+            try:
+                statement = check_query(arguments["query"], write=False)
+                params = bind_params(statement, arguments["params"], participant)
+            except QueryRefused as exc:
+                raise QueryRefused(for_agents(str(exc))) from None
+            with self._lock:
+                store = self.writer.store
+                store.set_timeout(arguments["timeout"])
+                try:
+                    frame = store.query(statement.text, params)
+                finally:
+                    store.set_timeout(None)
+            return _rows(frame, participant, self.max_rows)
+
+        # the guarded ad-hoc path of `memora query`, read-only, on this participant's database only
+        # (a `participant` parameter that names someone else is refused there)
         # at most CYPHER_IN_FLIGHT children at once, CYPHER_QUEUE more calls waiting; past that, busy
         with self._cypher_count:
             if self._cypher_waiting >= self._cypher_bound:

@@ -1,0 +1,472 @@
+"""Live memory: write experience into a participant's memory as it happens, one moment at a time.
+
+    from memora_graph.form.live import LiveWriter, Moment
+    with LiveWriter("banks/home", "P01") as memory:
+        done = memory.remember(Moment(video="kitchen-1", start=12.5, end=14.0, text="put the kettle on the counter"))
+        done.ops                               # the editor's ADD / UPDATE / DELETE / NOOP, with entity ids
+
+Each `remember` perceives the narration (offline, deterministic: perceive/narrations.py reads the
+words into EPIC classes, `perceive_moment` makes the layered record), embeds it with the bank's
+model, runs the online editor (form/editor.py) against the registry held in memory, and commits
+everything the moment adds (segment, state events, editor operations, entity and place changes)
+in one Kùzu transaction, with a `Remembered` row under the client's key: a retried call (same
+video and start, or the same explicit id) returns its first answer and writes nothing. Once
+`remember` returns, the write is committed to Kùzu's write-ahead log: a killed process loses none
+of it, and the next writer replays it and records the database's integrity again.
+
+One writer per participant database: the writer holds the participant's build lock and its
+write mark (op "live") for as long as it is open; a second writer, a build, or a reader in
+another process is told the memory is busy. Readers in the writer's own process use its store
+(`memora serve --writable` does).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from memora_graph import schema
+from memora_graph.bank import Bank, _alive
+from memora_graph.embed import torch_threads
+from memora_graph.errors import BankError, DataError, StoreError
+from memora_graph.form.build import _entity_row, _place_row
+from memora_graph.form.editor import EntityEditor, EntityState, get_editor_policy, identity_text
+from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
+from memora_graph.integrity.files import side_files
+from memora_graph.perceive.narration import MomentContext, perceive_moment
+from memora_graph.perceive.narrations import NarrationReader, check_moment
+from memora_graph.records import LayeredSegment
+from memora_graph.store import Store
+
+OP = "live"  # the write mark a live writer holds (BANK/manifest.json "writing")
+log = logging.getLogger("memora_graph.integrity")
+
+
+_OPEN: set[tuple[str, str]] = set()  # (bank, participant) of the writers open in this process
+_OPEN_LOCK = threading.Lock()
+
+
+class WriterBusy(BankError):
+    """Another writer (a live writer, a build, a reader holding the file) has the participant."""
+
+
+@dataclass
+class Moment:
+    """One narrated moment: what happened (`text`), in which video, when (seconds). `key`:
+    the client's idempotency key (default: the video and the start time)."""
+
+    video: str
+    start: float
+    end: float
+    text: str
+    key: str | None = None
+
+    def client_key(self) -> str:
+        return self.key or f"{self.video}@{self.start:.3f}"
+
+
+@dataclass
+class Remembered:
+    """A remember's answer: the segment written and the editor's operations with their ids."""
+
+    key: str
+    participant: str
+    segment: str
+    video: str
+    turn: int
+    ops: list[dict]
+    duplicate: bool = False  # the key was acknowledged before: nothing was written now
+    unknown_words: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    delta: dict = field(default_factory=dict, repr=False)  # what changed, for readers' caches
+
+    def as_dict(self) -> dict:
+        return {"key": self.key, "participant": self.participant, "segment": self.segment, "video": self.video,
+                "turn": self.turn, "ops": self.ops, "duplicate": self.duplicate, "unknown_words": self.unknown_words}
+
+
+@dataclass
+class _Video:
+    turns: int = 0  # segments written (the next turn id)
+    duration: float = 0.0
+    actions: int = 0
+    last_segment: str | None = None
+    ctx: MomentContext = field(default_factory=MomentContext)
+
+
+def _floats(vec) -> list[float]:
+    return np.asarray(vec, dtype=np.float32).tolist()
+
+
+def _now() -> datetime:
+    return datetime.now(timezone.utc).replace(tzinfo=None)
+
+
+def recover(bank: Bank, participant: str) -> bool:
+    """After a live writer (or any non-build write) died without closing: replay its write-ahead
+    log (what it acknowledged) into the database, and record the database's integrity and
+    counts again. A log is first opened in a child process (a crash there is an error here).
+    Returns whether anything was recovered."""
+    data = bank.manifest()
+    mark = data.get("writing", {}).get(participant)
+    if not mark or mark.get("pid") == os.getpid():
+        return False
+    if _alive(mark.get("pid")):
+        raise WriterBusy(bank.interrupted_message(participant, mark))
+    if mark.get("op") == "build":
+        raise BankError(bank.interrupted_message(participant, mark))
+    db = bank.db_path(participant)
+    if participant not in data["participants"]:  # killed while creating the participant: nothing acknowledged
+        for f in [db, *side_files(db)]:
+            f.unlink(missing_ok=True)
+        bank.update_manifest(lambda d: (d.get("writing", {}).pop(participant, None),
+                                        d.pop("writing", None) if not d.get("writing") else None))
+        return True
+    if side_files(db):
+        from memora_graph.integrity.files import probe
+
+        probe(db, participant)
+    bank.mark_writing(participant, mark.get("op") or OP)
+    with Store(db, read_only=False) as store:  # replays the log; the close checkpoints it into the file
+        videos = [r["video"] for r in store.rows("_live_videos", participant=participant)]
+    _record_videos(bank, participant, videos)
+    bank.record_integrity(participant)
+    log.warning(f"{db}: recovered the writes of process {mark.get('pid')} ({mark.get('op')}, since "
+                f"{mark.get('since', '?')}) from its write-ahead log")
+    return True
+
+
+def _record_videos(bank: Bank, participant: str, videos: list[str]) -> None:
+    def change(data: dict) -> None:
+        entry = data["participants"].get(participant)
+        if entry is not None:
+            entry["videos"] = sorted(set(videos))
+
+    bank.update_manifest(change)
+
+
+class LiveWriter:
+    """A participant's memory held open for writing, one moment at a time (see the module)."""
+
+    def __init__(self, bank: str | Path, participant: str, embedder=None, reader: NarrationReader | None = None,
+                 lock_wait_s: float = 0.5, store_lock=None, on_commit=None):
+        """`store_lock`: taken around every use of the store (the readers of a server share it,
+        so perception, embedding and the editor's decision run outside it); `on_commit(delta)`
+        runs inside it right after each commit (a server updates its readers' caches there)."""
+        self.bank = Bank(bank)
+        self._store_lock = store_lock if store_lock is not None else threading.RLock()
+        self._on_commit = on_commit
+        self.participant = participant
+        self.bank.db_path(participant)  # a malformed id fails here
+        self._stack = ExitStack()
+        self._lock = threading.RLock()  # one remember at a time; readers of `store` take it too
+        self.store: Store | None = None
+        try:
+            self._open(embedder, reader, lock_wait_s)
+        except BaseException:
+            self._stack.close()
+            raise
+
+    # -- opening -----------------------------------------------------------------------
+    def _open(self, embedder, reader, lock_wait_s: float) -> None:
+        from memora_graph.embed import get_embedder
+
+        p = self.participant
+        mine = (str(self.bank.path.resolve()), p)
+        with _OPEN_LOCK:  # POSIX locks are the process's: a second writer here must be refused by hand
+            if mine in _OPEN:  # (two read-write Kùzu databases on one file in one process corrupt it)
+                raise WriterBusy(self._busy_message("a writer of this process has it open"))
+            _OPEN.add(mine)
+        self._stack.callback(lambda: _OPEN.discard(mine))
+        try:
+            self._stack.enter_context(self.bank.participant_lock(p, wait_s=lock_wait_s))
+        except BankError:
+            raise WriterBusy(self._busy_message()) from None
+        if self.bank.exists():
+            data = self.bank.manifest()
+            self.embedder = embedder or get_embedder(data["embed_model"])
+            if data.get("mode") != "edited":
+                raise BankError(f"{self.bank.path}: a '{data.get('mode')}' bank; live memory writes edited banks only")
+            recover(self.bank, p)
+        else:
+            self.embedder = embedder or get_embedder()
+            self.bank.init(mode="edited", embed_model=self.embedder.name, consolidated=False)
+        if p not in self.bank.manifest()["participants"]:
+            self._create()
+        try:
+            self.store = self.bank.open(p, read_only=False, op=OP)
+        except StoreError as exc:
+            if "lock" in str(exc).lower():
+                raise WriterBusy(self._busy_message(str(exc))) from None
+            raise
+        self._stack.callback(self._close_store)
+        self.store.apply_schema()  # a bank from before live memory gets the Remembered table
+        self._load()
+        self.reader = reader or NarrationReader()
+        self.since_consolidation = 0  # segments written since the last (incremental) consolidation
+
+    def _busy_message(self, why: str = "") -> str:
+        mark = (self.bank.manifest().get("writing", {}) if self.bank.exists() else {}).get(self.participant)
+        who = f" by process {mark.get('pid')} ({mark.get('op')} since {mark.get('since', '?')})" if mark else ""
+        return (f"{self.bank.db_path(self.participant)}: busy: {self.participant}'s memory is held{who or ' by another process'}"
+                f"; one writer per participant. Send the remembers to that process (e.g. the MCP `remember` tool of "
+                f"its `memora serve --writable`), or stop it and retry." + (f" ({why})" if why else ""))
+
+    def _create(self) -> None:
+        """A new participant: an empty database with the schema, recorded in the manifest."""
+        p = self.participant
+        db = self.bank.db_path(p)
+        if db.exists():
+            raise BankError(self.bank._not_listed(p, self.bank.manifest()))
+        self.bank.mark_writing(p, OP)
+        try:
+            with Store(db, read_only=False) as store:
+                store.apply_schema()
+                store.copy("Participant", pl.DataFrame({"id": [p], "participant": [p]}))
+            self.bank.record_participant(p, [], {})
+            self.bank.record_integrity(p)
+        except BaseException:
+            self.bank.abandon_writing(p)
+            raise
+
+    def _load(self) -> None:
+        """The editor's registry, the places and each video's end, from the database."""
+        from memora_graph.form.build import ParticipantBuilder
+
+        p, s = self.participant, self.store
+        entities = [ParticipantBuilder._entity_from_row(r["entity"]) for r in s.fetch("_registry_entities", participant=p)]
+        places = [PlaceState(**{k: r["place"][k] for k in schema.columns("Place", emb=False)})
+                  for r in s.fetch("_registry_places", participant=p)]
+        next_ord = int(s.run("_max_state_ord", participant=p)["max_ord"][0] or 0)
+        self._op_seq = int(s.run("_edit_op_count", participant=p)["n"][0] or 0)
+        self.mode = self.bank.manifest().get("mode", "edited")
+        self.editor = EntityEditor(p, get_editor_policy(self.mode), embed=self._embed_one, entities=entities,
+                                   next_ord=next_ord)
+        self.places = PlaceMemory(p, places)
+        self.videos: dict[str, _Video] = {}
+        for r in s.rows("_live_videos", participant=p):
+            last = None if r["last_turn"] is None else int(r["last_turn"])
+            self.videos[r["video"]] = _Video(turns=(last + 1) if last is not None else 0,
+                                             duration=float(r["duration"] or 0.0), actions=int(r["n_actions"] or 0),
+                                             last_segment=None if last is None else f"{r['video']}#t{last:04d}")
+
+    def _embed_one(self, text: str) -> np.ndarray:
+        return self.embedder.encode([text])[0]
+
+    # -- closing -----------------------------------------------------------------------
+    def _close_store(self) -> None:
+        if self.store is not None:
+            store, self.store = self.store, None
+            videos = sorted(self.videos)
+            store.close()  # checkpoints; records the integrity (Bank.open's on_close)
+            _record_videos(self.bank, self.participant, videos)
+
+    def close(self) -> None:
+        with self._lock:
+            self._stack.close()
+
+    def __enter__(self) -> LiveWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- remembering -------------------------------------------------------------------
+    def moment(self, video: object, start: object, end: object, text: object, key: object = None,
+               where: str = "remember") -> Moment:
+        """A Moment from loose values, checked (a DataError names the field)."""
+        video, start, end, text = check_moment(where, video, start, end, text)
+        if key is not None and (not isinstance(key, str) or not key.strip() or len(key) > 200):
+            raise DataError(f"{where}, field 'id': expected a non-empty key of at most 200 characters (got {key!r})")
+        return Moment(video, start, end, text, key)
+
+    def remember(self, moment: Moment) -> Remembered:
+        """Perceive, embed, edit and commit one narrated moment; its answer (see `Remembered`)."""
+        reading = self.reader.read(moment.text)
+        action = self.reader.action(reading, self.participant, moment.video, moment.start, moment.end,
+                                    narration_id=moment.client_key())
+        return self._commit(moment.client_key(), moment.video, action=action, unknown=reading.unknown)
+
+    def remember_segment(self, segment: LayeredSegment | dict, key: str | None = None) -> Remembered:
+        """Commit a segment record perceived elsewhere (the project's LayeredSegment schema, e.g.
+        from a VLM): no perception here; the turn id is the video's next."""
+        seg = segment if isinstance(segment, LayeredSegment) else LayeredSegment.model_validate(segment)
+        if seg.participant_id != self.participant:
+            raise DataError(f"remember: the record is {seg.participant_id}'s, this writer writes {self.participant}'s")
+        return self._commit(key or f"{seg.video_id}@{seg.t_start:.3f}", seg.video_id, segment=seg)
+
+    def _commit(self, key: str, video: str, action: dict | None = None, segment: LayeredSegment | None = None,
+                unknown: list[str] | None = None) -> Remembered:
+        t0 = time.perf_counter()
+        with self._lock:
+            if self.store is None:
+                raise BankError(f"{self.bank.path}: this writer of {self.participant} is closed")
+            p = self.participant
+            with self._store_lock:
+                done = self.store.fetch("_live_remembered", participant=p, id=key)
+            if done:
+                answer = json.loads(done[0]["result"])
+                return Remembered(**{**answer, "duplicate": True}, seconds=time.perf_counter() - t0)
+            v = self.videos.get(video) or _Video()
+            turn = v.turns
+            if segment is None:
+                segment = perceive_moment(p, video, turn, action, v.ctx, self.reader.classes)
+            else:
+                segment = segment.model_copy(update={"turn_id": turn})
+            # state the writer changes only once the transaction committed: on failure it is rebuilt
+            snapshot = self._snapshot(segment)
+            try:
+                # one short text at a time: torch's thread pool only spins against the readers' threads
+                with torch_threads(1, self.embedder, kind="passage"):
+                    result, rows = self._write(key, segment, v, turn)
+            except BaseException:
+                self._restore(snapshot)
+                raise
+            n_actions = len(segment.activity.action_breakdown)
+            v.turns, v.last_segment = turn + 1, segment.segment_id
+            v.duration, v.actions = max(v.duration, segment.t_end), v.actions + n_actions
+            self.videos[video] = v
+            self.since_consolidation += 1
+            answer = Remembered(key=key, participant=p, segment=segment.segment_id, video=video, turn=turn,
+                                ops=result, unknown_words=list(unknown or []), delta=rows)
+            answer.seconds = time.perf_counter() - t0
+            return answer
+
+    def _snapshot(self, seg: LayeredSegment):
+        """What an edit changes in the writer's memory (the touched entities, the places), to
+        put back if the transaction fails: the registry then matches the database again."""
+        import copy
+
+        kinds = {o.kind for o in seg.objects}
+        touched = {i: copy.copy(e) for i, e in self.editor.entities.items() if e.kind in kinds}
+        return (touched, set(self.editor.entities), copy.deepcopy(self.places.places), self.editor._ord,
+                self._op_seq, copy.deepcopy(self.videos.get(seg.video_id)))
+
+    def _restore(self, snap) -> None:
+        touched, ids, places, ord_, op_seq, video = snap
+        for i in list(self.editor.entities):
+            if i not in ids:
+                del self.editor.entities[i]
+        for i, e in touched.items():
+            self.editor.entities[i] = e
+        self.editor._index = None  # rebuilt from the registry on the next edit
+        self.places.places, self.editor._ord, self._op_seq = places, ord_, op_seq
+
+    def _write(self, key: str, seg: LayeredSegment, v: _Video, turn: int) -> tuple[list[dict], dict]:
+        p, dim = self.participant, self.embedder.dim
+        before = {e.id: (e.status, e.location) for e in self.editor.entities.values()
+                  if e.kind in {o.kind for o in seg.objects}}
+        known_places = set(self.places.places)
+        old_turns = {k: pp.turn_count for k, pp in self.places.places.items()}
+        texts = [seg.activity.summary] + sorted({identity_text(o.name, o.category) for o in seg.objects})
+        seg_vec = self.embedder.encode(texts)[0]
+        result = self.editor.edit(seg)
+        in_place, spatial = self.places.merge(seg)
+        new_places = [pp for k, pp in sorted(self.places.places.items()) if k not in known_places]
+        changed_places = [pp for k, pp in sorted(self.places.places.items())
+                          if k in known_places and pp.turn_count != old_turns[k]]
+        place_vecs = self.embedder.encode([pp.text() for pp in new_places + changed_places]) \
+            if new_places or changed_places else np.zeros((0, dim), np.float32)
+        added = set(result.added)
+        ents = self.editor.entities
+        new_ents = [ents[i] for i in result.added]
+        changed = [ents[i] for i in sorted(result.touched) if i not in added]
+        relocated = [e.id for e in changed if (e.status, e.location) != before.get(e.id)]
+        located = [{"from": e.id, "to": place_id(p, e.location)} for e in new_ents if e.status == "active"]
+        located += [{"from": i, "to": place_id(p, ents[i].location)} for i in relocated if ents[i].status == "active"]
+        ops, op_rows, edited, merged = [], [], [], []
+        for op, obs in result.ops:
+            self._op_seq += 1
+            oid = f"{p}:op{self._op_seq:07d}"
+            ops.append({"id": oid, "op": op.op, "entity": op.entity_id, "object": obs.name, "reason": op.reason,
+                        "changes": dict(op.changes), **({"merged_into": op.merged_into} if op.merged_into else {})})
+            op_rows.append({"id": oid, "participant": p, "video": seg.video_id, "turn": turn,
+                            "t": round(seg.t_start + obs.t_rel, 3), "op": op.op, "entity": op.entity_id,
+                            "reason": op.reason, "changes": json.dumps(op.changes, sort_keys=True),
+                            "policy": self.editor.policy.name})
+            edited.append({"from": oid, "to": op.entity_id})
+            if op.merged_into:
+                merged.append({"from": op.entity_id, "to": op.merged_into, "video": seg.video_id, "turn": turn})
+        sid = seg.segment_id
+        seg_row = {"id": sid, "participant": p, "video": seg.video_id, "turn": turn, "t_start": seg.t_start,
+                   "t_end": seg.t_end, "summary": seg.activity.summary, "narrative": seg.activity.detailed_narrative,
+                   "action_breakdown": json.dumps([a.model_dump() for a in seg.activity.action_breakdown]),
+                   "working_summary": seg.working_summary, "location": seg.environment.location_id,
+                   "n_actions": len(seg.activity.action_breakdown), "n_objects": len(seg.objects)}
+        n_actions = v.actions + len(seg.activity.action_breakdown)
+        duration = max(v.duration, seg.t_end)
+        answer = {"key": key, "participant": p, "segment": sid, "video": seg.video_id, "turn": turn, "ops": ops}
+        # Row by row (UNWIND ... CREATE): a COPY writes whole pages straight into the file and costs
+        # 100-300 ms to commit where a small CREATE transaction costs a few (measured here).
+        with self._store_lock:
+            self._transaction(key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, place_vecs,
+                              new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
+                              duration, n_actions)
+            delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
+                     "places": [pp.location_id for pp in new_places + changed_places],
+                     "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]]}
+            if self._on_commit is not None:
+                self._on_commit(delta)
+        return ops, delta
+
+    def _transaction(self, key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, place_vecs,
+                     new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged, duration,
+                     n_actions) -> None:
+        p, dim, sid = self.participant, self.embedder.dim, seg.segment_id
+        with self.store.transaction():
+            if seg.video_id not in self.videos:
+                self._add("_live_add_video", [{"id": seg.video_id, "duration": duration, "n_turns": turn + 1,
+                                               "n_actions": n_actions, "mode": self.mode, "built_at": _now(),
+                                               "build_seconds": 0.0}])
+            else:
+                self.store.write("_live_video_update", participant=p, video=seg.video_id, duration=duration,
+                               n_turns=turn + 1, n_actions=n_actions)
+            self._add("_live_add_segment", [{**seg_row, "emb": _floats(seg_vec)}])
+            if v.last_segment is not None:
+                # scalar ids: Kùzu looks them up in the primary-key index (an UNWIND row's id scanned the table)
+                got = self.store.write("_live_add_next", participant=p, from_id=v.last_segment, to_id=sid)
+                if int(got[0]["n"]) != 1:
+                    raise StoreError(f"{self.store.path}: the previous segment {v.last_segment} is missing; nothing of "
+                                     "this moment was kept")
+            self._add("_live_add_places", [{**_place_row(pp), "emb": _floats(vec)}
+                                           for pp, vec in zip(new_places, place_vecs[: len(new_places)])])
+            if changed_places:
+                self.store.write("_place_update", participant=p, rows=[
+                    {"id": pp.id, "zones": pp.zones, "features": pp.features, "last_seen": pp.last_seen,
+                     "last_video": pp.last_video, "turn_count": pp.turn_count, "emb": _floats(vec)}
+                    for pp, vec in zip(changed_places, place_vecs[len(new_places):])])
+            self._add("_live_add_entities", [{**_entity_row(e), "emb": _floats(e.emb if e.emb is not None else
+                                                                                np.zeros(dim, np.float32))}
+                                             for e in new_ents])
+            if changed:
+                self.store.write("_entity_update", participant=p, rows=[_entity_row(e) for e in changed])
+            if relocated:
+                self.store.write("_located_at_clear", participant=p, ids=relocated)
+            self._add("_live_add_located", located)
+            self._add("_live_add_in_place", in_place)
+            self._add("_live_add_spatial", spatial)
+            self._add("_live_add_events", [{**ev, "place": place_id(p, ev["location"])} for ev in result.events])
+            self._add("_live_add_ops", op_rows)
+            self._add("_live_add_merged", merged)
+            self._add("_live_add_remembered", [{"id": key, "video": seg.video_id, "t": seg.t_start, "segment": sid,
+                                                "result": json.dumps(answer), "at": _now()}])
+
+    def _add(self, name: str, rows: list[dict]) -> None:
+        """Run one of the live writer's CREATE queries; every row must land (a row whose
+        endpoints are missing would otherwise vanish silently): else the transaction fails."""
+        if not rows:
+            return
+        got = int(self.store.write(name, participant=self.participant, rows=rows)[0]["n"])
+        if got != len(rows):
+            raise StoreError(f"{self.store.path}: {name} wrote {got} of {len(rows)} rows (a missing entity, place or "
+                             "segment); nothing of this moment was kept")
