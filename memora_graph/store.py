@@ -236,7 +236,9 @@ class Store:
     def fetch(self, name: str, **params) -> list[dict]:
         """A named read query as a list of dicts, for the hot path (retrieval tools): the
         statement is prepared once per Store and reused, and no polars frame is built."""
-        result = self._prepared_result(name, params)
+        return self._dicts(self._prepared_result(name, params))
+
+    def _dicts(self, result) -> list[dict]:
         columns = result.get_column_names()
         try:
             return [dict(zip(columns, row)) for row in result.get_all()]
@@ -260,9 +262,10 @@ class Store:
         q = get_query(name)
         if self.read_only:
             raise StoreError(f"{self.path}: query '{q.name}' writes; the database is open read-only.")
-        return self._fetch(q, params)
+        return self._dicts(self._fetch(q, params))
 
-    def _fetch(self, q: NamedQuery, params: dict) -> list[dict]:
+    def _fetch(self, q: NamedQuery, params: dict):
+        """The prepared statement's result (prepared once per Store)."""
         bound = bind(q, params)
         if self._broken is not None:
             raise self._broken

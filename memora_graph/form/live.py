@@ -36,7 +36,7 @@ import numpy as np
 import polars as pl
 
 from memora_graph import schema
-from memora_graph.bank import Bank, _alive
+from memora_graph.bank import Bank, pid_alive
 from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
 from memora_graph.form.build import _entity_row, _place_row
@@ -121,7 +121,7 @@ def recover(bank: Bank, participant: str) -> bool:
     mark = data.get("writing", {}).get(participant)
     if not mark or mark.get("pid") == os.getpid():
         return False
-    if _alive(mark.get("pid")):
+    if pid_alive(mark.get("pid")):
         raise WriterBusy(bank.interrupted_message(participant, mark))
     if mark.get("op") == "build":
         raise BankError(bank.interrupted_message(participant, mark))

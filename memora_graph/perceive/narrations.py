@@ -28,7 +28,7 @@ from memora_graph.perceive.lexicon import Lexicon, lemma
 
 REQUIRED = ("video_id", "start", "end", "text")
 FORMATS = {".csv": "csv", ".tsv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".parquet": "parquet", ".pq": "parquet"}
-_PID = re.compile(r"^P\d{2}$")
+_PID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
 # Ego4D's markers: "#C" the camera wearer (the memory's person), "#O" someone else, "#unsure", "#summary"
 _EGO4D_SUBJECT = re.compile(r"^\s*#\s*C\s+C\b\s*", re.IGNORECASE)
 _MARKER = re.compile(r"#\s*(?:unsure|summary|c|o)\b", re.IGNORECASE)
