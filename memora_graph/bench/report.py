@@ -14,6 +14,7 @@ against the best baseline; the compression curve; the editor's decision mix.
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter, defaultdict
 from pathlib import Path
 from statistics import mean, median
