@@ -28,7 +28,7 @@ from memora_graph.cli import main
 from memora_graph.confine import NO_GUARD_ENV, NO_LANDLOCK_ENV, mode
 from memora_graph.errors import QueryRefused, StoreError
 from memora_graph.serve import MemoryService
-from memora_graph.perf.serve import ServerProcess
+from memora_graph.cli.perf.serve import ServerProcess
 from memora_graph.serve.service import Busy
 
 pytestmark = pytest.mark.skipif(not mode().confined, reason="this kernel offers no Landlock: " + mode().why)

@@ -7,7 +7,8 @@ import os
 
 import click
 
-from memora_graph.output import output_options, render
+from memora_graph.cli.options import output_options
+from memora_graph.output import render
 
 SKIP_NO_VERIFY = {"verify", "forget"}
 
