@@ -100,7 +100,7 @@ PERF_COMMANDS = {
     "tools": ("memora_graph.cli.perf.tools:perf_tools_cmd",
               "Time every tool over a fixed query set: p50 / p95 per call (query embedding included), next to the "
               "exact numpy top-k floor, and recall@10 of every vector search against exact."),
-    "verify": ("memora_graph.cli.integrity:perf_verify_cmd",
+    "verify": ("memora_graph.cli.perf.verify:perf_verify_cmd",
                "What checking a database before opening it costs, against a one-shot command."),
     "video": ("memora_graph.cli.perf.video:perf_video",
               "Build from a synthetic video against a scripted server on 127.0.0.1 and print the graph work per "
