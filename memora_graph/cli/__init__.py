@@ -12,7 +12,6 @@ in `perf/`, what they share in `options` and `executors`, and the reference page
 from __future__ import annotations
 
 import statistics
-import sys
 
 import click
 
