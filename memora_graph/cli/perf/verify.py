@@ -34,7 +34,7 @@ def perf_verify_cmd(bank, participant, repeat, text):
     import polars as pl
 
     from memora_graph.bank import Bank
-    from memora_graph.integrity import files
+    from memora_graph import files
 
     b = Bank(bank)
     db = b.db_path(participant)
