@@ -22,7 +22,7 @@ def display(kind: str) -> str:
     return kind.replace("_", " ").strip()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Obj:
     kind: str
     entity: str  # the entity id (a merged duplicate resolves to what it was merged into)
@@ -30,8 +30,8 @@ class Obj:
     is_fixture: bool
 
 
-@dataclass
-class Step:
+@dataclass(slots=True)
+class Step:  # slots: a 1,000 h participant has about a million steps
     video: str
     segment: str
     t: float
@@ -105,9 +105,15 @@ class ParticipantMemory:
 def load_memory(store: Store, participant: str) -> ParticipantMemory:
     segments = store.run("_consolidate_segments", participant=participant).to_dicts()
     events = store.run("_consolidate_events", participant=participant)  # read row by row: at 1,000 h a
-    # participant has over a million state events, and a dict per row at once would cost gigabytes
+    # participant has over a million state events, and a dict per row at once would cost gigabytes.
+    # Sorted again here: Kùzu's ORDER BY was seen to return one row of 11,757 out of place (a 10 h
+    # synthetic participant; where depends on how the rows lie on disk), which moved a narration's
+    # entries apart and changed a routine; (video, t, ord) is unique, so this order is the intended one.
+    events = events.sort("video", "t", "ord", maintain_order=True)
     merged = dict(events.filter((pl.col("status") == "merged") & (pl.col("merged_into").fill_null("") != ""))
                   .select("entity", "merged_into").iter_rows())
+
+    objs: dict[tuple, Obj] = {}  # one Obj per distinct (kind, entity, category, fixture), shared by its steps
 
     def resolve(entity: str) -> str:
         seen = set()
@@ -121,7 +127,10 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
     key = None
     for e in events.iter_rows(named=True):  # ordered by video, t, ord: one narration's entries are adjacent
         k = (e["video"], e["t"], e["narration"])
-        obj = Obj(e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+        okey = (e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+        obj = objs.get(okey)
+        if obj is None:
+            obj = objs[okey] = Obj(*okey)
         if k != key:
             current = Step(video=e["video"], segment=e["segment"], t=float(e["t"]), verb=e["action"], objects=[obj],
                            location=e["location"] or "", zone=e["zone"] or "", destination=e["relative_to"] or "",

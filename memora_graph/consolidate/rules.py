@@ -211,11 +211,18 @@ class RuleConsolidator:
     def recurring(self, memory: ParticipantMemory) -> set[tuple[str, ...]]:
         """Action n-grams seen in at least `min_videos` videos: the per-video pass reports only these."""
         if self._recurring is None or self._recurring[0] != id(memory):
-            videos: dict[tuple[str, ...], set[str]] = defaultdict(set)
+            # per n-gram: the last video it was seen in and how many videos so far (a video's windows
+            # come together), not the set of its videos: at 1,000 h most n-grams recur in hundreds
+            seen: dict[tuple[str, ...], list] = {}
             for video, steps in memory.steps_by_video().items():
                 for tokens, _ in self._windows(steps):
-                    videos[tokens].add(video)
-            self._recurring = (id(memory), {t for t, vs in videos.items() if len(vs) >= self.min_videos})
+                    rec = seen.get(tokens)
+                    if rec is None:
+                        seen[tokens] = [video, 1]
+                    elif rec[0] != video:
+                        rec[0] = video
+                        rec[1] += 1
+            self._recurring = (id(memory), {t for t, (_, n) in seen.items() if n >= self.min_videos})
         return self._recurring[1]
 
     def _sequences(self, video: str, steps: list[Step], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
@@ -241,6 +248,26 @@ class RuleConsolidator:
             ))
         return out
 
+    def _sequence_evidence(self, steps: list[Step], recurring: set[tuple[str, ...]],
+                           evidence: dict[tuple[str, ...], _SequenceEvidence]) -> None:
+        """What `_sequences` would cite for one video, added to the chosen sequences' evidence
+        (keyed by their steps' texts, as the merge groups them), without building the records:
+        a video's windows are grouped by their tokens, a group takes the texts of its first window."""
+        found: dict[tuple[str, ...], tuple] = {}
+        for tokens, window in self._windows(steps):
+            if tokens not in recurring:
+                continue
+            rec = found.get(tokens)
+            if rec is None:
+                rec = found[tokens] = (evidence.get(tuple(s.text() for s in window)), [], [], [])
+            if rec[0] is not None:
+                rec[1].append(window[0].segment)
+                rec[2].extend(s.segment for s in window)
+                rec[3].extend(s.main.entity for s in window)
+        for ev, first, segments, entities in found.values():
+            if ev is not None:
+                ev.extend(first, segments, entities)
+
     # -- per participant ---------------------------------------------------------------
     def consolidate_participant(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> Consolidation:
         return Consolidation(
@@ -249,6 +276,34 @@ class RuleConsolidator:
             organizational_habits=self._merge_habits([h for v in per_video for h in v.organizational_habits]),
             workflow_patterns=self._merge_workflows([w for v in per_video for w in v.workflow_patterns]),
             action_sequences=self._merge_sequences([a for v in per_video for a in v.action_sequences]),
+        )
+
+    def consolidate_streaming(self, memory: ParticipantMemory) -> Consolidation:
+        """`consolidate_participant(memory, [consolidate_video(memory, v) for v in memory.videos])`,
+        the same records, merged video by video: a video's action sequences (the bulk of its
+        consolidation: every recurring window with its segments) are folded into per-sequence
+        counts and dropped, and the few sequences kept are read again for their evidence. Peak
+        memory no longer grows with the videos' sequences (35 MB a video at 1,000 h)."""
+        videos = memory.videos
+        storage, habits, workflows = [], [], []
+        fold = _SequenceFold()
+        for video in videos:
+            v = self.consolidate_video(memory, video)
+            storage += v.storage_preferences
+            habits += v.organizational_habits
+            workflows += v.workflow_patterns
+            for a in v.action_sequences:
+                fold.add(a)
+        chosen = self._choose_sequences(fold)
+        evidence = {steps: _SequenceEvidence() for steps in chosen}
+        if evidence:
+            by_video, recurring = memory.steps_by_video(), self.recurring(memory)
+            for video in videos:  # the second read: only the chosen sequences' evidence is kept
+                self._sequence_evidence(by_video.get(video, []), recurring, evidence)
+        return Consolidation(
+            participant=memory.participant, videos=list(videos), storage_preferences=self._merge_storage(storage),
+            organizational_habits=self._merge_habits(habits), workflow_patterns=self._merge_workflows(workflows),
+            action_sequences=[self._merged_sequence(steps, fold.groups[steps], evidence[steps]) for steps in chosen],
         )
 
     def _merge_storage(self, items: list[StoragePreference]) -> list[StoragePreference]:
@@ -336,39 +391,87 @@ class RuleConsolidator:
         return out[: self.caps["workflow"]]
 
     def _merge_sequences(self, items: list[ActionSequence]) -> list[ActionSequence]:
-        groups: dict[tuple[str, ...], list[ActionSequence]] = defaultdict(list)
+        fold = _SequenceFold()
         for a in items:
-            groups[tuple(a.steps)].append(a)
+            fold.add(a)
+        chosen = self._choose_sequences(fold)
+        evidence = {steps: _SequenceEvidence() for steps in chosen}
+        for a in items:
+            ev = evidence.get(tuple(a.steps))
+            if ev is not None:
+                ev.add(a)
+        return [self._merged_sequence(steps, fold.groups[steps], evidence[steps]) for steps in chosen]
+
+    def _choose_sequences(self, fold: _SequenceFold) -> list[tuple[str, ...]]:
+        """The step sequences kept, best first, from their counts and videos alone."""
         # Group by the step tokens' text; the same tokens with other destinations are other texts,
         # which is intended: "put bowl on drying rack" and "put bowl in sink" are different habits.
-        candidates = {}
-        for steps, group in groups.items():
-            videos = _merge_videos([a.videos for a in group])
-            if len(videos) >= self.min_videos:
-                candidates[steps] = (group, videos)
-        kept = []
-        covered = _longest_cover({steps: len(videos) for steps, (_, videos) in candidates.items()})
-        for steps, (group, videos) in candidates.items():
-            if covered.get(steps, 0) >= len(videos):
-                continue  # a longer sequence covers every video this one is seen in
-            n = len(steps)
-            a0 = group[0]
-            kept.append(ActionSequence(
-                title=a0.title, steps=list(steps), actions=a0.actions, activity_type=a0.activity_type,
-                key_objects=a0.key_objects,
-                count=sum(a.count for a in group), confidence=_conf(_support(len(videos)) * min(1.0, 0.6 + 0.1 * n)),
-                supporting_episodes=_uniq(s for a in group for s in a.supporting_episodes),
-                segments=_uniq(s for a in group for s in a.segments),
-                entities=_uniq(e for a in group for e in a.entities), videos=videos,
-            ))
-        kept.sort(key=lambda a: (-len(a.videos), -a.count, -len(a.steps), a.title))
+        candidates = {steps: g for steps, g in fold.groups.items() if len(g.videos) >= self.min_videos}
+        covered = _longest_cover({steps: len(g.videos) for steps, g in candidates.items()})
+        kept = [(steps, g) for steps, g in candidates.items() if covered.get(steps, 0) < len(g.videos)]
+        # (a sequence is dropped where a longer one covers every video it is seen in)
+        kept.sort(key=lambda sg: (-len(sg[1].videos), -sg[1].count, -len(sg[0]), sg[1].first.title))
         out, seen = [], set()
-        for a in kept:  # "wash -> rack -> take" and "take -> wash -> rack" are one loop: keep the best rotation
-            loop = (len(a.steps), frozenset(a.steps))
+        for steps, _ in kept:  # "wash -> rack -> take" and "take -> wash -> rack" are one loop: keep the best rotation
+            loop = (len(steps), frozenset(steps))
             if loop not in seen:
                 seen.add(loop)
-                out.append(a)
+                out.append(steps)
         return out[: self.caps["sequence"]]
+
+    @staticmethod
+    def _merged_sequence(steps: tuple[str, ...], g: _SequenceGroup, ev: _SequenceEvidence) -> ActionSequence:
+        a0, n = g.first, len(steps)
+        videos = dict(sorted(g.videos.items()))
+        return ActionSequence(
+            title=a0.title, steps=list(steps), actions=a0.actions, activity_type=a0.activity_type,
+            key_objects=a0.key_objects, count=g.count,
+            confidence=_conf(_support(len(videos)) * min(1.0, 0.6 + 0.1 * n)),
+            supporting_episodes=list(ev.episodes), segments=list(ev.segments), entities=list(ev.entities), videos=videos,
+        )
+
+
+class _SequenceGroup:
+    """One step sequence across videos: its first occurrence (title, actions), count and videos."""
+
+    __slots__ = ("first", "count", "videos")
+
+    def __init__(self, first: ActionSequence):
+        self.first, self.count, self.videos = first, 0, Counter()
+
+
+class _SequenceFold:
+    """Action sequences folded by their steps, without their evidence lists."""
+
+    def __init__(self):
+        self.groups: dict[tuple[str, ...], _SequenceGroup] = {}
+
+    def add(self, a: ActionSequence) -> None:
+        key = tuple(a.steps)
+        g = self.groups.get(key)
+        if g is None:
+            g = self.groups[key] = _SequenceGroup(ActionSequence.model_construct(
+                title=a.title, steps=a.steps, actions=a.actions, activity_type=a.activity_type,
+                key_objects=a.key_objects))
+        g.count += a.count
+        g.videos.update(a.videos)
+
+
+class _SequenceEvidence:
+    """The ordered, duplicate-free union of a sequence's evidence over its occurrences."""
+
+    __slots__ = ("episodes", "segments", "entities")
+
+    def __init__(self):
+        self.episodes, self.segments, self.entities = {}, {}, {}
+
+    def add(self, a: ActionSequence) -> None:
+        self.extend(a.supporting_episodes, a.segments, a.entities)
+
+    def extend(self, episodes, segments, entities) -> None:
+        self.episodes.update(dict.fromkeys(episodes))
+        self.segments.update(dict.fromkeys(segments))
+        self.entities.update(dict.fromkeys(entities))
 
 
 def _longest_cover(videos: dict[tuple[str, ...], int]) -> dict[tuple[str, ...], int]:

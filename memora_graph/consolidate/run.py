@@ -176,8 +176,12 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
     """Run both processors over a loaded slice and collect validated rows (no I/O)."""
     call_mark, report_mark = _marks(processors)
     t0 = time.perf_counter()
-    per_video = _per_video(memory, processors, call_mark, report_mark)
-    consolidation = processors.consolidation.consolidate_participant(memory, per_video)
+    streaming = getattr(processors.consolidation, "consolidate_streaming", None)
+    if streaming is not None and processors.concurrency <= 1:  # merged video by video: memory flat in the hours
+        consolidation = streaming(memory)
+    else:
+        per_video = _per_video(memory, processors, call_mark, report_mark)
+        consolidation = processors.consolidation.consolidate_participant(memory, per_video)
     t1 = time.perf_counter()
     enrichment = processors.enrichment.enrich(memory, consolidation)
     t2 = time.perf_counter()

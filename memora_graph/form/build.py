@@ -11,7 +11,7 @@ import hashlib
 import json
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -319,16 +319,15 @@ class ParticipantBuilder:
             if not s.run("_participant_exists", participant=p)["n"][0]:
                 s.copy("Participant", pl.DataFrame({"id": [p], "participant": [p]}))
             for table in NODE_ORDER:
-                frames = self._staged_frames(table)
+                frames = self._staged_frames(table)  # read lazily, a chunk of videos at a time
                 if table == "Place" and new_places:
                     s.copy("Place", schema.frame("Place", [_place_row(pp) for pp in new_places]).with_columns(
                         _emb_series(list(place_vecs[: len(new_places)]), dim)))
                 elif table == "Entity" and new_ents:
                     s.copy("Entity", schema.frame("Entity", [_entity_row(e) for e in new_ents]).with_columns(
                         _emb_series([e.emb if e.emb is not None else np.zeros(dim) for e in new_ents], dim)))
-                elif frames:
-                    s.copy(table, pl.concat(frames, how="vertical_relaxed"))
-                del frames
+                else:
+                    self._copy_chunks(table, frames)
             if changed:
                 s.run("_entity_update", participant=p, rows=[_entity_row(e) for e in changed])
             if changed_places:
@@ -341,10 +340,7 @@ class ParticipantBuilder:
             if located:
                 s.copy("LOCATED_AT", pl.DataFrame(located))
             for table in REL_ORDER:
-                frames = self._staged_frames(table)
-                if frames:
-                    s.copy(table, pl.concat(frames, how="vertical_relaxed"))
-                del frames
+                self._copy_chunks(table, self._staged_frames(table))
         self.store.close()  # checkpoint: the staged videos are in the database file now
         self.store = None
         self.staging.clear(self.staged)
@@ -352,9 +348,23 @@ class ParticipantBuilder:
         self.staged, self.staged_now = [], []
         return time.perf_counter() - t0
 
-    def _staged_frames(self, table: str) -> list[pl.DataFrame]:
-        """The staged videos' rows of one table, read from disk when the table is loaded."""
-        return [f for st in self.staged if (f := st.frame(table)) is not None]
+    def _staged_frames(self, table: str) -> Iterator[pl.DataFrame]:
+        """The staged videos' rows of one table, each read from disk when the load reaches it."""
+        return (f for st in self.staged if (f := st.frame(table)) is not None)
+
+    def _copy_chunks(self, table: str, frames: Iterable[pl.DataFrame]) -> None:
+        """COPY the videos' rows of one table in video order, COPY_CHUNK_ROWS rows at a time: one
+        COPY of a whole table held every row of it at once (6.4 GB at 1,000 h); the rows, their
+        order and the transaction are the same."""
+        chunk, rows = [], 0
+        for f in frames:
+            chunk.append(f)
+            rows += f.height
+            if rows >= COPY_CHUNK_ROWS:
+                self.store.copy(table, pl.concat(chunk, how="vertical_relaxed"))
+                chunk, rows = [], 0
+        if chunk:
+            self.store.copy(table, pl.concat(chunk, how="vertical_relaxed"))
 
     def _read(self, name: str) -> list[dict]:
         if self.store is not None:
@@ -372,6 +382,8 @@ class ParticipantBuilder:
         return {r["op"]: r["n"] for r in self._read("decision_mix")}
 
 
+# rows per COPY of the bulk load: bounds what a long build holds (a segment row with its vector is ~2 KB)
+COPY_CHUNK_ROWS = 50_000
 NODE_ORDER = ("Video", "Segment", "Place", "Entity", "StateEvent", "EditOp", "ModelCall")
 REL_ORDER = ("HAS_VIDEO", "HAS_SEGMENT", "NEXT", "IN_PLACE", "SPATIAL", "HAS_STATE", "OBSERVED_IN", "AT",
              "EDITED", "MERGED_INTO")

@@ -176,7 +176,7 @@ def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str
     if not store_dir(bank.path, p).exists():
         return "none (computed on first use)"
     try:
-        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"))
+        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"), trust_stamps=False)
     except StaleStores as why:
         if why.damaged:
             problems.append(f"{why}; never read (the next open reads the database and writes them again)")

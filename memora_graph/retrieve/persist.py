@@ -2,14 +2,22 @@
 one tool call maps files instead of querying Kùzu and recomputing.
 
 Per participant, `BANK/.cache/tools-PXX/` holds the embedding matrices (L2-normalised, one
-memory-mapped `.npy` per table with its ids), the BM25 statistics of every table (postings,
-document lengths), and the rows of the participant-wide tool queries (entity registry, places,
-videos, routines, preferences, the observation graph, segment texts). `meta.json` records the
-sha256 of every file and the sha256 of the database they were computed from, as the bank's
-manifest records it (memora_graph/integrity/): after any write to the database (a rebuild,
-`memora consolidate`, `memora index`) the files are stale and are not used. A file whose hash no
-longer matches its record is damaged: it is not used either, and a warning says so. Either way the
-view reads Kùzu instead and writes the files again (where the bank is writable).
+memory-mapped `.npy` per table with its ids), the BM25 index of every table (posting arrays and
+document lengths, memory-mapped `.npy`), the observation graph (entity <-> segment arrays and
+co-occurrence counts, memory-mapped `.npy`) and the rows of the small participant-wide tool
+queries (entity registry, places, videos, routines, preferences, inferred links). Nothing is
+parsed or rebuilt whole at open: at 1,000 h the JSON postings and observation rows took 7 s.
+
+`meta.json` records the sha256 of every file and the sha256 of the database they were computed
+from, as the bank's manifest records it (memora_graph/integrity/): after any write to the database
+(a rebuild, `memora consolidate`, `memora index`) the files are stale and are not used. A file
+whose hash no longer matches its record is damaged: it is not used either, and a warning says so.
+Either way the view reads Kùzu instead and writes the files again (where the bank is writable).
+Hashing every file at each open cost 0.6 s at 1,000 h, so a process that hashed them all records
+each file's size, inode and change times in `verified.json`; a later open hashes again only a
+file whose stat differs (any write through the file system changes it), or one changed less than
+`RACY_S` before it was verified (a write within the file system's timestamp granularity, as git
+treats a "racily clean" file). `memora verify` always hashes every file.
 
 Everything here is computed by the `MemoryView` code itself (`write` warms a view on the database
 and saves what it loaded), so tool results are the same whichever way a view was opened
@@ -23,17 +31,23 @@ import json
 import logging
 import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
 
+from memora_graph.retrieve.graph import ObservationGraph
 from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 
-FORMAT = 1
+FORMAT = 2
+RACY_S = 2.0  # a file changed this close to its verification is hashed again
 DIRNAME = "tools-{participant}"
 # participant-wide named queries (no parameter but $participant) whose rows are kept
+# (the observation rows are kept as the graph's arrays; the segment texts only feed BM25, kept as its arrays)
 ROW_QUERIES = ("_tool_entities", "_tool_places", "_tool_videos", "_tool_routines", "_tool_preferences",
-               "_tool_observations", "_tool_inferred_links", "_tool_segment_texts")
+               "_tool_inferred_links")
+BM25_ARRAYS = ("offsets", "docs", "tfs", "lengths")
+GRAPH_ARRAYS = ("segments", "seg_offsets", "seg_entities", "place_offsets", "place_loc", "place_n", "pairs", "counts")
 
 log = logging.getLogger("memora_graph.integrity")
 
@@ -65,8 +79,9 @@ class PersistedStores:
 
     @classmethod
     def open(cls, bank_path: str | Path, participant: str, db_sha256: str | None,
-             embed_model: str | None) -> PersistedStores:
-        """The stores of a participant, or StaleStores saying why they cannot be used."""
+             embed_model: str | None, trust_stamps: bool = True) -> PersistedStores:
+        """The stores of a participant, or StaleStores saying why they cannot be used. Every file
+        is hashed, except (`trust_stamps`) one whose stat is that recorded when it was last hashed."""
         root = store_dir(bank_path, participant)
         try:
             meta = json.loads((root / "meta.json").read_text())
@@ -81,9 +96,40 @@ class PersistedStores:
         if meta.get("participant") != participant or meta.get("embed_model") != embed_model:
             raise StaleStores(f"{root}: computed for another participant or embedding model")
         stores = cls(root, meta)
-        for name in meta.get("files", {}):  # a few MB: hashing them all costs milliseconds
-            stores._path(name)
+        stamps = {} if not trust_stamps else stores._stamps()
+        for name in meta.get("files", {}):
+            if name in stamps and stamps[name] == _stat_stamp(root / name):
+                stores._checked.add(name)  # unchanged since a process hashed it
+            else:
+                stores._path(name)
+        if trust_stamps and len(stamps) < len(meta.get("files", {})):
+            stores._record_stamps()
         return stores
+
+    def _stamps(self) -> dict[str, list[int]]:
+        """The stat stamps of the files a process hashed, those changed RACY_S before it only."""
+        try:
+            data = json.loads((self.root / "verified.json").read_text())
+        except (OSError, ValueError):
+            return {}
+        if not isinstance(data, dict) or data.get("db_sha256") != self.meta.get("db_sha256"):
+            return {}
+        at, files = data.get("at_ns"), data.get("files")
+        if not isinstance(at, int) or not isinstance(files, dict):
+            return {}
+        racy = at - int(RACY_S * 1e9)
+        return {n: st for n, st in files.items() if isinstance(st, list) and len(st) == 4 and max(st[2], st[3]) < racy}
+
+    def _record_stamps(self) -> None:
+        """Record the stat of every file just hashed (best effort: a read-only bank keeps hashing)."""
+        at = time.time_ns()
+        try:
+            files = {n: _stat_stamp(self.root / n) for n in self._checked}
+            tmp = self.root / f".verified.{os.getpid()}.tmp"
+            tmp.write_text(json.dumps({"db_sha256": self.meta.get("db_sha256"), "at_ns": at, "files": files}))
+            os.replace(tmp, self.root / "verified.json")
+        except OSError:
+            pass
 
     def _path(self, name: str) -> Path:
         """A file of the stores, after checking its sha256 against meta.json (once per process)."""
@@ -118,8 +164,18 @@ class PersistedStores:
 
         return self._read(f"vectors-{table}.npy", load)
 
+    def _arrays(self, prefix: str, names: tuple[str, ...]) -> tuple[dict, dict[str, np.ndarray]]:
+        header = json.loads(self._path(f"{prefix}.json").read_text())
+        return header, {n: np.load(self._path(f"{prefix}-{n}.npy"), mmap_mode="r", allow_pickle=False) for n in names}
+
     def bm25(self, table: str) -> Bm25:
-        return self._read(f"bm25-{table}.json", lambda p: Bm25.from_state(json.loads(p.read_text())))
+        return self._read(f"bm25-{table}.json", lambda p: Bm25.from_arrays(*self._arrays(f"bm25-{table}", BM25_ARRAYS)))
+
+    def has_graph(self) -> bool:
+        return "graph.json" in self.meta.get("files", {})
+
+    def graph(self) -> ObservationGraph:
+        return self._read("graph.json", lambda p: ObservationGraph.from_arrays(*self._arrays("graph", GRAPH_ARRAYS)))
 
     def _read(self, name: str, read):
         """`read(path)` of a checked file; a file whose hash was recorded but which does not
@@ -129,6 +185,11 @@ class PersistedStores:
             return read(path)
         except (OSError, ValueError, TypeError, KeyError, IndexError, RecursionError) as exc:
             raise StaleStores(f"{path}: damaged (it does not read: {type(exc).__name__}: {exc})") from None
+
+
+def _stat_stamp(path: Path) -> list[int]:
+    st = path.stat()
+    return [st.st_size, st.st_ino, st.st_mtime_ns, st.st_ctime_ns]
 
 
 def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) -> Path:
@@ -145,6 +206,11 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
             write_fn(tmp / name)
             files[name] = _sha256(tmp / name)
 
+        def put_arrays(prefix: str, header: dict, arrays: dict[str, np.ndarray]) -> None:
+            put(f"{prefix}.json", lambda p: p.write_text(json.dumps(header, ensure_ascii=False)))
+            for n, a in arrays.items():
+                put(f"{prefix}-{n}.npy", lambda p, a=a: np.save(p, np.ascontiguousarray(a), allow_pickle=False))
+
         for query in ROW_QUERIES:
             rows = view.fetch(query)
             text = json.dumps(rows, ensure_ascii=False)
@@ -155,8 +221,8 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
             vt = view.vectors(table)
             put(f"ids-{table}.json", lambda p, v=vt: p.write_text(json.dumps(v.ids)))
             put(f"vectors-{table}.npy", lambda p, v=vt: np.save(p, np.ascontiguousarray(v.mat), allow_pickle=False))
-            bm = view.bm25(table)
-            put(f"bm25-{table}.json", lambda p, b=bm: p.write_text(json.dumps(b.state())))
+            put_arrays(f"bm25-{table}", *view.bm25(table).arrays())
+        put_arrays("graph", *view.graph.arrays())
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))

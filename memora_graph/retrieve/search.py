@@ -105,45 +105,87 @@ class VectorTable:
 
 # -- keywords --------------------------------------------------------------------------------
 class Bm25:
-    """Okapi BM25 over a small corpus, in process (k1 = 1.2, b = 0.75, as Kùzu's FTS)."""
+    """Okapi BM25 over a corpus, in process (k1 = 1.2, b = 0.75, as Kùzu's FTS).
+
+    The postings are flat arrays (a term's documents and term counts between two offsets), so a
+    search scores each query term's posting list in one vectorised pass, whatever its length (at
+    1,000 h "take" is in a third of 360,000 segments), and the arrays persist as memory-mapped
+    files (`arrays()` / `from_arrays`) that open without being parsed. Scores are those of the
+    per-posting loop: the same float64 operations in the same order, terms added per document in
+    the order the query's terms are visited."""
 
     def __init__(self, ids: list[str], texts: list[str], k1: float = 1.2, b: float = 0.75):
-        self.ids, self.k1, self.b = ids, k1, b
-        self.postings: dict[str, list[tuple[int, int]]] = defaultdict(list)
-        self.lengths = []
+        postings: dict[str, list[tuple[int, int]]] = defaultdict(list)
+        lengths = []
         for n, text in enumerate(texts):
             toks = index_tokens(text)
-            self.lengths.append(len(toks))
+            lengths.append(len(toks))
             for t, c in Counter(toks).items():
-                self.postings[t].append((n, c))
-        self.avg = (sum(self.lengths) / len(self.lengths)) if self.lengths else 1.0
+                postings[t].append((n, c))
+        terms = sorted(postings)
+        sizes = np.fromiter((len(postings[t]) for t in terms), dtype=np.int64, count=len(terms))
+        offsets = np.zeros(len(terms) + 1, dtype=np.int64)
+        np.cumsum(sizes, out=offsets[1:])
+        flat = [p for t in terms for p in postings[t]]
+        docs = np.fromiter((d for d, _ in flat), dtype=np.int32, count=len(flat))
+        tfs = np.fromiter((c for _, c in flat), dtype=np.int32, count=len(flat))
+        avg = (sum(lengths) / len(lengths)) if lengths else 1.0
+        self._set(ids, terms, offsets, docs, tfs, np.asarray(lengths, dtype=np.int64), avg, k1, b)
+
+    def _set(self, ids, terms, offsets, docs, tfs, lengths, avg, k1, b) -> None:
+        self.ids, self.k1, self.b, self.avg = ids, k1, b, avg
+        self.terms = terms
+        self.vocab = {t: i for i, t in enumerate(terms)}
+        self.offsets, self.docs, self.tfs, self.lengths = offsets, docs, tfs, lengths
         self.n = len(ids)
 
-    def state(self) -> dict:
-        """Everything `search` reads, as JSON-ready values (persisted next to the bank)."""
-        return {"ids": self.ids, "k1": self.k1, "b": self.b, "lengths": self.lengths, "avg": self.avg,
-                "postings": {t: [list(p) for p in plist] for t, plist in self.postings.items()}}
+    def arrays(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """(JSON-ready header: ids, terms, k1, b, avg; the arrays: offsets, docs, tfs, lengths)."""
+        return ({"ids": self.ids, "terms": self.terms, "k1": self.k1, "b": self.b, "avg": self.avg},
+                {"offsets": self.offsets, "docs": self.docs, "tfs": self.tfs, "lengths": self.lengths})
 
     @classmethod
-    def from_state(cls, state: dict) -> Bm25:
+    def from_arrays(cls, header: dict, arrays: dict[str, np.ndarray]) -> Bm25:
         bm = cls.__new__(cls)
-        bm.ids, bm.k1, bm.b, bm.lengths, bm.avg = state["ids"], state["k1"], state["b"], state["lengths"], state["avg"]
-        bm.postings = {t: [tuple(p) for p in plist] for t, plist in state["postings"].items()}
-        bm.n = len(bm.ids)
+        bm._set(header["ids"], header["terms"], arrays["offsets"], arrays["docs"], arrays["tfs"], arrays["lengths"],
+                header["avg"], header["k1"], header["b"])
         return bm
 
+    def postings(self, term: str) -> list[tuple[int, int]]:
+        """(document number, term count) of every document containing `term`."""
+        i = self.vocab.get(term)
+        if i is None:
+            return []
+        lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
+        return list(zip(self.docs[lo:hi].tolist(), self.tfs[lo:hi].tolist()))
+
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
-        scores: dict[int, float] = defaultdict(float)
+        if k < 1:
+            return []
+        scores = None
         for t in set(index_tokens(query)):
-            plist = self.postings.get(t)
-            if not plist:
+            i = self.vocab.get(t)
+            if i is None:
                 continue
-            idf = math.log(1 + (self.n - len(plist) + 0.5) / (len(plist) + 0.5))
-            for doc, tf in plist:
-                norm = tf + self.k1 * (1 - self.b + self.b * self.lengths[doc] / self.avg)
-                scores[doc] += idf * tf * (self.k1 + 1) / norm
-        best = sorted(scores.items(), key=lambda kv: (-kv[1], self.ids[kv[0]]))[:k]
-        return [(self.ids[d], s) for d, s in best]
+            lo, hi = int(self.offsets[i]), int(self.offsets[i + 1])
+            if lo == hi:
+                continue
+            docs, tf = self.docs[lo:hi], self.tfs[lo:hi].astype(np.float64)
+            df = hi - lo
+            idf = math.log(1 + (self.n - df + 0.5) / (df + 0.5))
+            norm = tf + self.k1 * (1 - self.b + self.b * self.lengths[docs] / self.avg)
+            if scores is None:
+                scores = np.zeros(self.n, dtype=np.float64)
+            scores[docs] += idf * tf * (self.k1 + 1) / norm  # a posting list names a document once
+        if scores is None:
+            return []
+        hit = np.flatnonzero(scores)  # every scored document scores above 0 (idf > 0, tf >= 1)
+        if len(hit) > k:  # the k best, and every document tied with the k-th (ties go by id)
+            s = scores[hit]
+            kth = np.partition(s, len(s) - k)[len(s) - k]
+            hit = hit[s >= kth]
+        best = sorted(((float(scores[d]), int(d)) for d in hit), key=lambda sd: (-sd[0], self.ids[sd[1]]))[:k]
+        return [(self.ids[d], sc) for sc, d in best]
 
 
 # -- fusion ----------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ import math
 from collections import Counter
 
 import numpy as np
+import polars as pl
 
 from memora_graph.perceive.vocab import PLACE_NAMES
 from memora_graph.records import segment_id
@@ -255,7 +256,7 @@ def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> l
     for c in kept:
         video, turn = c.id.rsplit("#t", 1)
         wanted |= {segment_id(video, int(turn) - 1), segment_id(video, int(turn) + 1)}
-    rows = {r["id"]: r for r in view.fetch("_tool_segments", ids=sorted(wanted))}
+    rows = {r["id"]: r for r in view.by_id("_tool_segment", sorted(wanted))}
     return [_activity_record(view, rows[c.id], rows, c) for c in kept if c.id in rows]
 
 
@@ -535,39 +536,49 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
         return _envelope(view, ObjectHistoryResult, "get_object_history", args, found=False,
                          error=f"no object matching {query!r}; try search_objects first")
     e = view.entities[ids[0]]
-    rows = view.fetch("_tool_history", entity=e["id"])
-    for r in rows:  # the segment a state entry was observed in (its OBSERVED_IN edge) is its video's turn
-        r["segment"] = segment_id(r["video"], int(r["turn"]))
-    transitions = []
-    for prev, cur in zip(rows, rows[1:]):
-        if cur["location"] != prev["location"] and cur["location"]:
-            transitions.append({"video": cur["video"], "t": cur["t"], "from": prev["location"], "to": cur["location"],
-                                "across_videos": cur["video"] != prev["video"], "segment_id": cur["segment"],
-                                "event_id": cur["id"]})
-    history = [{"event_id": r["id"], "segment_id": r["segment"], "video": r["video"], "turn_id": r["turn"],
-                "time_seconds": r["t"], "state": r["state"], "location": r["location"], "zone": r["zone"] or None,
-                "held_by": r["held_by"] or None, "relative_to": r["relative_to"] or None, "relation": r["relation"] or None,
-                "action": r["action"] or None, "narration": r["narration"], "editor_op": r["op"]} for r in rows]
-    shown = history[-max_entries:] if max_entries and len(history) > max_entries else history
-    per_video: dict[str, dict] = {}
-    for r in rows:  # the history across videos at a glance: where and in which states, per video
-        v = per_video.setdefault(r["video"], {"video": r["video"], "observations": 0, "first_t": r["t"], "last_t": r["t"],
-                                              "states": [], "locations": [], "final_state": "", "final_location": ""})
-        v["observations"] += 1
-        v["last_t"], v["final_state"], v["final_location"] = r["t"], r["state"], r["location"]
-        for key, val in (("states", r["state"]), ("locations", r["location"])):
-            if val and val not in v[key]:
-                v[key].append(val)
+    # The whole history is read as a few thin columns (one columnar fetch, summarised in polars);
+    # only the entries shown are read whole: at 1,000 h one object has tens of thousands of entries.
+    outline = view.frame("_tool_history_outline", entity=e["id"])
+    total = outline.height
+    keep = max_entries if max_entries and total > max_entries else total
+    moved = (outline.with_row_index("i")
+             .with_columns(prev=pl.col("location").shift(1), prev_video=pl.col("video").shift(1))
+             .filter((pl.col("i") > 0) & pl.col("location").ne_missing(pl.col("prev"))
+                     & pl.col("location").is_not_null() & (pl.col("location") != "")))
+    if max_entries:
+        moved = moved.tail(max_entries)
+    transitions = [{"video": r["video"], "t": r["t"], "from": r["prev"], "to": r["location"],
+                    "across_videos": r["video"] != r["prev_video"], "segment_id": segment_id(r["video"], int(r["turn"])),
+                    "event_id": r["id"]} for r in moved.iter_rows(named=True)]
+    tail = view.by_id("_tool_history_entry", outline["id"].tail(keep).to_list() if keep else [])
+    shown = []
+    for r in tail:
+        shown.append({"event_id": r["id"], "segment_id": segment_id(r["video"], int(r["turn"])), "video": r["video"],
+                      "turn_id": r["turn"], "time_seconds": r["t"], "state": r["state"], "location": r["location"],
+                      "zone": r["zone"] or None, "held_by": r["held_by"] or None, "relative_to": r["relative_to"] or None,
+                      "relation": r["relation"] or None, "action": r["action"] or None, "narration": r["narration"],
+                      "editor_op": r["op"]})
+    named = (pl.col("state").is_not_null() & (pl.col("state") != ""),
+             pl.col("location").is_not_null() & (pl.col("location") != ""))
+    per_video = outline.group_by("video", maintain_order=True).agg(
+        pl.len().alias("observations"), pl.col("t").first().alias("first_t"), pl.col("t").last().alias("last_t"),
+        pl.col("state").filter(named[0]).unique(maintain_order=True).alias("states"),
+        pl.col("location").filter(named[1]).unique(maintain_order=True).alias("locations"),
+        pl.col("state").last().alias("final_state"), pl.col("location").last().alias("final_location"))
+    videos = [{"video": v["video"], "observations": int(v["observations"]), "first_t": v["first_t"], "last_t": v["last_t"],
+               "states": v["states"], "locations": v["locations"], "final_state": v["final_state"],
+               "final_location": v["final_location"]} for v in per_video.iter_rows(named=True)]
+    segments = sorted({segment_id(v, int(t)) for v, t in outline.select("video", "turn").unique().iter_rows()})
     return _envelope(
         view, ObjectHistoryResult, "get_object_history", args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
         match_type=how, status=e["status"], current_state=e["state"], current_location=e["location"],
-        all_states_observed=sorted({r["state"] for r in rows if r["state"]}),
-        all_locations_observed=sorted({r["location"] for r in rows if r["location"]}),
-        videos=list(per_video.values()), location_transitions=transitions[-max_entries:] if max_entries else transitions,
-        state_history=shown, history_total=len(history), history_shown=len(shown),
+        all_states_observed=sorted(set(outline.filter(named[0])["state"].to_list())),
+        all_locations_observed=sorted(set(outline.filter(named[1])["location"].to_list())),
+        videos=videos, location_transitions=transitions,
+        state_history=shown, history_total=total, history_shown=len(shown),
         first_seen={"video": e["first_video"], "t": e["first_seen"]}, last_seen={"video": e["last_video"], "t": e["last_seen"]},
         other_matches=[{"entity_id": i, "name": view.entities[i]["name"], "status": view.entities[i]["status"]} for i in ids[1:6]],
-        evidence=[e["id"], *sorted({r["segment"] for r in rows})[:20]],
+        evidence=[e["id"], *segments[:20]],
     )
 
 
@@ -618,7 +629,7 @@ def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None =
     visible.sort(key=lambda v: (-v.since_seconds, v.entity_id))
     turn = int(t // 10)
     seg_ids = [segment_id(video, turn)]
-    segs = {s["id"]: s for s in view.fetch("_tool_segments", ids=seg_ids)}
+    segs = {s["id"]: s for s in view.by_id("_tool_segment", seg_ids)}
     seg = segs.get(seg_ids[0])
     return _envelope(
         view, StateAtTimeResult, "get_state_at_time", args, segment_id=seg["id"] if seg else None,

@@ -14,7 +14,6 @@ import json
 import logging
 import os
 import time
-from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -26,6 +25,7 @@ from memora_graph.bank import Bank
 from memora_graph.embed import single_thread_blas
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
+from memora_graph.retrieve.graph import ObservationGraph
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
     VectorTable
 
@@ -196,6 +196,15 @@ class MemoryView:
                 return got
         return self.store.fetch(name, participant=self.participant, **params)
 
+    def by_id(self, name: str, ids: list[str]) -> list[dict]:
+        """The rows of a one-id named query for each id, in order (an id not found gives none):
+        a prepared lookup by key each, where a filter over ids reads the whole table."""
+        return [r for i in ids for r in self.store.fetch(name, participant=self.participant, id=i)]
+
+    def frame(self, name: str, **params):
+        """A named query's rows as a polars frame (one columnar fetch: for many thin rows)."""
+        return self.store.fetch_frame(name, participant=self.participant, **params)
+
     def _from_persisted(self, read):
         """`read(persisted)`, or None (and the persisted stores dropped, with a warning) when a
         file turns out damaged: the database is read instead."""
@@ -228,8 +237,18 @@ class MemoryView:
         cache = self.__dict__.setdefault("_vector_cache", {})
         if table not in cache:
             got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted is not None else None
-            cache[table] = got if got is not None else VectorTable.from_rows(self.fetch(f"_tool_vectors_{table}"))
+            cache[table] = got if got is not None else self._vectors_from_store(table)
         return cache[table]
+
+    def _vectors_from_store(self, table: str) -> VectorTable:
+        """One columnar fetch straight into a float32 matrix: as rows, each vector was 384 Python
+        floats (gigabytes at 1,000 h, when the tool stores are written)."""
+        import polars as pl
+
+        frame = self.frame(f"_tool_vectors_{table}").filter(pl.col("emb").is_not_null())
+        if not frame.height:
+            return VectorTable([], np.zeros((0, 1), np.float32))
+        return VectorTable(frame["id"].to_list(), frame["emb"].to_numpy())
 
     @cached_property
     def entities(self) -> dict[str, dict]:
@@ -262,7 +281,11 @@ class MemoryView:
 
     @cached_property
     def graph(self) -> ObservationGraph:
-        return ObservationGraph(self.fetch("_tool_observations"))
+        if self._persisted is not None and self._persisted.has_graph():
+            got = self._from_persisted(lambda p: p.graph())
+            if got is not None:
+                return got
+        return ObservationGraph(self.frame("_tool_observations").iter_rows(named=True))  # rows one at a time
 
     # -- signals ---------------------------------------------------------------------------
     def knn(self, table: str, q: np.ndarray, k: int) -> list[tuple[str, float]]:
@@ -294,7 +317,7 @@ class MemoryView:
                 cache[table] = got
         if table not in cache:
             if table == "segment":
-                rows = self.fetch("_tool_segment_texts")
+                rows = self.frame("_tool_segment_texts").iter_rows(named=True)
                 docs = [(r["id"], f"{r['summary']} {r['narrative']}") for r in rows]
             elif table == "entity":
                 docs = [(i, f"{e['name']} {e['kind']} {e['category']}") for i, e in self.entities.items() if e["status"] == "active"]
@@ -340,50 +363,3 @@ def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -
                 out.written.append(view.persisted_written)
     out.seconds = time.perf_counter() - t0
     return out
-
-
-class ObservationGraph:
-    """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
-    the entity co-occurrence counts (segments two entities share), computed once. The counts are
-    kept sparse (pairs that co-occur, sorted): a dense entity x segment incidence product grows as
-    entities^2 x segments and does not fit a 1,000-hour memory (docs/performance.md, "Memory at scale")."""
-
-    def __init__(self, rows: list[dict]):
-        self.segment_entities: dict[str, set[str]] = defaultdict(set)
-        self.entity_segments: dict[str, set[str]] = defaultdict(set)
-        self.entity_places: dict[str, Counter[str]] = defaultdict(Counter)
-        for r in rows:
-            self.segment_entities[r["segment"]].add(r["entity"])
-            self.entity_segments[r["entity"]].add(r["segment"])
-            if r["location"]:
-                self.entity_places[r["entity"]][r["location"]] += int(r["n"])
-        self.entities = sorted(self.entity_segments)
-        self._row = {e: i for i, e in enumerate(self.entities)}
-        self._pairs, self._counts = self._cooccurrence()
-
-    def _cooccurrence(self) -> tuple[np.ndarray, np.ndarray]:
-        """(sorted keys i * E + j, segments shared) for every ordered pair i != j seen together."""
-        n = len(self.entities)
-        members = [sorted(self._row[e] for e in es) for es in self.segment_entities.values()]
-        seg = np.repeat(np.arange(len(members)), [len(m) for m in members])
-        ent = np.fromiter((i for m in members for i in m), dtype=np.int64, count=len(seg))
-        a_parts, b_parts = [], []
-        for d in range(1, max((len(m) for m in members), default=0)):
-            same = seg[:-d] == seg[d:]  # edges d apart within one segment (rows are grouped by segment)
-            a_parts += [ent[:-d][same], ent[d:][same]]
-            b_parts += [ent[d:][same], ent[:-d][same]]
-        if not a_parts:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        keys = np.concatenate(a_parts) * n + np.concatenate(b_parts)
-        return np.unique(keys, return_counts=True)
-
-    def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
-        """The entities seen in the most of this entity's segments."""
-        i = self._row.get(entity)
-        if i is None:
-            return []
-        n = len(self.entities)
-        lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
-        row = zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist())
-        order = sorted(row, key=lambda jc: (-jc[1], self.entities[jc[0]]))[:k]
-        return [(self.entities[j], int(c)) for j, c in order]

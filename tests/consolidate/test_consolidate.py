@@ -191,3 +191,26 @@ def test_memory_slice_steps_group_one_narration(small_bank):
     keys = [(s.video, s.t, s.narration) for s in memory.steps]
     assert len(keys) == len(set(keys)), "one step per narrated action"
     assert {s.segment for s in memory.steps} <= memory.segment_ids
+
+
+def _as_list_path(memory: ParticipantMemory):
+    from memora_graph.consolidate.rules import RuleConsolidator
+
+    c = RuleConsolidator()
+    return c.consolidate_participant(memory, [c.consolidate_video(memory, v) for v in memory.videos])
+
+
+def test_streaming_merge_gives_the_records_of_the_whole_list_merge(small_bank):
+    """Consolidation merges video by video (its memory does not grow with the hours); the records,
+    their evidence and their order are those of merging every video's consolidation at once."""
+    from memora_graph.consolidate.rules import RuleConsolidator
+
+    memories = [_memory()]
+    for p in SMALL:
+        with Bank(small_bank[0]).open(p, read_only=True) as store:
+            memories.append(load_memory(store, p))
+    for memory in memories:
+        whole = _as_list_path(memory)
+        streamed = RuleConsolidator().consolidate_streaming(memory)
+        assert streamed.model_dump() == whole.model_dump()
+    assert any(_as_list_path(m).action_sequences for m in memories[1:])  # the comparison covers sequences

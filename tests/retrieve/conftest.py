@@ -51,6 +51,7 @@ def build_hand_store(path, embedder) -> Store:
                          "sink_area", "sink_area", "sink_area", "sink_area"],
             "n_actions": 1, "n_objects": 1,
         }).with_columns(_emb(embedder.encode(SUMMARIES))))
+        s.copy("HAS_SEGMENT", pl.DataFrame({"from": VIDEO, "to": seg_ids}))  # as a build links them (a video's rows are read from it)
         kinds = sorted({h[0] for h in HISTORY})
         last = {k: max(h[1] for h in HISTORY if h[0] == k) for k in kinds}
         first = {k: min(h[1] for h in HISTORY if h[0] == k) for k in kinds}

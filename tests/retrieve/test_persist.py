@@ -86,7 +86,8 @@ def test_a_write_to_the_database_makes_them_stale(bank, embedder):
     assert json.loads((store_dir(bank, P) / "meta.json").read_text())["db_sha256"] == sha, "written again"
 
 
-@pytest.mark.parametrize("victim", ["vectors-entity.npy", "bm25-entity.json", "rows_tool_entities.json"])
+@pytest.mark.parametrize("victim", ["vectors-entity.npy", "bm25-entity.json", "bm25-segment-tfs.npy",
+                                    "graph-seg_entities.npy", "rows_tool_entities.json"])
 def test_a_damaged_file_is_detected_and_not_used(bank, embedder, caplog, victim):
     reference = _results(bank, embedder, persist=False)
     persist_bank(bank, [P])
@@ -115,6 +116,39 @@ def test_a_file_damaged_after_opening_is_not_used(bank, embedder, caplog):
             got = json.dumps(call_tool(view, "search", {"query": "wash the pan"}).as_json(), sort_keys=True)
     assert got == reference[0]
     assert any("damaged" in r.getMessage() for r in caplog.records)
+
+
+def test_an_open_hashes_only_files_changed_since_one_was_hashed(bank, embedder, monkeypatch, caplog):
+    """A process that hashed every file records their stat; a later open hashes only a file whose
+    stat differs, so a bit flipped in place (its times put back) is still caught."""
+    import os
+
+    from memora_graph.retrieve import persist
+
+    reference = _results(bank, embedder, persist=False)
+    persist_bank(bank, [P])
+    monkeypatch.setattr(persist, "RACY_S", 0.0)  # (otherwise: files changed 2 s before their hashing are hashed again)
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None
+    assert (store_dir(bank, P) / "verified.json").is_file()
+    hashed = []
+    real = persist._sha256
+    monkeypatch.setattr(persist, "_sha256", lambda path: hashed.append(path.name) or real(path))
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None
+    assert hashed == [], "unchanged files were hashed again"
+    path = store_dir(bank, P) / "graph-pairs.npy"
+    st = path.stat()
+    data = bytearray(path.read_bytes())
+    data[-3] ^= 0x01
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))  # same size, same mtime: the change time still moved
+    with caplog.at_level(logging.WARNING, logger="memora_graph.integrity"):
+        with MemoryView.open(bank, P, embedder) as view:
+            assert view._persisted is None
+    assert hashed[0] == "graph-pairs.npy", "only the changed file is hashed (then all, as they are written again)"
+    assert any("graph-pairs.npy" in r.getMessage() and "damaged" in r.getMessage() for r in caplog.records)
+    assert _results(bank, embedder, persist=True) == reference
 
 
 def test_no_verify_never_reads_them(bank, embedder, monkeypatch):
