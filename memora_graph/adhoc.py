@@ -43,7 +43,7 @@ from memora_graph.bank import Bank, verify_default
 from memora_graph.confine import NO_GUARD_ENV, ConfinementError, mode as confinement_mode
 from memora_graph.cypher_guard import Statement, check_param, check_participant, check_query
 from memora_graph.errors import BankError, MemoraError, QueryRefused, QueryTimeout, StoreError
-from memora_graph.integrity.files import side_files
+from memora_graph.files import side_files
 
 DEFAULT_TIMEOUT = 30.0
 MAX_TIMEOUT = 24 * 3600.0

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from memora_graph.errors import BankError
-from memora_graph.integrity.files import file_kind, file_sha256, side_files
+from memora_graph.files import file_kind, file_sha256, side_files
 
 if TYPE_CHECKING:  # imported where used: a one-shot command that reads persisted stores never loads Kùzu
     import polars as pl
@@ -322,7 +322,7 @@ class Bank:
             if mark.get("pid") != os.getpid() and pid_alive(mark.get("pid")):
                 raise BankError(self.interrupted_message(participant, mark))
             if side_files(db):
-                from memora_graph.integrity.files import probe
+                from memora_graph.files import probe
 
                 probe(db, participant)
             return

@@ -2,12 +2,8 @@
 
 from __future__ import annotations
 
-import functools
 import json
-
 from typing import TYPE_CHECKING
-
-import click
 
 if TYPE_CHECKING:
     import polars as pl
@@ -16,24 +12,6 @@ FORMATS = ("table", "csv", "json", "nl")
 
 
 ROWS_JSON = "A JSON array of objects, one per row."
-
-
-def output_options(f=None, *, json_help: str = ROWS_JSON):
-    """--table (default) / --csv / --json / --nl, as one `fmt` argument. A command whose --json prints
-    something else than rows (one object) says so in `json_help`: `@output_options(json_help=...)`."""
-    if f is None:
-        return functools.partial(output_options, json_help=json_help)
-    for name, help_ in reversed([
-        ("table", "Render a table (default)."), ("csv", "Comma-separated values."),
-        ("json", json_help), ("nl", "Newline-delimited JSON, one object per line."),
-    ]):
-        f = click.option(f"--{name}", "fmt", flag_value=name, help=help_)(f)
-
-    @functools.wraps(f)
-    def wrapper(*args, fmt=None, **kwargs):
-        return f(*args, fmt=fmt if fmt in FORMATS else "table", **kwargs)
-
-    return wrapper
 
 
 def _jsonable(df: pl.DataFrame) -> list[dict]:

@@ -11,8 +11,8 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from memora_graph.cli import COMMANDS, PERF_COMMANDS, main, perf
-from memora_graph.cli_options import LazyGroup
+from memora_graph.cli import COMMANDS, PERF_COMMANDS, main, perf_group
+from memora_graph.cli.options import LazyGroup
 
 
 def _command(*path: str) -> click.Command:
@@ -103,7 +103,7 @@ def test_participants_option_parses_once_for_every_command(tmp_path):
 def test_lazy_help_lines_match_the_commands():
     """`memora --help` lists lazy commands from COMMANDS without importing them: the recorded line
     must be the command's own."""
-    for group, table in ((main, COMMANDS), (perf, PERF_COMMANDS)):
+    for group, table in ((main, COMMANDS), (perf_group, PERF_COMMANDS)):
         for name, (_, short) in table.items():
             assert group.load(name).get_short_help_str(limit=10 ** 6) == short, name
 

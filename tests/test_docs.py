@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 import pytest
 
-from memora_graph import cli_docs
+from memora_graph.cli import docs as cli_docs
 from memora_graph.paths import epic_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,8 +27,8 @@ def test_cli_reference_is_generated_from_help_and_names_every_command():
     page = (ROOT / "docs" / "cli.md").read_text()
     every = {" ".join(path) for path, _, _ in cli_docs.commands()}
     missing = every - cli_docs.documented(page)
-    assert not missing, f"undocumented commands {sorted(missing)}: run python -m memora_graph.cli_docs"
-    assert page == cli_docs.render(), "docs/cli.md is stale: run python -m memora_graph.cli_docs"
+    assert not missing, f"undocumented commands {sorted(missing)}: run python -m memora_graph.cli.docs"
+    assert page == cli_docs.render(), "docs/cli.md is stale: run python -m memora_graph.cli.docs"
 
 
 def command_lines(page: Path) -> list[tuple[int, str]]:

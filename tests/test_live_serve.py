@@ -23,7 +23,7 @@ from memora_graph.errors import BankError
 from memora_graph.form.live import LiveWriter, Moment
 from memora_graph.integrity.verify import verify_bank
 from memora_graph.serve import MemoryService
-from memora_graph.perf.serve import ServerProcess
+from memora_graph.cli.perf.serve import ServerProcess
 from memora_graph.store import Store
 
 from support.live import moments

@@ -49,6 +49,11 @@ def test_the_wheel_ships_schema_queries_and_data_and_reads_them_installed(tmp_pa
     assert got["schema"].startswith(str(site)) and got["data"].startswith(str(site))  # the installed copy
     assert got["queries"] == len(list((ROOT / "queries").glob("*.cypher"))) and got["tables"] > 10
     assert got["annotations"] and got["tasks"]
+    # the commands ship too: the cli package with its perf benchmarks, runnable as `python -m memora_graph.cli`
+    assert {"memora_graph/cli/__main__.py", "memora_graph/cli/perf/tools.py"} <= names
+    run = subprocess.run([sys.executable, "-m", "memora_graph.cli", "perf", "tools", "--help"], capture_output=True,
+                         text=True, cwd=tmp_path, env=env, timeout=300)
+    assert run.returncode == 0 and "Usage: python -m memora_graph.cli perf tools" in run.stdout, run.stderr
     env["MEMORA_DATA_DIR"] = str(tmp_path / "elsewhere")  # still points the data at another copy
     run = subprocess.run([sys.executable, "-c", "from memora_graph import paths; print(paths.epic_dir())"],
                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)

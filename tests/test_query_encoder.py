@@ -68,7 +68,7 @@ def test_onnx_vectors_agree_with_torch(export_root, embedder, variant, floor):
 @pytest.mark.parametrize("name, floor", [("onnx", 0.999), ("onnx-int8", 0.97)])
 def test_recall_at_10_against_torch_exact_search(small_bank, cache_env, embedder, name, floor):
     from memora_graph.retrieve import MemoryView
-    from memora_graph.perf.tools import ACTIVITY_QUERIES, OBJECT_QUERIES, PATTERN_QUERIES
+    from memora_graph.cli.perf.tools import ACTIVITY_QUERIES, OBJECT_QUERIES, PATTERN_QUERIES
 
     path, _ = small_bank
     qs = ACTIVITY_QUERIES + OBJECT_QUERIES + PATTERN_QUERIES
@@ -255,7 +255,7 @@ def test_cold_calls_embed_their_query_again(small_bank, cache_env):
 def test_perf_tools_times_the_encoder_and_measures_its_recall(small_bank, cache_env):
     import polars as pl
 
-    from memora_graph.perf.tools import run_perf
+    from memora_graph.cli.perf.tools import run_perf
 
     path, _ = small_bank
     report = run_perf(path, ["P37"], n_queries=2, recipes=["inprocess"], hnsw=False, echo=lambda *_: None)

@@ -20,7 +20,7 @@ from memora_graph.errors import BankError
 from memora_graph.queries import load_queries
 from memora_graph.retrieve import specs
 from memora_graph.serve import ArgumentError, MemoryService
-from memora_graph.perf.serve import ServerProcess
+from memora_graph.cli.perf.serve import ServerProcess
 
 ROOT = Path(__file__).resolve().parents[1]
 INVALID_PARAMS = -32602

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError
-from memora_graph.integrity.files import side_files
+from memora_graph.files import side_files
 
 STAGING = ".staging"
 

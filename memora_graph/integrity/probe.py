@@ -1,4 +1,4 @@
-"""Child process of `files.probe`: open one database read-only and print its rows per table as
+"""Child process of `memora_graph.files.probe`: open one database read-only and print its rows per table as
 JSON. Run as `python -m memora_graph.integrity.probe DB PARTICIPANT`; a crash here (SIGSEGV on
 a damaged file or a foreign write-ahead log) only ends this process."""
 

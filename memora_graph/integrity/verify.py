@@ -19,7 +19,7 @@ import polars as pl
 from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, pid_alive
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
-from memora_graph.integrity.files import file_kind, file_sha256, probe, side_files
+from memora_graph.files import file_kind, file_sha256, probe, side_files
 from memora_graph.store import Store
 
 _DB = re.compile(r"\A(P\d{2})\.kuzu(\.wal|\.shadow)?\Z")

@@ -6,7 +6,7 @@ import json
 
 from click.testing import CliRunner
 
-from memora_graph.bench.cli import bench_group
+from memora_graph.cli.bench import bench_group
 from memora_graph.bench.tasks import load_suite
 from memora_graph.paths import calibration_dir
 

@@ -133,7 +133,7 @@ def test_default_recipe_switches_to_hnsw_at_the_threshold(scaled, small_bank, mo
 
 
 def test_crossover_needs_hnsw_faster_in_wall_and_in_cpu():
-    from memora_graph.perf.scale import crossover
+    from memora_graph.cli.perf.scale import crossover
 
     def row(h, wall, cpu=(None, None)):
         return {"hours": h, "segments": h * 360, "inprocess_tool_p50_median_ms": wall[0], "hnsw_tool_p50_median_ms": wall[1],

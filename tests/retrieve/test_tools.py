@@ -251,7 +251,7 @@ def test_tool_cli(small_bank):
 
 
 def test_perf_tools_reports_every_tool_and_recall(small_bank):
-    from memora_graph.perf.tools import TOOLS, run_perf
+    from memora_graph.cli.perf.tools import TOOLS, run_perf
 
     path, _ = small_bank
     report = run_perf(path, ["P37"], n_queries=2, recipes=["inprocess", "fts"], hnsw=True, echo=lambda *_: None)

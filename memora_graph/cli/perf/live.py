@@ -72,7 +72,7 @@ def prepare_bank(participant: str, hours: float, work: Path, given: str | None, 
 def measure(bank: Path, participant: str, remembers: int, rate: float, tool_rounds: int, echo) -> dict:
     from memora_graph.form.live import Moment
     from memora_graph.serve import MemoryService
-    from memora_graph.perf.serve import call_set
+    from memora_graph.cli.perf.serve import call_set
 
     texts = _narrations(participant, 2000)
     service = MemoryService(bank, participant, writable=True)

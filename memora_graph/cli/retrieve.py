@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from memora_graph.cli_options import FAMILY, RECIPE, check_participant_option
-from memora_graph.output import output_options, render
+from memora_graph.cli.options import FAMILY, RECIPE, check_participant_option, output_options
+from memora_graph.output import render
 
 if TYPE_CHECKING:
     import polars as pl

@@ -1,5 +1,5 @@
 """What the `memora` commands share: subcommands loaded on demand, the participants option,
-progress bars, backend options, and click choices read from the registries.
+progress bars, backend options, the output-format options, and click choices read from the registries.
 
 Only click is imported at module level, so that `memora --help` imports no command module, no
 polars, numpy or torch: a group lists its lazy subcommands from the one-line help recorded next
@@ -8,11 +8,14 @@ to their import path (tests/test_cli_options.py checks the two agree).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import json
 from collections.abc import Callable, Iterable
 
 import click
+
+from memora_graph.output import FORMATS, ROWS_JSON
 
 
 # -- subcommands loaded on demand ------------------------------------------------------------
@@ -246,3 +249,22 @@ def backend_options(pairs: Iterable[tuple[str, str]], **named) -> dict:
         except json.JSONDecodeError:
             out[key] = value
     return out
+
+
+# -- output formats (rendered by memora_graph/output.py) -----------------------------------------
+def output_options(f=None, *, json_help: str = ROWS_JSON):
+    """--table (default) / --csv / --json / --nl, as one `fmt` argument. A command whose --json prints
+    something else than rows (one object) says so in `json_help`: `@output_options(json_help=...)`."""
+    if f is None:
+        return functools.partial(output_options, json_help=json_help)
+    for name, help_ in reversed([
+        ("table", "Render a table (default)."), ("csv", "Comma-separated values."),
+        ("json", json_help), ("nl", "Newline-delimited JSON, one object per line."),
+    ]):
+        f = click.option(f"--{name}", "fmt", flag_value=name, help=help_)(f)
+
+    @functools.wraps(f)
+    def wrapper(*args, fmt=None, **kwargs):
+        return f(*args, fmt=fmt if fmt in FORMATS else "table", **kwargs)
+
+    return wrapper

@@ -24,7 +24,8 @@ import click
 import numpy as np
 import polars as pl
 
-from memora_graph.output import output_options, render
+from memora_graph.cli.options import output_options
+from memora_graph.output import render
 
 _IMPORTS = {"torch": "import torch, sentence_transformers", "onnx": "import onnxruntime, tokenizers"}
 
@@ -69,7 +70,7 @@ def run_encoder_perf(bank: str | Path, participants: list[str] | None = None, ro
     from memora_graph.bank import Bank
     from memora_graph.embed import QUERY_ENCODERS, CachedEmbedder, SentenceTransformerEmbedder, SplitEmbedder
     from memora_graph.onnx_embed import OnnxEmbedder, export_dir
-    from memora_graph.perf.tools import _benchmark_queries, _encoder_agreement
+    from memora_graph.cli.perf.tools import _benchmark_queries, _encoder_agreement
     from memora_graph.retrieve.view import MemoryView
 
     pids = participants or Bank(bank).participants()

@@ -32,8 +32,8 @@ import click
 import polars as pl
 
 from memora_graph.bank import Bank
-from memora_graph.cli_options import participants_option
-from memora_graph.output import output_options, render
+from memora_graph.cli.options import output_options, participants_option
+from memora_graph.output import render
 from memora_graph.retrieve.registry import call_tool
 from memora_graph.retrieve.search import RECIPES
 from memora_graph.retrieve.view import MemoryView

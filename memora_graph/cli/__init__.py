@@ -2,20 +2,24 @@
 
 Commands of other modules are loaded on demand (`LazyGroup`): `memora --help` imports click and
 this module, nothing else; `memora tool ...` imports what a tool needs.
+
+Every command lives in this package, and only this package imports click: the root commands (build,
+query, run, stats, ...) here, the others one module a subject (`agent`, `bench`, `consolidate`,
+`explore`, `integrity`, `retrieve`, `serve`, `transfer`), the benchmark commands (`memora perf ...`)
+in `perf/`, what they share in `options` and `executors`, and the reference page generator in `docs`.
 """
 
 from __future__ import annotations
 
 import statistics
-import sys
 
 import click
 
-from memora_graph.cli_options import (
-    BACKEND, EDITOR_POLICY, LazyGroup, participants_option, progress_bar, quiet_option,
+from memora_graph.cli.executors import executor_from, executor_options
+from memora_graph.cli.options import (
+    BACKEND, EDITOR_POLICY, LazyGroup, output_options, participants_option, progress_bar, quiet_option,
 )
-from memora_graph.executors.cli import executor_from, executor_options
-from memora_graph.output import output_options, render
+from memora_graph.output import render
 
 
 def _params(pairs) -> dict:
@@ -25,8 +29,8 @@ def _params(pairs) -> dict:
 
 
 def _prepare(command: click.Command) -> None:
-    """Every loaded command that opens a bank gets `--no-verify` (memora_graph/integrity/cli.py)."""
-    from memora_graph.integrity.cli import add_no_verify
+    """Every loaded command that opens a bank gets `--no-verify` (memora_graph/cli/integrity.py)."""
+    from memora_graph.cli.integrity import add_no_verify
 
     add_no_verify(command)
 
@@ -39,69 +43,69 @@ param_option = click.option(
 # name -> (where the command lives, its one-line help as `memora --help` lists it without importing it;
 # tests/test_cli_options.py checks it against the command's own)
 COMMANDS = {
-    "ask": ("memora_graph.agent.cli:ask_cmd",
+    "ask": ("memora_graph.cli.agent:ask_cmd",
             "Ask one person's memory a question, answered by the typed reader (deterministic, no model)."),
-    "bench": ("memora_graph.bench.cli:bench_group",
+    "bench": ("memora_graph.cli.bench:bench_group",
               "MEMORA-Bench: generate EAM-QA and Planning tasks from action annotations, and validate release "
               "folders (the bundled calibration cohort, a full release, or a generated suite)."),
-    "consolidate": ("memora_graph.consolidate.cli:consolidate_cmd",
+    "consolidate": ("memora_graph.cli.consolidate:consolidate_cmd",
                     "Re-run offline consolidation and enrichment on an existing bank."),
-    "explore": ("memora_graph.explore.cli:explore_cmd",
+    "explore": ("memora_graph.cli.explore:explore_cmd",
                 "Write an explorer page for one participant's memory: one HTML file, nothing fetched when opened."),
-    "export": ("memora_graph.transfer.cli:export_cmd",
+    "export": ("memora_graph.cli.transfer:export_cmd",
                "Export one participant's memory: every node and relationship, with its ids and properties."),
-    "forget": ("memora_graph.integrity.cli:forget_cmd",
+    "forget": ("memora_graph.cli.integrity:forget_cmd",
                "Remove every trace of one person from a bank: their database (with its write-ahead log and shadow "
                "files, and so its indexes), staged videos of an unfinished build, rebuild leftovers, their baseline "
                "caches under BANK/.cache/ (and the embedding cache all participants share, which holds vectors of "
                "their texts; it is rebuilt on demand), and their manifest entry."),
-    "import": ("memora_graph.transfer.cli:import_cmd",
+    "import": ("memora_graph.cli.transfer:import_cmd",
                "Import a JSON or Parquet export (`memora export`) into BANK as a new participant."),
-    "plan": ("memora_graph.agent.cli:plan_cmd",
+    "plan": ("memora_graph.cli.agent:plan_cmd",
              "Plan a goal from one person's memory, with the offline planner (deterministic, no model)."),
-    "remember": ("memora_graph.form.cli:remember_cmd",
+    "remember": ("memora_graph.cli.form:remember_cmd",
                  "Remember what just happened: perceive a narration, embed it, run the online editor and commit."),
-    "serve": ("memora_graph.serve.cli:serve_cmd",
+    "serve": ("memora_graph.cli.serve:serve_cmd",
               "Serve a memory bank to agents over the Model Context Protocol (MCP)."),
-    "tool": ("memora_graph.retrieve.cli:tool_cmd",
+    "tool": ("memora_graph.cli.retrieve:tool_cmd",
              "Call one retrieval tool on one participant's memory."),
-    "tools": ("memora_graph.retrieve.cli:tools_cmd",
+    "tools": ("memora_graph.cli.retrieve:tools_cmd",
               "List the retrieval tools with their arguments, the store each reads, and the memory representation "
               "(family) they belong to: MEMORA's typed stores, or a baseline's."),
-    "verify": ("memora_graph.integrity.cli:verify_cmd",
+    "verify": ("memora_graph.cli.integrity:verify_cmd",
                "Check a bank deeply: per participant, the database's sha256 and size against the record of its last "
                "write, rows per table against the manifest, rows of other participants, write-ahead log or shadow "
                "files, unfinished writes or builds, staged videos; and files that belong to no participant."),
 }
 PERF_COMMANDS = {
-    "build": ("memora_graph.perf.build:perf_build",
+    "build": ("memora_graph.cli.perf.build:perf_build",
               "Build the bundled annotations from scratch and print where the time went: every phase, summing to "
               "the wall time (to worker-seconds with --jobs > 1), and the share of graph work (all but embedding and "
               "model load)."),
-    "decode": ("memora_graph.perf.video:perf_decode",
+    "decode": ("memora_graph.cli.perf.video:perf_decode",
                "Decode and segment a 60 s synthetic video; print the multiple of real time (target >= 20x)."),
-    "encoders": ("memora_graph.perf.encoders:perf_encoders_cmd",
+    "encoders": ("memora_graph.cli.perf.encoders:perf_encoders_cmd",
                  "Compare the query encoders (MEMORA_QUERY_ENCODER): import, load and export time, latency of a new "
                  "query, recall@10 against PyTorch exact search on BANK; and passage throughput in batches."),
-    "live": ("memora_graph.perf.live:perf_live_cmd",
+    "live": ("memora_graph.cli.perf.live:perf_live_cmd",
              "Live memory: remember latency, tool latency while remembering, incremental consolidation."),
-    "model": ("memora_graph.perf.model:perf_model",
+    "model": ("memora_graph.cli.perf.model:perf_model",
               "The evaluation and a video build against a loopback model server with real latency, at --concurrency 1 and N: wall time, calls, calls in flight, speedup, our overhead per call (targets: >= 25x at 64, <= 5 ms per call)."),
-    "ray": ("memora_graph.perf.ray:perf_ray",
+    "ray": ("memora_graph.cli.perf.ray:perf_ray",
             "Ray's overhead against the local executor on a full build, measured side by side."),
-    "scale": ("memora_graph.perf.scale:perf_scale_cmd",
+    "scale": ("memora_graph.cli.perf.scale:perf_scale_cmd",
               "Build 10, 100 and 1,000 hours of one participant and print, per size: build seconds per hour, bank size, open time, peak resident memory, p50/p95 per tool for the in-process and the K\u00f9zu HNSW recipes, and the size at which HNSW becomes faster."),
-    "serve": ("memora_graph.perf.serve:perf_serve_cmd",
+    "serve": ("memora_graph.cli.perf.serve:perf_serve_cmd",
               "Warm tool-call latency of `memora serve` over streamable HTTP on loopback."),
-    "startup": ("memora_graph.perf.startup:perf_startup_cmd",
+    "startup": ("memora_graph.cli.perf.startup:perf_startup_cmd",
                 "How fast one-shot commands start: `memora --help` and a one-shot `memora tool` as new processes "
                 "(median wall and CPU seconds of several runs)."),
-    "tools": ("memora_graph.perf.tools:perf_tools_cmd",
+    "tools": ("memora_graph.cli.perf.tools:perf_tools_cmd",
               "Time every tool over a fixed query set: p50 / p95 per call (query embedding included), next to the "
               "exact numpy top-k floor, and recall@10 of every vector search against exact."),
-    "verify": ("memora_graph.integrity.cli:perf_verify_cmd",
+    "verify": ("memora_graph.cli.perf.verify:perf_verify_cmd",
                "What checking a database before opening it costs, against a one-shot command."),
-    "video": ("memora_graph.perf.video:perf_video",
+    "video": ("memora_graph.cli.perf.video:perf_video",
               "Build from a synthetic video against a scripted server on 127.0.0.1 and print the graph work per "
               "segment: everything except decoding and waiting for the model (target <= 50 ms)."),
 }
@@ -119,7 +123,7 @@ def main():
       memora run banks/epic object_history -p participant P01 -p object plate
       memora query banks/epic "MATCH (e:Entity) WHERE e.participant = 'P01' RETURN e.name LIMIT 5"
     """
-    from memora_graph.integrity.cli import show_bank_notices
+    from memora_graph.cli.integrity import show_bank_notices
 
     show_bank_notices()
 
@@ -508,10 +512,9 @@ def stats(bank, participant, calls, fmt):
         click.echo(f"compression: median {statistics.median(ratios):.1f}x, min {min(ratios):.1f}x, max {max(ratios):.1f}x")
 
 
-@main.group(cls=LazyGroup, lazy=PERF_COMMANDS, on_load=_prepare)
-def perf():
+# named perf_group, not perf: the package memora_graph/cli/perf/ (where the benchmark commands live) takes
+# the attribute `perf` of this module once one of them is imported
+@main.group("perf", cls=LazyGroup, lazy=PERF_COMMANDS, on_load=_prepare)
+def perf_group():
     """Benchmarks that print their figures (not timed tests)."""
 
-
-if __name__ == "__main__":
-    sys.exit(main())

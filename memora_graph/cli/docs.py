@@ -1,7 +1,7 @@
 """docs/cli.md, the command-line reference, generated from the commands' own `--help`.
 
-    python -m memora_graph.cli_docs              # write docs/cli.md
-    python -m memora_graph.cli_docs --check      # exit 1 when docs/cli.md is not what the commands say
+    python -m memora_graph.cli.docs              # write docs/cli.md
+    python -m memora_graph.cli.docs --check      # exit 1 when docs/cli.md is not what the commands say
 
 Every command and subcommand of `memora` (lazy ones loaded) gets a section with its help text as
 `memora COMMAND --help` prints it at a fixed width, so the page is the same on every machine.
@@ -19,7 +19,7 @@ import click
 WIDTH = 100
 HEADER = """# Command-line reference
 
-Generated from each command's `--help` by `python -m memora_graph.cli_docs` (do not edit by hand:
+Generated from each command's `--help` by `python -m memora_graph.cli.docs` (do not edit by hand:
 `tests/test_docs.py` fails when this page and the commands disagree). The README has one line per
 command; the topic pages in this folder explain what the commands do.
 
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     text = render()
     if check:
         if not target.exists() or target.read_text() != text:
-            print(f"{target} is stale: run python -m memora_graph.cli_docs", file=sys.stderr)
+            print(f"{target} is stale: run python -m memora_graph.cli.docs", file=sys.stderr)
             return 1
         print(f"{target} is up to date")
         return 0

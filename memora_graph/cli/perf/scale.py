@@ -44,11 +44,11 @@ def _dir_bytes(path: Path) -> int:
 
 
 def _child(args: list[str], log: Path) -> dict:
-    """Run `python -m memora_graph.perf.scale ARGS` to completion; its wall, CPU and peak RSS
+    """Run `python -m memora_graph.cli.perf.scale ARGS` to completion; its wall, CPU and peak RSS
     (os.wait4: this child alone), and the JSON it printed last."""
     t0 = time.perf_counter()
     with log.open("a") as fh:
-        proc = subprocess.Popen([sys.executable, "-m", "memora_graph.perf.scale", *args], stdout=subprocess.PIPE,
+        proc = subprocess.Popen([sys.executable, "-m", "memora_graph.cli.perf.scale", *args], stdout=subprocess.PIPE,
                                 stderr=fh, text=True)
         out = proc.stdout.read()
         _, status, usage = os.wait4(proc.pid, 0)
@@ -189,7 +189,7 @@ def _stores_step(bank: str, participant: str) -> dict:
 
 def _tools_step(bank: str, participant: str, recipe: str, n_queries: int) -> dict:
     from memora_graph.embed import get_embedder
-    from memora_graph.perf.tools import TOOLS, _pct, _queries, _timed
+    from memora_graph.cli.perf.tools import TOOLS, _pct, _queries, _timed
     from memora_graph.retrieve.registry import call_tool
     from memora_graph.retrieve.view import MemoryView
 

@@ -26,8 +26,9 @@ from pathlib import Path
 import click
 import polars as pl
 
+from memora_graph.cli.options import output_options
 from memora_graph.errors import MemoraError
-from memora_graph.output import output_options, render
+from memora_graph.output import render
 from memora_graph.serve.service import MemoryService
 
 TARGET_P50_MS = 10.0

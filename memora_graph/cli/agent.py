@@ -7,7 +7,8 @@ import json
 import click
 import polars as pl
 
-from memora_graph.output import output_options, render
+from memora_graph.cli.options import output_options
+from memora_graph.output import render
 
 
 @click.command("ask")

@@ -12,7 +12,7 @@ import time
 
 import click
 
-from memora_graph.cli_options import check_participant_option
+from memora_graph.cli.options import check_participant_option
 
 
 def _run(cmd: list[str], env: dict | None = None) -> tuple[float, float, str]:

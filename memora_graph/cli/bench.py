@@ -8,12 +8,13 @@ from pathlib import Path
 
 import click
 
-from memora_graph.cli_options import (
-    ANSWER_POLICY, CONDITIONS, backend_option_pairs, backend_options, participants_option, progress_bar, quiet_option,
+from memora_graph.cli.executors import executor_from, executor_options
+from memora_graph.cli.options import (
+    ANSWER_POLICY, CONDITIONS, backend_option_pairs, backend_options, output_options, participants_option, progress_bar,
+    quiet_option,
 )
 from memora_graph.errors import MemoraError
-from memora_graph.executors.cli import executor_from, executor_options
-from memora_graph.output import output_options, render
+from memora_graph.output import render
 
 bench_group = click.Group(
     "bench",

@@ -10,7 +10,7 @@ import tempfile
 import click
 import polars as pl
 
-from memora_graph.cli_options import participants_option
+from memora_graph.cli.options import participants_option
 from memora_graph.output import render
 
 

@@ -7,12 +7,6 @@ import sys
 import click
 
 
-def _confinement() -> str:
-    from memora_graph.confine import mode
-
-    return mode().describe()
-
-
 def _recipes() -> list[str]:
     from memora_graph.retrieve.search import RECIPES
 
@@ -37,8 +31,8 @@ def _recipes() -> list[str]:
                    "client that validates them against the schema (the mcp SDK's does) pays 5-40 ms per call.")
 @click.option("--unconfined-cypher", is_flag=True,
               help="Offer the cypher tool even where the kernel cannot confine its query process (no Landlock): "
-                   "then only the read guard keeps it from the files on disk. Confinement here: "
-                   + _confinement() + ".")
+                   "then only the read guard keeps it from the files on disk. The mode in force on this machine is "
+                   "printed when the server starts, and by `memora verify`.")
 @click.option("--writable", is_flag=True,
               help="Also serve the `remember` tool: this server holds the participant's writer (one per participant; "
                    "others are told it is busy) and reads what was just remembered. Needs --participant; over HTTP, "
@@ -112,11 +106,12 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
     who = participant or f"each call names one of {', '.join(service.participants)}"
     try:
         if transport == "stdio":
-            click.echo(f"memora serve: {bank} ({who}) on stdio", err=True)
+            click.echo(f"memora serve: {bank} ({who}) on stdio; ad-hoc Cypher {service.confinement.describe()}", err=True)
             serve_stdio(service, output_schemas)
         else:
             serve_http(service, host, port, output_schemas=output_schemas, token=token if transport == "http" else None,
-                       on_ready=lambda url: click.echo(f"memora serve: {bank} ({who}) at {url}", err=True))
+                       on_ready=lambda url: click.echo(f"memora serve: {bank} ({who}) at {url}; ad-hoc Cypher "
+                                                       f"{service.confinement.describe()}", err=True))
     finally:
         service.close()
         if stopped:  # closed and recorded: leave now (idle worker threads would hold the exit for 10 s)

@@ -5,11 +5,12 @@ from __future__ import annotations
 import click
 import polars as pl
 
-from memora_graph.cli_options import (
-    BACKEND, PROCESSOR, backend_option_pairs, backend_options, participants_option, progress_bar, quiet_option,
+from memora_graph.cli.executors import executor_from, executor_options
+from memora_graph.cli.options import (
+    BACKEND, PROCESSOR, backend_option_pairs, backend_options, output_options, participants_option, progress_bar,
+    quiet_option,
 )
-from memora_graph.executors.cli import executor_from, executor_options
-from memora_graph.output import output_options, render
+from memora_graph.output import render
 
 _MODEL_OPTIONS = ("backend", "base_url", "model", "enrichment_model", "api_key")
 
