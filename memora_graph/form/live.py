@@ -42,7 +42,7 @@ from memora_graph.errors import BankError, DataError, StoreError
 from memora_graph.form.build import _entity_row, _place_row
 from memora_graph.form.editor import EntityEditor, EntityState, get_editor_policy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
-from memora_graph.integrity.files import side_files
+from memora_graph.files import side_files
 from memora_graph.perceive.narration import MomentContext, perceive_moment
 from memora_graph.perceive.narrations import NarrationReader, check_moment
 from memora_graph.records import LayeredSegment
@@ -133,7 +133,7 @@ def recover(bank: Bank, participant: str) -> bool:
                                         d.pop("writing", None) if not d.get("writing") else None))
         return True
     if side_files(db):
-        from memora_graph.integrity.files import probe
+        from memora_graph.files import probe
 
         probe(db, participant)
     bank.mark_writing(participant, mark.get("op") or OP)
