@@ -10,13 +10,18 @@ evaluation's tool sets (`ToolSet`), the report's tool -> store map and the `memo
 commands. Adding a tool is one function plus its `@tool(...)` line:
 
     @tool("count_uses", args=QueryArgs, result=ObjectsResult, store="Entity", description="...")
-    def count_uses(view, query, top_k=10): ...
+    def count_uses(view, query, top_k=10):
+        return Reply({"query": query, "top_k": top_k}, results=[...])
+
+A tool returns its result, or a `Reply` (the arguments it echoes and the result's fields) that the
+decorator wraps in the spec's result with the tool's name, the participant and the memory's notes.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+import inspect
 import json
 import typing
 from collections.abc import Callable, Iterable
@@ -122,12 +127,36 @@ def unregister(name: str, family: str = MEMORA) -> None:
     _TOOLS.pop((family, name), None)
 
 
+class Reply:
+    """What a tool returns for the `@tool` decorator to wrap: the arguments the result echoes (as
+    the tool read them) and the fields of its result model."""
+
+    __slots__ = ("arguments", "body")
+
+    def __init__(self, arguments: dict[str, Any], **body: Any) -> None:
+        self.arguments, self.body = arguments, body
+
+
 def tool(name: str, *, args: type[BaseModel], result: type[ToolResult], store: str, description: str,
          family: str = MEMORA, first: str | None = None, advertised: bool = True):
-    """Register the decorated function as a tool (the decorator returns it unchanged)."""
-    def deco(fn: Callable[..., ToolResult]) -> Callable[..., ToolResult]:
-        register(ToolSpec(name, description, args, fn, result, store, family, first, advertised))
-        return fn
+    """Register the decorated function as a tool. The decorator returns it wrapped: a `Reply` it
+    returns becomes the spec's result (tool name, the memory's participant, the echoed arguments,
+    the fields, and the memory's notes when it has any); a result it returns passes unchanged."""
+    def deco(fn: Callable[..., ToolResult | Reply]) -> Callable[..., ToolResult]:
+        @functools.wraps(fn)
+        def run(memory, *a, **kw) -> ToolResult:
+            out = fn(memory, *a, **kw)
+            if not isinstance(out, Reply):
+                return out
+            notes = getattr(memory, "notes", None)
+            return result(tool=name, participant=memory.participant, arguments=out.arguments, **out.body,
+                          **({"notes": list(notes)} if notes else {}))
+
+        # callers (and help()) see the result model the wrapper returns, not the Reply
+        run.__annotations__ = {**fn.__annotations__, "return": result}
+        run.__signature__ = inspect.signature(fn).replace(return_annotation=result)
+        register(ToolSpec(name, description, args, run, result, store, family, first, advertised))
+        return run
     return deco
 
 

@@ -3,7 +3,8 @@
 Each tool is a function registered with its `ToolSpec` (the `@tool` line above it: name, argument
 model, result model, the store it reads, description); the spec is the one place the agent
 schemas, tool-call parsing, the tool sets of the evaluation, the report's store map and the
-`memora tool` / `memora tools` commands read. A tool returns a typed result (`retrieve.results`):
+`memora tool` / `memora tools` commands read. A tool returns a `Reply` (the arguments it echoes and
+its fields), which the `@tool` wrapper turns into the typed result (`retrieve.results`):
 the tool name, the participant, the arguments, the records, and for every record the ids of the
 bank nodes that support it (`evidence`) and a per-signal score breakdown (`score`: vector,
 keyword, graph, fused) that says why it was returned. Records whose embeddings have cosine >= 0.95
@@ -28,7 +29,7 @@ from memora_graph.records import segment_id
 from memora_graph.retrieve.args import (
     HistoryArgs, ObjectArgs, PreferenceArgs, QueryArgs, RoutineArgs, SearchArgs, StateArgs, VideoArgs,
 )
-from memora_graph.retrieve.registry import Family, register_family, tool
+from memora_graph.retrieve.registry import Family, Reply, register_family, tool
 from memora_graph.retrieve.results import (
     Action, ActivitiesResult, ActivityRecord, ObjectHistoryResult, ObjectRecord, ObjectsResult, PatternRecord,
     PatternsResult, PlaceRecord, PlacesResult, PreferenceRecord, PreferencesResult, RoutineRecord, RoutinesResult,
@@ -64,9 +65,10 @@ def _query(query: str | None, name: str = "query") -> str:
     return q
 
 
-def _envelope(view: MemoryView, result: type, tool_name: str, args: dict, **body):
-    return result(tool=tool_name, participant=view.participant, arguments=args, **body,
-                  **({"notes": list(view.notes)} if view.notes else {}))
+def _listed(view: MemoryView, query: str, top_k: int | None, find) -> Reply:
+    """A one-store search tool's reply: the records `find(view, query, query vector, k)` ranks."""
+    query, k = _query(query), _k(top_k)
+    return Reply({"query": query, "top_k": k}, results=find(view, query, view.embed(query), k))
 
 
 def _score(c: Candidate) -> Score:
@@ -122,7 +124,7 @@ _ALIASES = {"environment": "places", "objects": "objects", "object": "objects", 
 @tool("search", args=SearchArgs, result=SearchResult, store="unified search",
       description="Search every memory store at once (objects, activities, places, patterns) and return the top few "
                   "records of each.")
-def search(view: MemoryView, query: str, category: str | None = None, top_k_per_category: int = 3) -> SearchResult:
+def search(view: MemoryView, query: str, category: str | None = None, top_k_per_category: int = 3) -> Reply:
     """One query over every store (objects, activities, places, patterns), top few per store.
     Action queries get twice the activities; preference queries get three times the patterns."""
     query, k = _query(query), _k(top_k_per_category, 3)
@@ -143,8 +145,8 @@ def search(view: MemoryView, query: str, category: str | None = None, top_k_per_
     q = view.embed(query)
     run = {"objects": _search_objects, "activities": _search_activities, "places": _search_places, "patterns": _search_patterns}
     body = {c: run[c](view, query, q, k_of[c]) for c in cats}
-    return _envelope(view, SearchResult, "search", {"query": query, "category": category, "top_k_per_category": k},
-                     routing=routing, **body)
+    return Reply({"query": query, "category": category, "top_k_per_category": k},
+                 routing=routing, **body)
 
 
 # -- objects -------------------------------------------------------------------------------------
@@ -177,12 +179,10 @@ def _object_record(view: MemoryView, c: Candidate) -> ObjectRecord:
 @tool("search_objects", args=ObjectArgs, result=ObjectsResult, store="Entity",
       description="Find objects the person has: identity, colour/material, current state and place, the places it "
                   "was seen at and the objects used with it.")
-def search_objects(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> ObjectsResult:
+def search_objects(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> Reply:
     """Objects (entity memory) matching a description: identity, attributes, current state and
     place, the places it was seen at and the objects used with it."""
-    query, k = _query(query), _k(top_k)
-    return _envelope(view, ObjectsResult, "search_objects", {"query": query, "top_k": k},
-                     results=_search_objects(view, query, view.embed(query), k))
+    return _listed(view, query, top_k, _search_objects)
 
 
 def _search_objects(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[ObjectRecord]:
@@ -235,11 +235,9 @@ def _activity_record(view: MemoryView, seg: dict, rows: dict[str, dict], c: Cand
 @tool("search_activities", args=QueryArgs, result=ActivitiesResult, store="Activity",
       description="Find past episodes (10 s activity records): what was done, step by step, with the actions "
                   "before and after.")
-def search_activities(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> ActivitiesResult:
+def search_activities(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> Reply:
     """Episodes (10 s activity records) matching a query, with what came before and after."""
-    query, k = _query(query), _k(top_k)
-    return _envelope(view, ActivitiesResult, "search_activities", {"query": query, "top_k": k},
-                     results=_search_activities(view, query, view.embed(query), k))
+    return _listed(view, query, top_k, _search_activities)
 
 
 def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[ActivityRecord]:
@@ -263,7 +261,7 @@ def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> l
 @tool("get_video_activities", args=VideoArgs, result=VideoActivitiesResult, store="Activity",
       description="One video's activity log in time order: the moments about an object or action (query), or the "
                   "whole video evenly sampled, with the objects handled most in it.")
-def get_video_activities(view: MemoryView, video: str, query: str = "", top_k: int = MAX_TOP_K) -> VideoActivitiesResult:
+def get_video_activities(view: MemoryView, video: str, query: str = "", top_k: int = MAX_TOP_K) -> Reply:
     """The activity records of one video, in time order: those closest to `query` (vector and the
     objects it names), or evenly spaced over the video; with the objects handled in most of its
     segments."""
@@ -296,19 +294,17 @@ def get_video_activities(view: MemoryView, video: str, query: str = "", top_k: i
     objects = [ObjectCount(name=view.entities[e]["name"], kind=view.entities[e]["kind"], segments=n)
                for e, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])) if e in view.entities][:15]
     info = view.videos[video]
-    return _envelope(view, VideoActivitiesResult, "get_video_activities", {"video": video, "query": query, "top_k": k},
-                     video=video, duration=info.get("duration"), segments=len(rows), objects=objects,
+    return Reply({"video": video, "query": query, "top_k": k},
+                 video=video, duration=info.get("duration"), segments=len(rows), objects=objects,
                      results=[_activity_record(view, r, by_id, None) for r in chosen])
 
 
 # -- places ----------------------------------------------------------------------------------------
 @tool("search_environment", args=QueryArgs, result=PlacesResult, store="Environment", advertised=False,
       description="Find places (kitchen areas) with their zones, features and the objects there now.")
-def search_environment(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> PlacesResult:
+def search_environment(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> Reply:
     """Places (environment memory): zones, features, how much they are used, what is there now."""
-    query, k = _query(query), _k(top_k)
-    return _envelope(view, PlacesResult, "search_environment", {"query": query, "top_k": k},
-                     results=_search_places(view, query, view.embed(query), k))
+    return _listed(view, query, top_k, _search_places)
 
 
 def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[PlaceRecord]:
@@ -431,15 +427,14 @@ def _preference_record(view: MemoryView, p: dict, c: Candidate | None) -> Prefer
 @tool("get_routine_skill", args=RoutineArgs, result=RoutinesResult, store="Inferred",
       description="Routine skills for a goal: canonical steps, key objects and the episodes they come from. Call this "
                   "first when planning.")
-def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> RoutinesResult:
+def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> Reply:
     """Routine skills (goal, canonical steps, key objects, supporting episodes) for a goal."""
     query, k = _query(goal_query, "goal_query"), _k(top_k, 3)
     args = {"goal_query": query, "top_k": k}
     if not view.routines:
-        return _envelope(view, RoutinesResult, "get_routine_skill", args, routines=[],
-                         error="no routine skills in this memory (a MEMORA-Episodic bank, or too little repetition)")
-    return _envelope(view, RoutinesResult, "get_routine_skill", args,
-                     routines=_search_routines(view, query, view.embed(query), k))
+        return Reply(args, routines=[],
+                     error="no routine skills in this memory (a MEMORA-Episodic bank, or too little repetition)")
+    return Reply(args, routines=_search_routines(view, query, view.embed(query), k))
 
 
 def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[RoutineRecord]:
@@ -451,17 +446,15 @@ def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> lis
 @tool("get_preferences", args=PreferenceArgs, result=PreferencesResult, store="Inferred",
       description="The person's preferences (where things are kept, habits, tool choices) relevant to a query, with "
                   "their evidence.")
-def get_preferences(view: MemoryView, query: str = "", top_k: int = 5) -> PreferencesResult:
+def get_preferences(view: MemoryView, query: str = "", top_k: int = 5) -> Reply:
     """Preferences (storage, habit, workflow, generated) by similarity to a query, or by
     confidence when the query is empty."""
     query, k = (query or "").strip(), _k(top_k, 5)
     args = {"query": query, "top_k": k}
     if not query:
         ranked = sorted(view.preferences.values(), key=lambda p: (-p["confidence"], -p["count"], p["id"]))[:k]
-        return _envelope(view, PreferencesResult, "get_preferences", args,
-                         preferences=[_preference_record(view, p, None) for p in ranked])
-    return _envelope(view, PreferencesResult, "get_preferences", args,
-                     preferences=_search_preferences(view, query, view.embed(query), k))
+        return Reply(args, preferences=[_preference_record(view, p, None) for p in ranked])
+    return Reply(args, preferences=_search_preferences(view, query, view.embed(query), k))
 
 
 def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[PreferenceRecord]:
@@ -474,11 +467,9 @@ def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> 
 @tool("search_patterns", args=QueryArgs, result=PatternsResult, store="Inferred",
       description="Find consolidated patterns: storage preferences, habits, workflows, routines and recurring action "
                   "sequences.")
-def search_patterns(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> PatternsResult:
+def search_patterns(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) -> Reply:
     """Consolidated patterns: preferences, habits, workflows, routines and recurring sequences."""
-    query, k = _query(query), _k(top_k)
-    return _envelope(view, PatternsResult, "search_patterns", {"query": query, "top_k": k},
-                     results=_search_patterns(view, query, view.embed(query), k))
+    return _listed(view, query, top_k, _search_patterns)
 
 
 def _pattern(rec: RoutineRecord | PreferenceRecord) -> PatternRecord:
@@ -527,14 +518,14 @@ def resolve_object(view: MemoryView, text: str) -> tuple[list[str], str]:
 @tool("get_object_history", args=HistoryArgs, result=ObjectHistoryResult, store="Entity",
       description="The state history of one object across videos: every state and location, moves, first and last "
                   "seen.")
-def get_object_history(view: MemoryView, object_query: str, max_entries: int = 60) -> ObjectHistoryResult:
+def get_object_history(view: MemoryView, object_query: str, max_entries: int = 60) -> Reply:
     """One object's state history across videos: states, locations, moves, first / last seen."""
     query = _query(object_query, "object_query")
     args = {"object_query": query, "max_entries": max_entries}
     ids, how = resolve_object(view, query)
     if not ids:
-        return _envelope(view, ObjectHistoryResult, "get_object_history", args, found=False,
-                         error=f"no object matching {query!r}; try search_objects first")
+        return Reply(args, found=False,
+                     error=f"no object matching {query!r}; try search_objects first")
     e = view.entities[ids[0]]
     # The whole history is read as a few thin columns (one columnar fetch, summarised in polars);
     # only the entries shown are read whole: at 1,000 h one object has tens of thousands of entries.
@@ -569,8 +560,8 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
                "states": v["states"], "locations": v["locations"], "final_state": v["final_state"],
                "final_location": v["final_location"]} for v in per_video.iter_rows(named=True)]
     segments = sorted({segment_id(v, int(t)) for v, t in outline.select("video", "turn").unique().iter_rows()})
-    return _envelope(
-        view, ObjectHistoryResult, "get_object_history", args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
+    return Reply(
+        args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
         match_type=how, status=e["status"], current_state=e["state"], current_location=e["location"],
         all_states_observed=sorted(set(outline.filter(named[0])["state"].to_list())),
         all_locations_observed=sorted(set(outline.filter(named[1])["location"].to_list())),
@@ -586,7 +577,7 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
       description="What was where, and in which state, at a time of a video (from the state history), with the "
                   "activity and place at that moment.")
 def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None = None,
-                      window: float = 60.0) -> StateAtTimeResult:
+                      window: float = 60.0) -> Reply:
     """What was where, in which state, at `time_seconds` of a video, from the state history: every
     object seen in the video by then and again after (or within `window` s before), each in its
     last recorded state at that time."""
@@ -631,8 +622,8 @@ def get_state_at_time(view: MemoryView, time_seconds: float, video: str | None =
     seg_ids = [segment_id(video, turn)]
     segs = {s["id"]: s for s in view.by_id("_tool_segment", seg_ids)}
     seg = segs.get(seg_ids[0])
-    return _envelope(
-        view, StateAtTimeResult, "get_state_at_time", args, segment_id=seg["id"] if seg else None,
+    return Reply(
+        args, segment_id=seg["id"] if seg else None,
         current_activity=seg["summary"] if seg else None,
         environment=_environment(view, seg["location"]) if seg else None, visible_objects=visible,
         evidence=([seg["id"]] if seg else []) + [v.event_id for v in visible],

@@ -16,8 +16,8 @@ from memora_graph.agent.offline import _step, apply_preferences, evidence_items
 from memora_graph.bench.report import build_report
 from memora_graph.cli import main
 from memora_graph.retrieve import (
-    MemoryView, ToolErrorResult, call_tool, first_arguments, get_tool, specs, store_of, tool, tool_schemas, tool_set,
-    unregister,
+    MemoryView, Reply, ToolErrorResult, call_tool, first_arguments, get_tool, specs, store_of, tool, tool_schemas,
+    tool_set, unregister,
 )
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.results import MemoraResult, Record
@@ -45,10 +45,9 @@ class CountResult(MemoraResult):
 def scratch_tool():
     @tool("count_object_uses", args=CountArgs, result=CountResult, store="Scratch store",
           description="How many segments observed an object (a throwaway tool of this test).")
-    def count_object_uses(view, noun: str, limit: int = 3) -> CountResult:
+    def count_object_uses(view, noun: str, limit: int = 3) -> Reply:
         n = sum(1 for e in view.entities.values() if noun in e["name"])
-        return CountResult(tool="count_object_uses", participant=view.participant, arguments={"noun": noun},
-                           counts=[Count(noun=noun, segments=n)][:limit])
+        return Reply({"noun": noun}, counts=[Count(noun=noun, segments=n)][:limit])  # the decorator wraps it
 
     yield count_object_uses
     unregister("count_object_uses")
@@ -69,6 +68,9 @@ def test_a_tool_registered_in_one_place_is_everywhere(scratch_tool, small_bank, 
         assert ts.query_texts([("count_object_uses", {"noun": "knife", "limit": 2})]) == ["knife"]
         out = ts.call("count_object_uses", {"noun": "knife", "who": "P09"})  # unknown keys are dropped
         assert isinstance(out, CountResult) and out.counts[0].segments >= 1
+        assert (out.tool, out.participant, out.arguments) == ("count_object_uses", "P37", {"noun": "knife"})
+        direct = scratch_tool(view, "knife", limit=1)  # the decorated function itself returns the result
+        assert isinstance(direct, CountResult) and direct.model_dump() == out.model_dump()
         assert isinstance(ts.call("count_object_uses", {"limit": 0}), ToolErrorResult)
         assert evidence_items(out)[0]["text"].startswith("knife: ")
     # the commands
