@@ -113,7 +113,7 @@ class ServerProcess:
     def _drain(self) -> None:
         for line in self.proc.stderr:
             self.lines.append(line.strip())
-            m = re.search(r"at (http://\S+)", line)
+            m = re.search(r"at (http://[^\s;]+)", line)
             if m and self.url is None:
                 self.url = m.group(1)
                 self._ready.set()
