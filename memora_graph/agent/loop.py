@@ -106,7 +106,7 @@ def _describe(call: ToolCall) -> str:
     return f"{call.name}({canonical_arguments(call.arguments)})"
 
 
-def run_agent(policy: Policy, toolset: Tools | None, task_kind: str, view: dict[str, Any], family: str,
+def run_agent(policy: Policy, toolset: Tools | None, task_kind: str, view: dict[str, Any], prompt_family: str,
               *, max_iterations: int | None = None) -> AgentResult:
     """One episode: an EAM-QA question (view = EamQuestion.answering_view()) or a planning task
     (view = {task_id, participant_id, task_query}). Returns the final reply text and the trace."""
@@ -118,7 +118,7 @@ def run_agent(policy: Policy, toolset: Tools | None, task_kind: str, view: dict[
     tools = toolset.schemas() if toolset is not None else []
     user = prompts.format_question(view) if task_kind == "eam_qa" else prompts.format_task(view)
     messages: list[dict[str, Any]] = [
-        {"role": "system", "content": prompts.system_prompt(task_kind, family)},
+        {"role": "system", "content": prompts.system_prompt(task_kind, prompt_family)},
         {"role": "user", "content": user},
     ]
     state = AgentState(task_kind, view)

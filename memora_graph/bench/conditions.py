@@ -37,7 +37,7 @@ class ConditionError(MemoraError):
 class Condition:
     name: str
     label: str
-    family: str  # prompt family (memora_graph.agent.prompts.FAMILIES)
+    prompt_family: str  # the prompt family (memora_graph.agent.prompts.FAMILIES); `memory` names the tool family
     bank: str  # which bank the representation is built from: none | raw | edited | episodic
     tools: tuple[str, ...]
     memory: str | None  # the tool family (memory representation) the tools read; None for Parametric

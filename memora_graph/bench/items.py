@@ -93,7 +93,7 @@ def run_item(policy, condition: Condition, banks: BankSet, kind: str, item: Any,
                     task_query=item.task_query)
     try:
         toolset = condition.open_tools(banks, participant)
-        res = run_agent(policy, toolset, "eam_qa" if kind == "eam_qa" else "planning", view, condition.family)
+        res = run_agent(policy, toolset, "eam_qa" if kind == "eam_qa" else "planning", view, condition.prompt_family)
         base.update(final_text=res.final_text, iterations=res.iterations, forced=res.forced, retried=res.retried,
                     tool_calls=res.tool_calls, n_tool_calls=len(res.tool_calls),
                     time={"model_s": round(res.model_s, 4), "tools_s": round(res.tools_s, 4),

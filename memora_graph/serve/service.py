@@ -96,7 +96,7 @@ class EvidenceItem(BaseModel):
     text: str
 
 
-class ToolCall(BaseModel):
+class LookupCall(BaseModel):  # one lookup behind an answer or a plan (not agent.ToolCall, a parsed model call)
     tool: str
     arguments: dict[str, Any]
 
@@ -113,7 +113,7 @@ class AskAnswer(BaseModel):
     reason: str
     scores: dict[str, float] = Field(description="With choices: each choice's score, by its letter (A, B, ...).")
     evidence: list[EvidenceItem] = Field(description="The records behind the answer.")
-    calls: list[ToolCall] = Field(description="The typed lookups the reader made.")
+    calls: list[LookupCall] = Field(description="The typed lookups the reader made.")
     confidence: float | None = Field(None, description="The probability that the answer is right (with choices: "
                                                             "the calibrated reader's, for the letter given).")
     typed: dict[str, Any] | None = Field(None, description="Without choices: the answer in the type asked (a place, "
@@ -146,7 +146,7 @@ class PlanAnswer(BaseModel):
     goal: str
     participant: str
     steps: list[PlanStep]
-    calls: list[ToolCall] = Field(description="The typed lookups the planner made.")
+    calls: list[LookupCall] = Field(description="The typed lookups the planner made.")
 
 
 class RememberArgs(_Args):
