@@ -41,9 +41,7 @@ from memora_graph.agent import lookups
 from memora_graph.agent.confidence import load_calibration
 from memora_graph.agent.evidence import budgeted_events
 from memora_graph.agent.loop import AgentState, PolicyReply
-from memora_graph.agent.planner import (  # noqa: F401  (_step, apply_preferences, generic_plan: kept importable here)
-    _step, _task_text, apply_preferences, compose_structured, generic_plan, plan_lookups, plan_text,
-)
+from memora_graph.agent.planner import _task_text, compose_structured, plan_lookups, plan_text
 from memora_graph.agent.reading import Decision, parse_question, score
 from memora_graph.embed import get_embedder
 from memora_graph.errors import MemoraError

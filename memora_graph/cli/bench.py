@@ -324,7 +324,7 @@ def calibrate_cmd(run_dir, participants, conditions, out, fmt):
     """
     import polars as pl
 
-    from memora_graph.bench.calibration import calibration_summary, fit, save
+    from memora_graph.bench.calibration import fit, save
     from memora_graph.bench.run import load_run
 
     names = [c.strip() for c in conditions.split(",") if c.strip()]

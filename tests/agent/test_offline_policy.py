@@ -6,7 +6,8 @@ from __future__ import annotations
 from support.scripted_server import ScriptedServer, Turn, tool_call
 
 from memora_graph.agent.loop import ModelPolicy, run_agent
-from memora_graph.agent.offline import OfflinePolicy, _step, apply_preferences, read_evidence
+from memora_graph.agent.offline import OfflinePolicy, read_evidence
+from memora_graph.agent.planner import _step, apply_preferences
 from memora_graph.baselines.flat1d import FlatHit, FlatSearchResult
 from memora_graph.llm import get_backend
 from memora_graph.retrieve import MemoryView, tool_set

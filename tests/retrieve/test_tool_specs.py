@@ -12,7 +12,8 @@ from click.testing import CliRunner
 from pydantic import Field
 
 from memora_graph.agent import parse_tool_calls
-from memora_graph.agent.offline import _step, apply_preferences, evidence_items
+from memora_graph.agent.offline import evidence_items
+from memora_graph.agent.planner import _step, apply_preferences
 from memora_graph.bench.report import build_report
 from memora_graph.cli import main
 from memora_graph.retrieve import (
