@@ -197,13 +197,7 @@ def perceive_video(
                 }))
         location = place_votes.most_common(1)[0][0] if place_votes else start_place
         places = list(dict.fromkeys([location, *place_votes]))
-        zones: dict[str, Zone] = {}
-        for o in objects:
-            if o.is_fixture:
-                zones.setdefault(o.zone, Zone(anchor=o.object_id, position=o.location))
-        for o in objects:
-            if not o.is_fixture and o.zone in zones and o.object_id not in zones[o.zone].contents:
-                zones[o.zone].contents.append(o.object_id)
+        zones = _zones(objects)
         summary = "; ".join(s.narration for s in steps[:8]) + (f" (+{len(steps) - 8} more)" if len(steps) > 8 else "")
         narrative = " ".join(f"[{s.timestamp:.1f}-{min(s.end, 99.9):.1f}s] {s.narration}." for s in steps)
         if steps:
@@ -224,6 +218,18 @@ def perceive_video(
             objects=objects,
             working_summary=carried,
         )
+
+
+def _zones(objects) -> dict[str, Zone]:
+    """Each fixture's zone, anchored on it, with the other objects observed in that zone."""
+    zones: dict[str, Zone] = {}
+    for o in objects:
+        if o.is_fixture:
+            zones.setdefault(o.zone, Zone(anchor=o.object_id, position=o.location))
+    for o in objects:
+        if not o.is_fixture and o.zone in zones and o.object_id not in zones[o.zone].contents:
+            zones[o.zone].contents.append(o.object_id)
+    return zones
 
 
 class MomentContext(_Context):
@@ -256,13 +262,7 @@ def perceive_moment(participant: str, video_id: str, turn: int, action: dict, ct
             objects.append(held_obs.model_copy(update={
                 "state": "held", "held_by": "hand", "location": start_place, "zone": "", "relative_to": "",
                 "relation": "", "t_rel": 0.0, "action": "", "narration": "(still in hand)", "narration_id": ""}))
-    zones: dict[str, Zone] = {}
-    for o in objects:
-        if o.is_fixture:
-            zones.setdefault(o.zone, Zone(anchor=o.object_id, position=o.location))
-    for o in objects:
-        if not o.is_fixture and o.zone in zones and o.object_id not in zones[o.zone].contents:
-            zones[o.zone].contents.append(o.object_id)
+    zones = _zones(objects)
     end = max(float(action["stop_s"]), t0)
     step = ActionStep(timestamp=0.0, end=round(end - t0, 2), action=action["verb"], object=noun_phrase(action["noun"]),
                       narration=action["narration"], narration_id=action["narration_id"])
