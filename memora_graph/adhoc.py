@@ -173,7 +173,7 @@ def _checked(bank: Bank, participant: str) -> dict | None:
     data = bank.manifest()
     if not verify_default():
         return None
-    bank._notify(data, skip=participant)
+    bank.notify(data, skip=participant)
     bank.check(participant, data)
     return data["participants"][participant].get("counts", {})
 

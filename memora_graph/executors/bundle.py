@@ -129,7 +129,7 @@ def install(bank: Bank, participant: str, sealed: dict) -> None:
             Bank.set_condition(data)
 
     bank.update_manifest(change)
-    bank._remember(participant, db.stat(), integ["sha256"])
+    bank.remember_verified(participant, db.stat(), integ["sha256"])
 
 
 @contextlib.contextmanager

@@ -227,7 +227,7 @@ class LiveWriter:
         p = self.participant
         db = self.bank.db_path(p)
         if db.exists():
-            raise BankError(self.bank._not_listed(p, self.bank.manifest()))
+            raise BankError(self.bank.not_listed(p, self.bank.manifest()))
         self.bank.mark_writing(p, OP)
         try:
             with Store(db, read_only=False) as store:

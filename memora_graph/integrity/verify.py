@@ -194,7 +194,7 @@ def accept(path: str | Path, participant: str) -> dict:
     data = bank.manifest()
     db = bank.db_path(participant)
     if participant not in data["participants"]:
-        raise BankError(bank._not_listed(participant, data))
+        raise BankError(bank.not_listed(participant, data))
     mark = data.get("writing", {}).get(participant)
     if mark and pid_alive(mark.get("pid")):
         raise BankError(bank.interrupted_message(participant, mark))
