@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from memora_graph.bank import Bank
-from memora_graph.embed import get_embedder, torch_threads
+from memora_graph.embed import get_embedder, single_thread_blas, torch_threads
 
 CACHE_DIR = ".cache"
 M = TypeVar("M")  # a baseline memory
@@ -49,25 +49,31 @@ def participant_key(bank: Bank, participant: str, version: str) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-def cache_or_build(bank: Bank, participant: str, name: str, version: str, *, read: Callable[[Any, np.ndarray], M],
-                   build: Callable[[], tuple[Any, Any, list[str]]], make: Callable[[Any, np.ndarray], M],
-                   store: EmbeddingStore | None = None, damaged: tuple[type[Exception], ...] = ()) -> M:
+def cache_or_build(bank_path: str | Path, participant: str, name: str, version: str, *,
+                   read: Callable[[str, Any, np.ndarray], M], build: Callable[[dict[str, list[dict]], str], tuple[Any, Any, list[str]]],
+                   make: Callable[[str, Any, np.ndarray], M], store: EmbeddingStore | None = None,
+                   damaged: tuple[type[Exception], ...] = ()) -> M:
     """A participant's baseline memory `name`, read from `BANK/.cache/` when cached, else built once.
+    Each callback gets the bank's mode first (its records are 'edited' or 'raw').
 
-    Cached: `read(json data, vectors)` makes it from the two files; a file that cannot be read or
-    parsed (OSError, ValueError, KeyError, TypeError, or one of `damaged`) is rebuilt from the
-    bank, never trusted. Not cached: `build()` gives (what it built, its JSON data, the texts to
-    embed); the texts are encoded with `store` (default: the bank's), both files are written (the
-    JSON last: a cache is complete when its JSON exists), and `make(what it built, vectors)`."""
+    Cached: `read(mode, json data, vectors)` makes it from the two files; a file that cannot be
+    read or parsed (OSError, ValueError, KeyError, TypeError, or one of `damaged`) is rebuilt from
+    the bank, never trusted. Not cached: `build(the participant's bank records, mode)` gives (what
+    it built, its JSON data, the texts to embed); the texts are encoded with `store` (default: the
+    bank's), both files are written (the JSON last: a cache is complete when its JSON exists), and
+    `make(mode, what it built, vectors)`."""
+    single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
+    bank = Bank(bank_path)
+    mode = bank.manifest().get("mode", "edited")
     key = participant_key(bank, participant, version)
     base = cache_dir(bank) / f"{name}-{participant}-{key}"
     path, npy = base.with_suffix(".json"), base.with_suffix(".npy")
     if path.exists() and npy.exists():
         try:
-            return read(json.loads(path.read_text()), np.load(npy, allow_pickle=False))
+            return read(mode, json.loads(path.read_text()), np.load(npy, allow_pickle=False))
         except (OSError, ValueError, KeyError, TypeError, *damaged):
             pass
-    built, data, texts = build()
+    built, data, texts = build(load_records(bank, participant), mode)
     store = store or EmbeddingStore(bank)
     vectors = store.encode(texts)
     store.save()
@@ -75,7 +81,7 @@ def cache_or_build(bank: Bank, participant: str, name: str, version: str, *, rea
     tmp.write_text(json.dumps(data))
     np.save(npy, vectors)
     os.replace(tmp, path)
-    return make(built, vectors)
+    return make(mode, built, vectors)
 
 
 def load_records(bank: Bank, participant: str) -> dict[str, list[dict]]:

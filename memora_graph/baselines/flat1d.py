@@ -18,12 +18,10 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
-from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
-    EmbeddingStore, cache_or_build, clamp_top_k, embed_query, load_records, object_label, place_name, prefetch_queries,
+    EmbeddingStore, cache_or_build, clamp_top_k, embed_query, object_label, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
-from memora_graph.embed import single_thread_blas
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Record, ToolResult
@@ -127,17 +125,13 @@ class Flat1DMemory:
     @classmethod
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Flat1DMemory:
         """Built once per bank and participant, then read from `BANK/.cache/`."""
-        single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
-        bank = Bank(bank_path)
-        mode = bank.manifest().get("mode", "edited")
-
-        def build():
-            recs = build_records(load_records(bank, participant), mode)
+        def build(records: dict[str, list[dict]], mode: str):
+            recs = build_records(records, mode)
             return recs, [r.__dict__ for r in recs], [r.embed_text for r in recs]
 
-        return cache_or_build(bank, participant, "flat1d", VERSION, store=store, build=build,
-                              read=lambda rows, vectors: cls(participant, mode, [FlatRecord(**r) for r in rows], vectors),
-                              make=lambda recs, vectors: cls(participant, mode, recs, vectors))
+        return cache_or_build(bank_path, participant, "flat1d", VERSION, store=store, build=build,
+                              read=lambda mode, rows, vectors: cls(participant, mode, [FlatRecord(**r) for r in rows], vectors),
+                              make=lambda mode, recs, vectors: cls(participant, mode, recs, vectors))
 
     def search(self, query: str, top_k: int = 10) -> FlatSearchResult:
         """The top-k records by cosine to the query (near-duplicates collapsed)."""

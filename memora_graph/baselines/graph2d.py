@@ -22,12 +22,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pydantic import Field
 
-from memora_graph.bank import Bank
 from memora_graph.baselines.common import (
-    EmbeddingStore, cache_or_build, embed_query, load_records, object_label, place_name, prefetch_queries,
+    EmbeddingStore, cache_or_build, embed_query, object_label, place_name, prefetch_queries,
 )
 from memora_graph.baselines.common import top_k as top_k_rows
-from memora_graph.embed import single_thread_blas
 from memora_graph.retrieve.args import QueryText, ToolArgs
 from memora_graph.retrieve.registry import Family, register_family, tool
 from memora_graph.retrieve.results import Model, Record, ToolErrorResult, ToolResult
@@ -193,21 +191,17 @@ class Graph2DMemory:
     def load(cls, bank_path: str | Path, participant: str, store: EmbeddingStore | None = None) -> Graph2DMemory:
         import networkx as nx
 
-        single_thread_blas()  # as MEMORA's view: a query against a few thousand rows is 2-3x slower on BLAS threads
-        bank = Bank(bank_path)
-        mode = bank.manifest().get("mode", "edited")
-
-        def build():
-            graph = build_graph(load_records(bank, participant), mode)
+        def build(records: dict[str, list[dict]], mode: str):
+            graph = build_graph(records, mode)
             nodes = sorted(graph.nodes)
             return ((graph, nodes), {"graph": nx.node_link_data(graph, edges="edges"), "nodes": nodes},
                     [graph.nodes[n]["text"] for n in nodes])
 
-        def read(data: dict, vectors: np.ndarray) -> Graph2DMemory:
+        def read(mode: str, data: dict, vectors: np.ndarray) -> Graph2DMemory:
             return cls(participant, mode, nx.node_link_graph(data["graph"], edges="edges"), data["nodes"], vectors)
 
-        return cache_or_build(bank, participant, "graph2d", VERSION, store=store, build=build, read=read,
-                              make=lambda built, vectors: cls(participant, mode, *built, vectors),
+        return cache_or_build(bank_path, participant, "graph2d", VERSION, store=store, build=build, read=read,
+                              make=lambda mode, built, vectors: cls(participant, mode, *built, vectors),
                               damaged=(nx.NetworkXError,))
 
     prefetch = staticmethod(prefetch_queries)
