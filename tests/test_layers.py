@@ -102,3 +102,33 @@ def test_the_click_check_sees_an_import(tmp_path):
     bad = tmp_path / "m.py"
     bad.write_text("import click\n\ndef f():\n    from click.testing import CliRunner\n")
     assert _imports_click(bad) == [1, 4]
+
+
+def _private_imports(path: Path) -> list[tuple[int, str]]:
+    """The (line, module.name) of every private name (one leading underscore) that `path` imports from
+    another module, function-level imports included; `import x as _x` binds a public name privately
+    and is not one."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            found += [(node.lineno, f"{'.' * node.level}{node.module or ''}.{a.name}") for a in node.names
+                      if a.name.startswith("_") and not a.name.startswith("__")]
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names
+                      if any(part.startswith("_") and not part.startswith("__") for part in a.name.split("."))]
+    return found
+
+
+def test_no_module_imports_a_private_name_of_another():
+    """A name with a leading underscore is its module's own: a module that needs it from elsewhere
+    needs a public name (and the owner then knows it has a caller)."""
+    problems = [f"{path.relative_to(PACKAGE.parent)}:{line} imports {name}"
+                for module, path in sorted(_modules().items()) for line, name in _private_imports(path)]
+    assert not problems, "private names imported across modules:\n" + "\n".join(problems)
+
+
+def test_the_private_import_check_sees_one(tmp_path):
+    """The checker itself: a function-level `from m import _x` is found; `import m as _m` is not."""
+    bad = tmp_path / "m.py"
+    bad.write_text("from memora_graph import text as _text\n\ndef f():\n    from memora_graph.bank import _PID, Bank\n")
+    assert _private_imports(bad) == [(4, "memora_graph.bank._PID")]

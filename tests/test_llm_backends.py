@@ -363,8 +363,8 @@ def test_fakes_register_through_the_real_registry():
         name = "echo-test"
 
         def _complete(self, messages, *, tools, tool_choice, response_format, stats):
-            from memora_graph.llm.backends import _Completion
-            return _Completion(content=messages[-1]["content"], tool_calls=[], usage=None, finish_reason="stop",
+            from memora_graph.llm.backends import Completion
+            return Completion(content=messages[-1]["content"], tool_calls=[], usage=None, finish_reason="stop",
                                model=None)
 
     register_backend("echo-test", Echo, OfflineOptions)

@@ -41,8 +41,8 @@ from memora_graph.agent import lookups
 from memora_graph.agent.confidence import load_calibration
 from memora_graph.agent.evidence import budgeted_events
 from memora_graph.agent.loop import AgentState, PolicyReply
-from memora_graph.agent.planner import _task_text, compose_structured, plan_lookups, plan_text
-from memora_graph.agent.reading import Decision, parse_question, score
+from memora_graph.agent.planner import task_text, compose_structured, plan_lookups, plan_text
+from memora_graph.agent.reading import ReaderDecision, parse_question, score
 from memora_graph.embed import get_embedder
 from memora_graph.errors import MemoraError
 from memora_graph.retrieve.results import ToolResult
@@ -148,7 +148,7 @@ class OfflinePolicy:
 
         return query_vectors(self.embedder).encode(texts)
 
-    def decide(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> Decision:
+    def decide(self, view: dict[str, Any], calls: list[dict[str, Any]]) -> ReaderDecision:
         """The typed reader's decision over the tool results of the calls made."""
         results = [c["result"] for c in calls if isinstance(c["result"], ToolResult)]
         events = budgeted_events(results, self.lexicon, self.evidence_budget)
@@ -175,7 +175,7 @@ class OfflinePolicy:
     # -- Planning ---------------------------------------------------------------------------
     def _plan(self, tools, forced, state: AgentState) -> PolicyReply:
         names = _tool_names(tools)
-        goal = _task_text(state.view["task_query"])
+        goal = task_text(state.view["task_query"])
         if not forced and names:
             calls = plan_lookups(goal, names, state.calls, self.lexicon)
             if calls:

@@ -77,7 +77,7 @@ class RoutineStep(BaseModel):
     text: str
 
 
-class ObjectState(BaseModel):
+class ObjectStateEvent(BaseModel):
     object: str
     state: str
     location: str
@@ -110,7 +110,7 @@ class OpenAnswer(BaseModel):
     yes: bool | None = None
     actions: list[ActionShare] = Field(default_factory=list)
     steps: list[RoutineStep] = Field(default_factory=list)
-    states: list[ObjectState] = Field(default_factory=list)
+    states: list[ObjectStateEvent] = Field(default_factory=list)
     log: list[LogLine] = Field(default_factory=list)
     reason: Literal["general_knowledge", "absent_subject"] | None = Field(
         None, description="Why not in memory: general knowledge, or a subject absent from this person's memory.")
@@ -561,7 +561,7 @@ def _state(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
         classes = set(lex.noun_classes(f"{info.get('kind', '')} {info.get('name', '')}".replace("_", " ")))
         if subject and not subject & classes:
             continue
-        states.append(ObjectState(object=info.get("name", ent), state=r["state"] or "", location=r["location"] or "",
+        states.append(ObjectStateEvent(object=info.get("name", ent), state=r["state"] or "", location=r["location"] or "",
                                   video=video, time_seconds=round(r["t"], 2), event_id=r["id"]))
     states.sort(key=lambda s: -s.time_seconds)
     states = states[:5]

@@ -231,12 +231,9 @@ def task_text(task_query: str) -> str:
     return _HELP.sub("", task_query).strip().rstrip(".")
 
 
-_task_text = task_text
-
-
 def generic_plan(task_query: str) -> list[dict[str, Any]]:
     """A plan from the request alone (Parametric, or nothing retrieved): locate, take, act, put back."""
-    query = _task_text(task_query).lower()
+    query = task_text(task_query).lower()
     nouns = [w for w in re.findall(r"[a-z]+", query) if w in _KITCHEN] or [re.findall(r"[a-z]+", query)[-1] if query else "item"]
     noun = nouns[0]
     verbs = [w for w in re.findall(r"[a-z]+", query) if w in ("wash", "dry", "cut", "peel", "stir", "pour", "rinse", "wipe",

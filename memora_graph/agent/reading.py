@@ -16,7 +16,7 @@ scored against typed evidence, answered with the evidence ids, or "not in memory
    routine, the actions around the subject (how often each option's items occur there); for
    recall, whether the video holds each of the option's actions, in the option's order.
 5. Abstaining: E when memory holds no record of the subject (nothing retrieved mentions it), or
-   when the evidence does not separate the options (the best is weak or barely ahead). `Decision`
+   when the evidence does not separate the options (the best is weak or barely ahead). `ReaderDecision`
    says which.
 
 Deterministic, no language model: a few thousand dictionary lookups per question, plus one
@@ -87,7 +87,7 @@ class Event:
 
 
 @dataclass
-class Decision:
+class ReaderDecision:
     letter: str  # A-D, or E
     reason: str  # "supported" | "no record of the subject" | "evidence does not separate the options"
     scores: list[float]
@@ -399,7 +399,7 @@ def _at_memory_depth(intent: Intent, events: list[Event], lex: Lexicon) -> Inten
 
 
 def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, embed=None,
-          calibration=None) -> Decision:
+          calibration=None) -> ReaderDecision:
     """Score the options against the events and decide. `embed(texts) -> unit vectors` (optional)
     adds how close each option is in meaning to the evidence records the typed lookups selected:
     paraphrases the classes miss ("a squeeze of washing-up liquid" for "pour soap").
@@ -451,7 +451,7 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
     feats["rule_supported"] = float(best >= MIN_SUPPORT or classes[order[0]] >= CLASS_SURE)  # the fixed rule's cut
     for level in range(1, RELAX_LEVELS):
         feats[f"relaxed_{level}"] = float(relaxed == level)  # the situation had to be widened this far
-    d = Decision(OPTION_E, "", scores, support, intent, len(events), features=feats)
+    d = ReaderDecision(OPTION_E, "", scores, support, intent, len(events), features=feats)
     if calibration is not None:
         p = calibration.probabilities(feats)
         d.p_best, d.p_e = p["best"], p["E"]

@@ -13,7 +13,7 @@ from statistics import mean
 from typing import Any, Iterable, Literal
 
 from memora_graph.bench.vocabulary import (
-    ACTION_VERBS, FILLER, LOCATION_NOUNS, LOCATION_PREPOSITIONS, _OBJECT_STOPWORDS, _PRONOUN_ONLY, extract_action_verb,
+    ACTION_VERBS, FILLER, LOCATION_NOUNS, LOCATION_PREPOSITIONS, OBJECT_STOPWORDS, PRONOUN_ONLY, extract_action_verb,
 )
 from memora_graph.sequences import lcs_length
 from memora_graph.text import COLOR_WORDS, KITCHEN_NOUN_STEMS, jaccard, stem, tokenize
@@ -42,9 +42,9 @@ def has_location(step: str) -> bool:
 
 def has_object(step: str) -> bool:
     for piece in re.findall(r"\b\w+(?:\s+\w+)?\b", step.lower()):
-        if piece in _OBJECT_STOPWORDS or any(piece == w or piece.startswith(w + " ") for w in _LEADING):
+        if piece in OBJECT_STOPWORDS or any(piece == w or piece.startswith(w + " ") for w in _LEADING):
             continue
-        if len(piece) > 1 and piece not in _PRONOUN_ONLY:
+        if len(piece) > 1 and piece not in PRONOUN_ONLY:
             return True
     return False
 

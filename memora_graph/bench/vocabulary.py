@@ -29,8 +29,8 @@ LOCATION_PREPOSITIONS = (
     "on", "in", "from", "near", "next to", "under", "above", "inside", "at", "behind", "beside", "between", "onto",
     "into", "out of", "toward", "towards", "across",
 )
-_OBJECT_STOPWORDS = frozenset({"the", "a", "an", "and", "or", "then", "to", "with", "for", "is", "are"})
-_PRONOUN_ONLY = frozenset({"it", "the thing", "that", "this", "them", "those", "these", "something", "stuff"})
+OBJECT_STOPWORDS = frozenset({"the", "a", "an", "and", "or", "then", "to", "with", "for", "is", "are"})
+PRONOUN_ONLY = frozenset({"it", "the thing", "that", "this", "them", "those", "these", "something", "stuff"})
 
 
 FILLER = "_filler_"

@@ -27,7 +27,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from memora_graph.consolidate.memory import ParticipantMemory, Step, load_memory
+from memora_graph.consolidate.memory import ParticipantMemory, MemoryStep, load_memory
 from memora_graph.consolidate.processors import Processors, get_processors
 from memora_graph.consolidate.records import VideoConsolidation
 from memora_graph.consolidate.run import InferredKnowledge, infer, write_inferred
@@ -37,7 +37,7 @@ log = logging.getLogger("memora_graph.consolidate")
 CACHE_FORMAT = 1
 
 
-def video_fingerprint(steps: list[Step]) -> str:
+def video_fingerprint(steps: list[MemoryStep]) -> str:
     """What a video's per-video consolidation reads: every step's time, action, place and objects."""
     h = hashlib.sha256()
     for s in steps:

@@ -31,7 +31,7 @@ class Obj:
 
 
 @dataclass(slots=True)
-class Step:  # slots: a 1,000 h participant has about a million steps
+class MemoryStep:  # slots: a 1,000 h participant has about a million steps
     video: str
     segment: str
     t: float
@@ -83,14 +83,14 @@ class Step:  # slots: a 1,000 h participant has about a million steps
 class ParticipantMemory:
     participant: str
     segments: list[dict] = field(default_factory=list)
-    steps: list[Step] = field(default_factory=list)
-    _by_video: dict[str, list[Step]] | None = field(default=None, repr=False)
+    steps: list[MemoryStep] = field(default_factory=list)
+    _by_video: dict[str, list[MemoryStep]] | None = field(default=None, repr=False)
 
     @property
     def videos(self) -> list[str]:
         return sorted({s["video"] for s in self.segments})
 
-    def steps_by_video(self) -> dict[str, list[Step]]:
+    def steps_by_video(self) -> dict[str, list[MemoryStep]]:
         if self._by_video is None:
             self._by_video = {}
             for s in self.steps:
@@ -122,8 +122,8 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
             entity = merged[entity]
         return entity
 
-    steps: list[Step] = []
-    current: Step | None = None
+    steps: list[MemoryStep] = []
+    current: MemoryStep | None = None
     key = None
     for e in events.iter_rows(named=True):  # ordered by video, t, ord: one narration's entries are adjacent
         k = (e["video"], e["t"], e["narration"])
@@ -132,7 +132,7 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
         if obj is None:
             obj = objs[okey] = Obj(*okey)
         if k != key:
-            current = Step(video=e["video"], segment=e["segment"], t=float(e["t"]), verb=e["action"], objects=[obj],
+            current = MemoryStep(video=e["video"], segment=e["segment"], t=float(e["t"]), verb=e["action"], objects=[obj],
                            location=e["location"] or "", zone=e["zone"] or "", destination=e["relative_to"] or "",
                            relation=e["relation"] or "", narration=e["narration"] or "")
             steps.append(current)

@@ -17,7 +17,7 @@ import math
 from collections import Counter, defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.memory import ParticipantMemory, Step, display
+from memora_graph.consolidate.memory import ParticipantMemory, MemoryStep, display
 from memora_graph.consolidate.records import (
     ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, OrganizationalHabit, RoutineSkill, StepAction,
     StoragePreference, VideoConsolidation, WorkflowPattern,
@@ -82,11 +82,11 @@ class RuleConsolidator:
             action_sequences=self._sequences(video, steps, self.recurring(memory)),
         )
 
-    def _storage(self, video: str, steps: list[Step]) -> list[StoragePreference]:
+    def _storage(self, video: str, steps: list[MemoryStep]) -> list[StoragePreference]:
         seen: dict[tuple, dict] = {}
         used: dict[str, bool] = {}
 
-        def note(s: Step, context: str, where: str, place: str) -> None:
+        def note(s: MemoryStep, context: str, where: str, place: str) -> None:
             rec = seen.setdefault((s.main.kind, context, where), {"place": place, "n": 0, "segments": [], "entities": []})
             rec["n"] += 1
             rec["segments"].append(s.segment)
@@ -125,7 +125,7 @@ class RuleConsolidator:
             ))
         return out
 
-    def _habits(self, video: str, steps: list[Step]) -> list[OrganizationalHabit]:
+    def _habits(self, video: str, steps: list[MemoryStep]) -> list[OrganizationalHabit]:
         pairs: dict[tuple[str, str], dict] = {}
         triggers: Counter[str] = Counter()
         for i, a in enumerate(steps):
@@ -157,9 +157,9 @@ class RuleConsolidator:
             ))
         return out
 
-    def _workflows(self, video: str, steps: list[Step]) -> list[WorkflowPattern]:
+    def _workflows(self, video: str, steps: list[MemoryStep]) -> list[WorkflowPattern]:
         flows: dict[tuple[str, str, str], dict] = {}
-        last_use: dict[str, Step] = {}
+        last_use: dict[str, MemoryStep] = {}
         for s in steps:
             if s.main.is_fixture:
                 continue
@@ -191,8 +191,8 @@ class RuleConsolidator:
             ))
         return out
 
-    def _windows(self, steps: list[Step]):
-        run: list[Step] = []
+    def _windows(self, steps: list[MemoryStep]):
+        run: list[MemoryStep] = []
         for s in steps:  # collapse immediate repeats ("move tofu" x 12)
             if not run or run[-1].token != s.token:
                 run.append(s)
@@ -225,7 +225,7 @@ class RuleConsolidator:
             self._recurring = (id(memory), {t for t, (_, n) in seen.items() if n >= self.min_videos})
         return self._recurring[1]
 
-    def _sequences(self, video: str, steps: list[Step], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
+    def _sequences(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
         found: dict[tuple[str, ...], dict] = {}
         for tokens, window in self._windows(steps):
             if tokens in recurring:
@@ -248,7 +248,7 @@ class RuleConsolidator:
             ))
         return out
 
-    def _sequence_evidence(self, steps: list[Step], recurring: set[tuple[str, ...]],
+    def _sequence_evidence(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]],
                            evidence: dict[tuple[str, ...], _SequenceEvidence]) -> None:
         """What `_sequences` would cite for one video, added to the chosen sequences' evidence
         (keyed by their steps' texts, as the merge groups them), without building the records:
@@ -521,9 +521,9 @@ class RuleEnricher:
                           generated_preferences=self.tool_preferences(memory))
 
     # -- routine skills ----------------------------------------------------------------
-    def episodes(self, steps: list[Step]) -> list[list[Step]]:
-        out: list[list[Step]] = []
-        cur: list[Step] = []
+    def episodes(self, steps: list[MemoryStep]) -> list[list[MemoryStep]]:
+        out: list[list[MemoryStep]] = []
+        cur: list[MemoryStep] = []
         cur_cat = None
         for s in steps:
             cat = vocab.category(s.verb)
@@ -547,7 +547,7 @@ class RuleEnricher:
         return [c for c in chunks if len(c) >= self.min_steps]
 
     @staticmethod
-    def goal(ep: list[Step]) -> tuple[str, str, str | None]:
+    def goal(ep: list[MemoryStep]) -> tuple[str, str, str | None]:
         """(goal text, head object kind, verb category) of an episode."""
         work = [s for s in ep if not s.is_filler]
         pool = work or ep
@@ -565,7 +565,7 @@ class RuleEnricher:
         return f"{vocab.phrase(top)} {display(head)}", head, "setup"
 
     def routine_skills(self, memory: ParticipantMemory) -> list[RoutineSkill]:
-        groups: dict[str, list[tuple[list[Step], str, str | None]]] = defaultdict(list)
+        groups: dict[str, list[tuple[list[MemoryStep], str, str | None]]] = defaultdict(list)
         for video, steps in sorted(memory.steps_by_video().items()):
             for ep in self.episodes(steps):
                 goal, head, cat = self.goal(ep)
@@ -614,7 +614,7 @@ class RuleEnricher:
 
     # -- generated preferences ---------------------------------------------------------
     def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
-        uses: dict[tuple[str, str], dict[str, list[Step]]] = defaultdict(lambda: defaultdict(list))
+        uses: dict[tuple[str, str], dict[str, list[MemoryStep]]] = defaultdict(lambda: defaultdict(list))
         for s in memory.steps:
             if s.is_filler or s.main.category in vocab.TOOL_CATEGORIES:
                 continue
@@ -622,7 +622,7 @@ class RuleEnricher:
             for tool in tools[:1]:
                 uses[(s.verb, s.main.kind)][tool.kind].append(s)
         out = []
-        by_verb: dict[str, dict[str, list[tuple[str, list[Step]]]]] = defaultdict(lambda: defaultdict(list))
+        by_verb: dict[str, dict[str, list[tuple[str, list[MemoryStep]]]]] = defaultdict(lambda: defaultdict(list))
         for (verb, target), tools in uses.items():
             counts = {t: len(ss) for t, ss in tools.items()}
             best = min(counts, key=lambda t: (-counts[t], t))
@@ -640,7 +640,7 @@ class RuleEnricher:
         return out[: self.caps["preference"]]
 
     @staticmethod
-    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[Step], alternatives: dict[str, int]) -> GeneratedPreference:
+    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[MemoryStep], alternatives: dict[str, int]) -> GeneratedPreference:
         names = [display(t) for t in targets]
         what = names[0] if len(names) == 1 else ", ".join(names[:-1][:3]) + f" or {names[-1]}"
         statement = f"Usually uses the {display(tool)} to {vocab.phrase(verb)} the {what}"

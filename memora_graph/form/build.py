@@ -74,12 +74,12 @@ def _emb_series(vectors: list[np.ndarray], dim: int) -> pl.Series:
     return pl.Series("emb", arr, dtype=pl.Array(pl.Float32, dim))
 
 
-def _entity_row(e: EntityState) -> dict:
+def entity_row(e: EntityState) -> dict:
     """An Entity row (schema columns, without the embedding) from the editor's record."""
     return {k: getattr(e, k) for k in schema.columns("Entity", emb=False)}
 
 
-def _place_row(pp: PlaceState) -> dict:
+def place_row(pp: PlaceState) -> dict:
     return {k: getattr(pp, k) for k in schema.columns("Place", emb=False)}
 
 
@@ -119,7 +119,7 @@ class ParticipantBuilder:
                 next_ord = int(store.run("_max_state_ord", participant=participant)["max_ord"][0] or 0)
                 self._op_seq = int(store.run("_edit_op_count", participant=participant)["n"][0] or 0)
         self.db_entities = {e.id: (e.status, e.location) for e in entities}
-        self.db_entity_rows = {e.id: _entity_row(e) for e in entities}
+        self.db_entity_rows = {e.id: entity_row(e) for e in entities}
         self.db_places = {p.location_id: p.turn_count for p in places}
         self.editor = EntityEditor(participant, policy or get_editor_policy(mode),
                                    embed=self._embed_one, prompt_budget=prompt_budget, entities=entities, next_ord=next_ord)
@@ -170,10 +170,10 @@ class ParticipantBuilder:
     def _stage(self, video_id: str, frames: dict) -> None:
         ents = list(self.editor.entities.values())
         dim = self.embedder.dim
-        entity_frame = schema.frame("Entity", [_entity_row(e) for e in ents]).with_columns(
+        entity_frame = schema.frame("Entity", [entity_row(e) for e in ents]).with_columns(
             _emb_series([e.emb if e.emb is not None else np.zeros(dim, np.float32) for e in ents], dim),
             pl.Series("has_emb", [e.emb is not None for e in ents], dtype=pl.Boolean))
-        place_frame = schema.frame("Place", [_place_row(pp) for pp in self.places.places.values()])
+        place_frame = schema.frame("Place", [place_row(pp) for pp in self.places.places.values()])
         counters = {"ord": self.editor._ord, "raw_seq": self.editor._raw_seq, "op_seq": self._op_seq}
         try:
             st = self.staging.write(len(self.staged) + len(self.in_db), video_id, frames, entity_frame, place_frame,
@@ -296,7 +296,7 @@ class ParticipantBuilder:
         p, dim = self.participant, self.embedder.dim
         ents = self.editor.entities
         new_ents = [ents[i] for i in sorted(ents) if i not in self.db_entities]
-        changed = [ents[i] for i in sorted(ents) if i in self.db_entities and _entity_row(ents[i]) != self.db_entity_rows[i]]
+        changed = [ents[i] for i in sorted(ents) if i in self.db_entities and entity_row(ents[i]) != self.db_entity_rows[i]]
         relocated = [e.id for e in changed if (e.status, e.location) != self.db_entities[e.id]]
         located = [{"from": e.id, "to": place_id(p, e.location)} for e in new_ents if e.status == "active"]
         located += [{"from": i, "to": place_id(p, ents[i].location)} for i in relocated if ents[i].status == "active"]
@@ -321,15 +321,15 @@ class ParticipantBuilder:
             for table in NODE_ORDER:
                 frames = self._staged_frames(table)  # read lazily, a chunk of videos at a time
                 if table == "Place" and new_places:
-                    s.copy("Place", schema.frame("Place", [_place_row(pp) for pp in new_places]).with_columns(
+                    s.copy("Place", schema.frame("Place", [place_row(pp) for pp in new_places]).with_columns(
                         _emb_series(list(place_vecs[: len(new_places)]), dim)))
                 elif table == "Entity" and new_ents:
-                    s.copy("Entity", schema.frame("Entity", [_entity_row(e) for e in new_ents]).with_columns(
+                    s.copy("Entity", schema.frame("Entity", [entity_row(e) for e in new_ents]).with_columns(
                         _emb_series([e.emb if e.emb is not None else np.zeros(dim) for e in new_ents], dim)))
                 else:
                     self._copy_chunks(table, frames)
             if changed:
-                s.run("_entity_update", participant=p, rows=[_entity_row(e) for e in changed])
+                s.run("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
             if changed_places:
                 s.run("_place_update", participant=p, rows=[
                     {"id": pp.id, "zones": pp.zones, "features": pp.features, "last_seen": pp.last_seen,

@@ -102,7 +102,7 @@ class DeterministicPolicy:
         if not fits:
             why = (f"new object '{obs.name}'" if not same else
                    f"'{obs.name}' conflicts in attributes with {', '.join(e.object_id for e in same)}")
-            return [EditOp(op="ADD", entity_id="", reason=why, changes=_add_fields(obs))]
+            return [EditOp(op="ADD", entity_id="", reason=why, changes=add_fields(obs))]
         ops: list[EditOp] = []
         keeper = self._pick(obs, fits, embed)
         # Two live records that the observation cannot tell apart are one object: retract the
@@ -142,7 +142,7 @@ class RawPolicy:
     same_kind_only = True  # reads no candidate at all
 
     def decide(self, segment, observations, candidates, embed) -> list[list[EditOp]]:
-        return [[EditOp(op="ADD", entity_id="", reason="raw mode: one record per observation", changes=_add_fields(o))]
+        return [[EditOp(op="ADD", entity_id="", reason="raw mode: one record per observation", changes=add_fields(o))]
                 for o in observations]
 
 
@@ -190,7 +190,7 @@ def update_or_noop(entity: EntityState, obs: ObjectObservation) -> EditOp:
     return EditOp(op="NOOP", entity_id=entity.id, reason=f"seen again, unchanged ({entity.state} at {entity.location})")
 
 
-def _add_fields(obs: ObjectObservation) -> dict[str, str]:
+def add_fields(obs: ObjectObservation) -> dict[str, str]:
     return {"state": obs.state, "location": obs.location, "held_by": obs.held_by or "", **obs.attributes()}
 
 
@@ -277,7 +277,7 @@ class EntityEditor:
                                                     or self.entities[op.merged_into].status != "active"):
             return None  # DELETE_INVALID: already retracted earlier in this turn; nothing to do
         if op.op != "ADD" and stale:
-            return EditOp(op="ADD", entity_id="", reason=f"{op.reason} [repair: {op.op} on unknown id]", changes=_add_fields(obs))
+            return EditOp(op="ADD", entity_id="", reason=f"{op.reason} [repair: {op.op} on unknown id]", changes=add_fields(obs))
         return op
 
     def _new_id(self, obs: ObjectObservation, segment: LayeredSegment) -> str:

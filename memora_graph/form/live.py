@@ -39,7 +39,7 @@ from memora_graph import schema
 from memora_graph.bank import Bank, pid_alive
 from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
-from memora_graph.form.build import _entity_row, _place_row
+from memora_graph.form.build import entity_row, place_row
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
 from memora_graph.files import side_files
@@ -438,18 +438,18 @@ class LiveWriter:
                 if int(got[0]["n"]) != 1:
                     raise StoreError(f"{self.store.path}: the previous segment {v.last_segment} is missing; nothing of "
                                      "this moment was kept")
-            self._add("_live_add_places", [{**_place_row(pp), "emb": _floats(vec)}
+            self._add("_live_add_places", [{**place_row(pp), "emb": _floats(vec)}
                                            for pp, vec in zip(new_places, place_vecs[: len(new_places)])])
             if changed_places:
                 self.store.write("_place_update", participant=p, rows=[
                     {"id": pp.id, "zones": pp.zones, "features": pp.features, "last_seen": pp.last_seen,
                      "last_video": pp.last_video, "turn_count": pp.turn_count, "emb": _floats(vec)}
                     for pp, vec in zip(changed_places, place_vecs[len(new_places):])])
-            self._add("_live_add_entities", [{**_entity_row(e), "emb": _floats(e.emb if e.emb is not None else
+            self._add("_live_add_entities", [{**entity_row(e), "emb": _floats(e.emb if e.emb is not None else
                                                                                 np.zeros(dim, np.float32))}
                                              for e in new_ents])
             if changed:
-                self.store.write("_entity_update", participant=p, rows=[_entity_row(e) for e in changed])
+                self.store.write("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
             if relocated:
                 self.store.write("_located_at_clear", participant=p, ids=relocated)
             self._add("_live_add_located", located)

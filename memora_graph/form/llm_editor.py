@@ -20,7 +20,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from memora_graph.form.editor import (
-    ATTRS, DEFAULT_PROMPT_BUDGET, EntityState, _add_fields, compatible, identity_text, update_or_noop,
+    ATTRS, DEFAULT_PROMPT_BUDGET, EntityState, add_fields, compatible, identity_text, update_or_noop,
 )
 from memora_graph.llm.backends import Backend
 from memora_graph.perceive.vlm import normalize_location
@@ -207,7 +207,7 @@ class LLMEditorPolicy:
             if main.op == "ADD":
                 for i in idx:  # later ADDs of the same object fold into the new record (editor repair)
                     out[i].append(main if i == idx[0] else EditOp(
-                        op="ADD", entity_id="", reason="same object later in this turn", changes=_add_fields(observations[i])))
+                        op="ADD", entity_id="", reason="same object later in this turn", changes=add_fields(observations[i])))
                 continue
             prev = _snapshot(registry, main.entity_id)
             for i in idx[:-1]:
@@ -228,7 +228,7 @@ class LLMEditorPolicy:
                 self.repairs["add_on_existing"] += 1
                 fixed = update_or_noop(target, obs)
                 return fixed.model_copy(update={"reason": f"{reason} [repair: ADD on existing id {target.object_id}]"})
-            return EditOp(op="ADD", entity_id="", reason=reason, changes=_add_fields(obs))
+            return EditOp(op="ADD", entity_id="", reason=reason, changes=add_fields(obs))
         target = self._resolve(op.object_id, registry)
         if target is None:
             if op.event == "DELETE":
@@ -236,7 +236,7 @@ class LLMEditorPolicy:
                 return None
             self.repairs["unknown_to_add"] += 1
             return EditOp(op="ADD", entity_id="", reason=f"{reason} [repair: {op.event} on unknown id {op.object_id}]",
-                          changes=_add_fields(obs))
+                          changes=add_fields(obs))
         if op.event == "DELETE":
             if op.merged_into is not None:
                 keeper = self._resolve(op.merged_into, registry)
@@ -267,7 +267,7 @@ class LLMEditorPolicy:
             tag = "FALLBACK_NOOP" if fixed.op == "NOOP" else "FALLBACK_UPDATE"
             return fixed.model_copy(update={"reason": f"{fixed.reason} [{tag}: omitted by the editor model]"})
         return EditOp(op="ADD", entity_id="", reason=f"new object '{obs.name}' [FALLBACK_ADD: omitted by the editor model]",
-                      changes=_add_fields(obs))
+                      changes=add_fields(obs))
 
     @staticmethod
     def _resolve(ref: int | str | None, registry: list[EntityState]) -> EntityState | None:

@@ -6,7 +6,7 @@ interface), offline_backend / openai_backend / vllm_backend, and registry."""
 
 from __future__ import annotations
 
-from memora_graph.llm.base import Backend, BackendOptions, CallStats, ChatReply, Completion, _CallStats, _Completion
+from memora_graph.llm.base import Backend, BackendOptions, CallStats, ChatReply, Completion
 from memora_graph.llm.calllog import CallLog, CallRecord, prompt_hash, summarize_calls
 from memora_graph.llm.errors import (
     BackendOptionsError, ModelAuthError, ModelContextLengthError, ModelError, ModelNotServedError,
@@ -28,7 +28,7 @@ __all__ = [
     "ChatReply", "Completion", "ModelAuthError", "ModelContextLengthError", "ModelError", "ModelNotServedError",
     "ModelRateLimitedError", "ModelReplyError", "ModelServerDownError", "ModelServerError", "ModelTimeoutError",
     "ModelUnavailableError", "OfflineBackend", "OfflineOptions", "OpenAIBackend", "OpenAIOptions", "RoleSpec",
-    "UnknownBackendError", "VLLMBackend", "VLLMOptions", "_CallStats", "_Completion", "audio_part", "backend_options",
+    "UnknownBackendError", "VLLMBackend", "VLLMOptions", "audio_part", "backend_options",
     "extract_json", "get_backend", "image_part", "json_schema_format", "list_backends", "prompt_hash",
     "register_backend", "repair_messages", "summarize_calls", "text_part", "unregister_backend", "validate_reply",
 ]

@@ -146,16 +146,16 @@ class Backend:
         reply.latency_s = self._log(record, stats, started, ok=True)
         return reply
 
-    def _start(self, messages, role, tags) -> tuple[dict, float, "_CallStats"]:
+    def _start(self, messages, role, tags) -> tuple[dict, float, "CallStats"]:
         record = dict(
             role=role, backend=self.name, model=self.model, prompt_hash=prompt_hash(messages),
             started_at=datetime.now(timezone.utc).isoformat(timespec="milliseconds"),
             tags={str(k): str(v) for k, v in (tags or {}).items()},
         )
-        return record, time.perf_counter(), _CallStats()
+        return record, time.perf_counter(), CallStats()
 
     def _plan(self, messages, role, tools, tool_choice, response_model,
-              stats: "_CallStats") -> Generator[_Request, "_Completion", ChatReply]:
+              stats: "CallStats") -> Generator[_Request, "Completion", ChatReply]:
         """The conversation for one call: yields the requests to send, receives their completions."""
         schema = json_schema_format(response_model) if response_model is not None else None
         completion = yield _Request(messages, tools, tool_choice, schema)
@@ -184,7 +184,7 @@ class Backend:
             retries=stats.retries, repairs=len(stats.completions) - 1,
         )
 
-    def _log(self, record: dict, stats: "_CallStats", started: float, *, ok: bool, error: str | None = None) -> float:
+    def _log(self, record: dict, stats: "CallStats", started: float, *, ok: bool, error: str | None = None) -> float:
         latency = time.perf_counter() - started
         usage = sum_usage(c.usage for c in stats.completions) or {}
         model = next((c.model for c in stats.completions if c.model), None) or self.model or record["model"]
@@ -198,18 +198,18 @@ class Backend:
         ))
         return latency
 
-    def _complete(self, messages, *, tools, tool_choice, response_format, stats: "_CallStats") -> "_Completion":
+    def _complete(self, messages, *, tools, tool_choice, response_format, stats: "CallStats") -> "Completion":
         """Send one request (transport retries count into `stats.retries`)."""
         raise NotImplementedError
 
-    async def _acomplete(self, messages, *, tools, tool_choice, response_format, stats: "_CallStats") -> "_Completion":
+    async def _acomplete(self, messages, *, tools, tool_choice, response_format, stats: "CallStats") -> "Completion":
         """`_complete` for asyncio callers; by default on a worker thread."""
         return await asyncio.to_thread(self._complete, messages, tools=tools, tool_choice=tool_choice,
                                        response_format=response_format, stats=stats)
 
 
 @dataclass
-class _Completion:
+class Completion:
     """One completed request to a model (after transport retries)."""
 
     content: str
@@ -221,17 +221,13 @@ class _Completion:
 
 
 @dataclass
-class _CallStats:
+class CallStats:
     """What one `chat` call cost so far; filled in as requests happen, so failures count too."""
 
     retries: int = 0
-    completions: list[_Completion] = field(default_factory=list)
+    completions: list[Completion] = field(default_factory=list)
     server_s: float | None = None  # time the server says it spent (an X-Server-Time header), summed
     cpu0: float | None = None  # time.thread_time() when a sync call started
-
-
-Completion = _Completion
-CallStats = _CallStats
 
 
 def clip(text: str | None, limit: int) -> str:

@@ -13,9 +13,9 @@ from memora_graph.embed import ThreadGovernor, get_embedder
 from memora_graph.errors import DataError, DiskFullError, StoreError
 from memora_graph.form.build import ParticipantBuild, Timings
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info
-from memora_graph.pipeline.participant import _build_one, _Built
-from memora_graph.pipeline.rollback import _purge_trash, _set_aside, _undo
-from memora_graph.pipeline.workers import _build_parallel, auto_jobs
+from memora_graph.pipeline.participant import build_one, BuiltParticipant
+from memora_graph.pipeline.rollback import purge_trash, set_aside, undo_build
+from memora_graph.pipeline.workers import build_parallel, auto_jobs
 from memora_graph.store import disk_full, free_bytes
 
 
@@ -40,7 +40,7 @@ class BankBuild:
     def segments(self) -> int:
         return sum(p.segments for p in self.participants)
 
-    def add(self, r: _Built) -> None:
+    def add(self, r: BuiltParticipant) -> None:
         self.participants.append(r.build)
         self.timings.add(r.build.timings)
         self.setup_seconds += r.setup_seconds
@@ -251,11 +251,11 @@ def build_bank(
     aside: dict[str, Path] = {}
     out.jobs = max(1, min(jobs or auto_jobs(len(found)), len(found)))
     opts = dict(mode=mode, stop_after=stop_after, episodic=episodic, fts=fts)
-    results: list[_Built] = []
+    results: list[BuiltParticipant] = []
     try:
         for p, ids in sorted(targets.items()):
             if p in before or bank.db_path(p).exists():
-                aside[p] = _set_aside(bank, p)
+                aside[p] = set_aside(bank, p)
             if on_notice:
                 on_notice(f"rebuilding {p} from its first video ({', '.join(ids)}): memory formation is sequential, "
                           f"so a video is rebuilt with the participant that owns it")
@@ -265,7 +265,7 @@ def build_bank(
             results = build_on_ray(executor, bank, found, df, durations, classes, embed_model, on_video, opts, results,
                                    on_notice)
         elif out.jobs > 1 or isolate:
-            results = _build_parallel(bank, found, df, durations, classes, embed_model, out.jobs, on_video, opts,
+            results = build_parallel(bank, found, df, durations, classes, embed_model, out.jobs, on_video, opts,
                                       results)
         else:
             t0 = time.perf_counter()
@@ -274,7 +274,7 @@ def build_bank(
             bank.init(mode=mode, embed_model=embedder.name, consolidated=False)
             governor = ThreadGovernor()  # torch threads per batch: all cores unless other processes are busy
             for p in found:
-                results.append(_build_one(bank, p, df, durations, classes, embedder, governor,
+                results.append(build_one(bank, p, df, durations, classes, embedder, governor,
                                           on_video=(lambda v, n, p=p: on_video(p, v, n)) if on_video else None, **opts))
             out.model_seconds = model_seconds
     except BaseException as exc:
@@ -285,13 +285,13 @@ def build_bank(
         recorded = set(bank.manifest()["participants"]) if bank.exists() else set()
         # new participants the failure left unrecorded are removed; recorded ones stay, marked
         # unfinished, for a resume (their videos are in the graph)
-        _undo(bank, created, new - recorded, {p: a for p, a in aside.items() if p not in recorded})
-        _purge_trash(bank, {r.build.participant for r in results})
+        undo_build(bank, created, new - recorded, {p: a for p, a in aside.items() if p not in recorded})
+        purge_trash(bank, {r.build.participant for r in results})
         if isinstance(exc, DiskFullError) or (isinstance(exc, (OSError, StoreError)) and disk_full(exc, bank.path)):
             raise DiskFullError(f"{bank.path}: no space left on device (needed about {needed / 1e6:.0f} MB for this "
                                 f"build). Free some space and re-run it; finished participants are kept.") from exc
         raise
-    _purge_trash(bank, set(found))
+    purge_trash(bank, set(found))
     for r in results:
         out.add(r)
     out.wall_seconds = time.perf_counter() - t_start

@@ -13,7 +13,7 @@ from memora_graph.form.build import ParticipantBuild, build_participant
 
 
 @dataclass
-class _Built:
+class BuiltParticipant:
     """One participant's build and finish, as a worker process returns it."""
 
     build: ParticipantBuild
@@ -27,8 +27,8 @@ class _Built:
     model_seconds: float = 0.0
 
 
-def _build_one(bank: Bank, p: str, actions, durations: dict, classes, embedder, governor: ThreadGovernor, *, mode: str,
-               stop_after: int | None, episodic: bool, fts: bool, on_video) -> _Built:
+def build_one(bank: Bank, p: str, actions, durations: dict, classes, embedder, governor: ThreadGovernor, *, mode: str,
+               stop_after: int | None, episodic: bool, fts: bool, on_video) -> BuiltParticipant:
     emb0, enc0, calls0 = getattr(embedder, "seconds", 0.0), getattr(embedder, "encoded", 0), dict(governor.calls)
     t0 = time.perf_counter()
     with adaptive_threads(embedder, governor):
@@ -40,6 +40,6 @@ def _build_one(bank: Bank, p: str, actions, durations: dict, classes, embedder, 
     knowledge = finish_participant(bank, p, embedder, episodic=episodic or mode == "raw", fts=fts, timings=spent)
     inferred = knowledge.counts() if knowledge else {"routines": 0, "preferences": 0}
     res.counts.update({k: inferred[k] for k in ("routines", "preferences")})
-    return _Built(res, setup, spent, inferred, time.perf_counter() - t0, getattr(embedder, "seconds", 0.0) - emb0,
+    return BuiltParticipant(res, setup, spent, inferred, time.perf_counter() - t0, getattr(embedder, "seconds", 0.0) - emb0,
                   getattr(embedder, "encoded", 0) - enc0,
                   {k: n - calls0.get(k, 0) for k, n in governor.calls.items() if n > calls0.get(k, 0)})

@@ -1,7 +1,7 @@
 """Builds on Ray: one task per participant (annotation builds) or per participant's videos.
 
 Each task unpacks the participant's snapshot into the worker's scratch space, runs the same
-library code a local build runs there (`pipeline.participant._build_one`, `build_from_video`),
+library code a local build runs there (`pipeline.participant.build_one`, `build_from_video`),
 and hands back the closed database with the manifest entry it recorded (`bundle.seal`). The
 driver installs each one as it arrives (`bundle.install`), holding every planned participant's
 build lock for the whole run, so no other build can touch them meanwhile. A participant that
@@ -25,16 +25,16 @@ from memora_graph.executors.tasks import cluster, one_thread, participants_faile
 
 def build_task(snap: dict, actions, durations: dict, classes, opts: dict, embed_model: str | None,
                shared: str | None, *, progress: Callable) -> dict:
-    """On a worker: build one participant in scratch space; its sealed database and _Built."""
+    """On a worker: build one participant in scratch space; its sealed database and BuiltParticipant."""
     from memora_graph.embed import ThreadGovernor
-    from memora_graph.pipeline.participant import _build_one
+    from memora_graph.pipeline.participant import build_one
 
     p = snap["participant"]
     scratch = bundle.open_scratch(snap)
     try:
         one_thread()
         embedder, model_seconds = task_embedder(embed_model)
-        built = _build_one(scratch, p, actions, durations, classes, embedder, ThreadGovernor(max_threads=1),
+        built = build_one(scratch, p, actions, durations, classes, embedder, ThreadGovernor(max_threads=1),
                            on_video=lambda v, n: progress(v, (p, v, n)), **opts)
         built.model_seconds = model_seconds
         return {**bundle.seal(scratch, p, shared), "result": built}
@@ -45,7 +45,7 @@ def build_task(snap: dict, actions, durations: dict, classes, opts: dict, embed_
 def build_on_ray(ex: Executor, bank: Bank, found: list[str], df, durations: dict, classes, embed_model: str | None,
                  on_video, opts: dict, results: list, on_notice: Callable[[str], None] | None = None) -> list:
     """The Ray side of `build_bank`: every participant of `found` built by a task and installed
-    here; `results` receives each _Built as it is installed. Raises TasksFailed naming the
+    here; `results` receives each BuiltParticipant as it is installed. Raises TasksFailed naming the
     participants that failed on every attempt (after installing the others)."""
     from memora_graph.embed import get_embedder
 

@@ -14,7 +14,7 @@ from memora_graph.bank import Bank
 from memora_graph.errors import BankError
 
 
-def _set_aside(bank: Bank, participant: str) -> Path:
+def set_aside(bank: Bank, participant: str) -> Path:
     """Move a participant's database and staged videos to BANK/.trash/<participant>-<time>/ and
     drop its manifest entry (kept there as entry.json), for a rebuild."""
     trash = bank.path / ".trash" / f"{participant}-{int(time.time() * 1000)}"
@@ -39,7 +39,7 @@ def _set_aside(bank: Bank, participant: str) -> Path:
     return trash
 
 
-def _undo(bank: Bank, created: bool, new: set[str], aside: dict[str, Path]) -> None:
+def undo_build(bank: Bank, created: bool, new: set[str], aside: dict[str, Path]) -> None:
     """After a failed build: remove what it left of participants new to the bank, put rebuilt
     participants' old databases back, and remove the bank if this build created it and nothing
     of it remains."""
@@ -69,7 +69,7 @@ def _undo(bank: Bank, created: bool, new: set[str], aside: dict[str, Path]) -> N
             shutil.rmtree(bank.path, ignore_errors=True)
 
 
-def _purge_trash(bank: Bank, participants: set[str]) -> None:
+def purge_trash(bank: Bank, participants: set[str]) -> None:
     """Remove the previous databases of rebuilds that are now complete."""
     trash = bank.path / ".trash"
     if trash.is_dir():

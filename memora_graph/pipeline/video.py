@@ -12,7 +12,7 @@ from memora_graph.consolidate import finish_participant
 from memora_graph.embed import get_embedder
 from memora_graph.errors import DataError, DiskFullError, StoreError
 from memora_graph.form.build import Timings
-from memora_graph.pipeline.rollback import _undo
+from memora_graph.pipeline.rollback import undo_build
 from memora_graph.store import disk_full, disk_full_message
 
 
@@ -150,7 +150,7 @@ def build_from_video(
         # a bank this run created is removed
         bank.abandon_writing(participant)
         recorded = bank.exists() and participant in bank.manifest()["participants"]
-        _undo(bank, created, {participant} if new and not recorded else set(), {})
+        undo_build(bank, created, {participant} if new and not recorded else set(), {})
         if isinstance(exc, (OSError, StoreError)) and not isinstance(exc, DiskFullError) and disk_full(exc, bank.path):
             raise DiskFullError(disk_full_message(bank.path)) from exc
         raise

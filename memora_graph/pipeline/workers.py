@@ -9,7 +9,7 @@ import time
 
 from memora_graph.bank import Bank
 from memora_graph.embed import ThreadGovernor, get_embedder
-from memora_graph.pipeline.participant import _build_one, _Built
+from memora_graph.pipeline.participant import build_one, BuiltParticipant
 
 
 def auto_jobs(n_participants: int) -> int:
@@ -60,18 +60,18 @@ def _worker_model() -> str:
     return _WORKER["embedder"].name
 
 
-def _worker_build(bank_path: str, p: str, actions, durations: dict, classes, opts: dict) -> _Built:
+def _worker_build(bank_path: str, p: str, actions, durations: dict, classes, opts: dict) -> BuiltParticipant:
     _worker_model()
     events = _WORKER["events"]
     governor = ThreadGovernor() if _WORKER.get("solo") else ThreadGovernor(max_threads=1)
-    r = _build_one(Bank(bank_path), p, actions, durations, classes, _WORKER["embedder"], governor,
+    r = build_one(Bank(bank_path), p, actions, durations, classes, _WORKER["embedder"], governor,
                    on_video=lambda v, n: events.put((p, v, n)), **opts)
     r.model_seconds = _WORKER.pop("model_seconds", 0.0)  # reported by a worker's first participant
     return r
 
 
-def _build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, embed_model: str | None, jobs: int,
-                    on_video, opts: dict, results: list[_Built] | None = None) -> list[_Built]:
+def build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, embed_model: str | None, jobs: int,
+                    on_video, opts: dict, results: list[BuiltParticipant] | None = None) -> list[BuiltParticipant]:
     """Build participants in `jobs` worker processes; `results` receives each finished one as
     it arrives. When one fails, the others are stopped at once (killed: a worker stuck in a
     Kùzu call cannot be asked) and the failure is raised."""
@@ -93,7 +93,7 @@ def _build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, 
 
     sizes = df.group_by("participant_id").len().iter_rows()
     order = [p for p, _ in sorted(sizes, key=lambda r: (-r[1], r[0]))]  # largest first: the last to finish is small
-    finished: dict[str, _Built] = {}
+    finished: dict[str, BuiltParticipant] = {}
     results = results if results is not None else []
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init,
                                initargs=(embed_model, events, jobs == 1))

@@ -48,7 +48,7 @@ def polars_type(kuzu_type: str) -> pl.DataType:
 
 
 @dataclass
-class Table:
+class DumpedTable:
     """One node table, or one (FROM, TO) pair of a relationship table: its rows as a typed frame.
     A relationship frame starts with the `from` and `to` ids, then its properties."""
 
@@ -76,17 +76,17 @@ class ParticipantDump:
     bank: dict  # the source bank: mode, embed_model
     manifest: dict  # the participant's manifest entry (counts, videos, inferred knowledge, indexes)
     migrations: dict[str, str]  # schema file -> checksum
-    tables: list[Table] = field(default_factory=list)
+    tables: list[DumpedTable] = field(default_factory=list)
     exported_at: str = ""
 
     def header(self) -> dict:
         return {FORMAT_KEY: FORMAT_VERSION, "participant": self.participant, "exported_at": self.exported_at,
                 "bank": self.bank, "manifest": self.manifest, "migrations": self.migrations}
 
-    def nodes(self) -> list[Table]:
+    def nodes(self) -> list[DumpedTable]:
         return [t for t in self.tables if t.kind == "NODE"]
 
-    def rels(self) -> list[Table]:
+    def rels(self) -> list[DumpedTable]:
         return [t for t in self.tables if t.kind == "REL"]
 
 
@@ -113,7 +113,7 @@ def dump_participant(bank: Bank, participant: str) -> ParticipantDump:
         rows = nodes.filter(pl.col("tbl") == name) if nodes.height else pl.DataFrame()
         frame = (rows.select([pl.col(c).cast(polars_type(t)) for c, t in cols]) if rows.height
                  else pl.DataFrame(schema={c: polars_type(t) for c, t in cols}))
-        dump.tables.append(Table(name, "NODE", list(cols), frame))
+        dump.tables.append(DumpedTable(name, "NODE", list(cols), frame))
     rels = rels.unnest("rel") if rels.height else rels
     for name, info in catalog.items():
         if info["kind"] != "REL":
@@ -130,7 +130,7 @@ def dump_participant(bank: Bank, participant: str) -> ParticipantDump:
                 frame = frame.sort([c for c, dt in frame.schema.items() if not dt.is_nested()], maintain_order=True)
             else:
                 frame = pl.DataFrame(schema={c: polars_type(t) for c, t in cols})
-            dump.tables.append(Table(name, "REL", cols, frame, src, dst))
+            dump.tables.append(DumpedTable(name, "REL", cols, frame, src, dst))
     return dump
 
 
@@ -145,7 +145,7 @@ def _vectors(s: pl.Series) -> list:
     return [None if v is None else [float(str(x)) for x in np.asarray(v, dtype=np.float32)] for v in s.to_list()]
 
 
-def _json_rows(t: Table) -> list[list]:
+def _json_rows(t: DumpedTable) -> list[list]:
     frame = t.frame
     arrays = {c: _vectors(frame[c]) for c, dt in frame.schema.items() if isinstance(dt, pl.Array)}
     times = [c for c, dt in frame.schema.items() if isinstance(dt, pl.Datetime)]
@@ -266,7 +266,7 @@ def read_json(path: Path) -> ParticipantDump:
         if not isinstance(rows, list):
             raise DataError(f"{path}: damaged memora export: table {name} has no 'data' list")
         where = f"{path}: table {name}" + (f" ({src} -> {dst})" if kind == "REL" else "")
-        dump.tables.append(Table(name, kind, cols, _frame(rows, cols, where), src, dst))
+        dump.tables.append(DumpedTable(name, kind, cols, _frame(rows, cols, where), src, dst))
     return dump
 
 
@@ -324,7 +324,7 @@ def read_parquet(folder: Path) -> ParticipantDump:
         want = {c: polars_type(t) for c, t in cols}
         if dict(frame.schema) != want:
             raise DataError(f"{file}: columns {dict(frame.schema)} do not match the export's {want}")
-        dump.tables.append(Table(name, kind, cols, frame, src, dst))
+        dump.tables.append(DumpedTable(name, kind, cols, frame, src, dst))
     return dump
 
 

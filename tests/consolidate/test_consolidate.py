@@ -11,7 +11,7 @@ from memora_graph.bank import Bank
 from memora_graph.consolidate import (
     Processors, finish_participant, get_processors, infer, load_memory, register_processor,
 )
-from memora_graph.consolidate.memory import Obj, ParticipantMemory, Step
+from memora_graph.consolidate.memory import Obj, ParticipantMemory, MemoryStep
 from memora_graph.consolidate.records import Consolidation, Enrichment, GeneratedPreference, RoutineSkill
 from memora_graph.errors import MemoraError
 from memora_graph.store import Store
@@ -21,7 +21,7 @@ SMALL = ("P09", "P37")
 
 def _step(video, turn, t, verb, *objects, dest="", rel="", loc="sink_area", zone="", narration=""):
     objs = [Obj(kind, f"P01:{kind}", cat, fixture) for kind, cat, fixture in objects]
-    return Step(video=video, segment=f"{video}#t{turn:04d}", t=t, verb=verb, objects=objs, location=loc, zone=zone,
+    return MemoryStep(video=video, segment=f"{video}#t{turn:04d}", t=t, verb=verb, objects=objs, location=loc, zone=zone,
                 destination=dest, relation=rel, narration=narration or f"{verb} {objects[0][0]}")
 
 
@@ -35,7 +35,7 @@ FORK = ("fork", "cutlery", False)
 KNIFE = ("knife", "cutlery", False)
 
 
-def _dishes(video: str, t0: float) -> list[Step]:
+def _dishes(video: str, t0: float) -> list[MemoryStep]:
     """Take the sponge, wash the bowl and the plate, put both on the drying rack."""
     return [
         _step(video, int(t0 // 10), t0, "take", SPONGE),

@@ -195,7 +195,7 @@ def test_a_failed_rebuild_puts_the_old_database_back(bank, tmp_path, monkeypatch
     def boom(*a, **k):
         raise RuntimeError("simulated failure in the middle of the rebuild")
 
-    monkeypatch.setattr(annotations, "_build_one", boom)  # where build_bank looks it up
+    monkeypatch.setattr(annotations, "build_one", boom)  # where build_bank looks it up
     with pytest.raises(RuntimeError, match="simulated"):
         build_bank(bank, rebuild=["P09"])
     assert (bank / "P09.kuzu").read_bytes() == before

@@ -70,12 +70,12 @@ def run_encoder_perf(bank: str | Path, participants: list[str] | None = None, ro
     from memora_graph.bank import Bank
     from memora_graph.embed import QUERY_ENCODERS, CachedEmbedder, SentenceTransformerEmbedder, SplitEmbedder
     from memora_graph.onnx_embed import OnnxEmbedder, export_dir
-    from memora_graph.cli.perf.tools import _benchmark_queries, _encoder_agreement
+    from memora_graph.cli.perf.tools import benchmark_queries, encoder_agreement
     from memora_graph.retrieve.view import MemoryView
 
     pids = participants or Bank(bank).participants()
     load_before = os.getloadavg()[0]
-    queries = _benchmark_queries()
+    queries = benchmark_queries()
     imports = {k: round(_import_seconds(v), 2) for k, v in _IMPORTS.items()}
     export_s = None
     if export:
@@ -114,7 +114,7 @@ def run_encoder_perf(bank: str | Path, participants: list[str] | None = None, ro
                 continue
             split = SplitEmbedder(query_encoder=name)
             split._passage, split._query = torch_model, encoders[name]
-            agreement[name] = _encoder_agreement(Path(bank), pids, CachedEmbedder(split), 10, recall, reference)
+            agreement[name] = encoder_agreement(Path(bank), pids, CachedEmbedder(split), 10, recall, reference)
         for row in rows:
             per_table = [statistics.fmean(v) for (m, _), v in recall.items() if m == f"query encoder {row['encoder']}"]
             row["recall@10"] = round(float(np.mean(per_table)), 4) if per_table else 1.0

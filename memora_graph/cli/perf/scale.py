@@ -189,7 +189,7 @@ def _stores_step(bank: str, participant: str) -> dict:
 
 def _tools_step(bank: str, participant: str, recipe: str, n_queries: int) -> dict:
     from memora_graph.embed import get_embedder
-    from memora_graph.cli.perf.tools import TOOLS, _pct, _queries, _timed
+    from memora_graph.cli.perf.tools import TOOLS, percentile, tool_queries, timed_ms
     from memora_graph.retrieve.registry import call_tool
     from memora_graph.retrieve.view import MemoryView
 
@@ -202,19 +202,19 @@ def _tools_step(bank: str, participant: str, recipe: str, n_queries: int) -> dic
         open_s, open_cpu_s = time.perf_counter() - t0, time.process_time() - c0
         t1 = time.perf_counter()
         for tool in TOOLS:  # one untimed call each: prepared statements, lazily loaded tables
-            call_tool(view, tool, _queries(tool, view, 1)[0])
+            call_tool(view, tool, tool_queries(tool, view, 1)[0])
         first_calls_s = time.perf_counter() - t1
         out = {}
         for tool in TOOLS:
             cold, cold_cpu, warm = [], [], []
-            for args in _queries(tool, view, n_queries):
+            for args in tool_queries(tool, view, n_queries):
                 view.encoder.clear(everywhere=True)
-                cold.append(_timed(lambda: call_tool(view, tool, args), cold_cpu))
-                warm.append(_timed(lambda: call_tool(view, tool, args)))
-            out[tool] = {"calls": len(cold), "cold_p50_ms": round(_pct(cold, .5), 2),
-                         "cold_p95_ms": round(_pct(cold, .95), 2), "cold_cpu_p50_ms": round(_pct(cold_cpu, .5), 2),
-                         "cold_cpu_p95_ms": round(_pct(cold_cpu, .95), 2), "warm_p50_ms": round(_pct(warm, .5), 2),
-                         "warm_p95_ms": round(_pct(warm, .95), 2)}
+                cold.append(timed_ms(lambda: call_tool(view, tool, args), cold_cpu))
+                warm.append(timed_ms(lambda: call_tool(view, tool, args)))
+            out[tool] = {"calls": len(cold), "cold_p50_ms": round(percentile(cold, .5), 2),
+                         "cold_p95_ms": round(percentile(cold, .95), 2), "cold_cpu_p50_ms": round(percentile(cold_cpu, .5), 2),
+                         "cold_cpu_p95_ms": round(percentile(cold_cpu, .95), 2), "warm_p50_ms": round(percentile(warm, .5), 2),
+                         "warm_p95_ms": round(percentile(warm, .95), 2)}
     finally:
         view.close()
     # opened again: the first open after the stores were written hashes them (and records that it

@@ -37,7 +37,7 @@ QUERIES = ("wash the plate", "knife", "open the fridge")
 
 
 @dataclass
-class PerfReport:
+class ServePerfReport:
     frame: pl.DataFrame
     summary: list[str] = field(default_factory=list)
 
@@ -187,7 +187,7 @@ def _time_over_http(server: ServerProcess, calls: list[tuple[str, dict]], repeat
 
 
 def run_perf(bank: str | Path, participant: str, repeat: int = 20, cypher_repeat: int = 3,
-             output_schemas: bool = False) -> PerfReport:
+             output_schemas: bool = False) -> ServePerfReport:
     load_before = os.getloadavg()
     cpu0 = time.process_time()
     with MemoryService(bank, participant) as service:
@@ -234,7 +234,7 @@ def run_perf(bank: str | Path, participant: str, repeat: int = 20, cypher_repeat
                    f"{os.cpu_count()} CPUs; this process used {time.process_time() - cpu0:.1f} CPU-s")
     summary.append("cypher runs each statement in a child process under a time and memory limit (the guarded "
                    "path of `memora query`): its latency is that process's start-up")
-    return PerfReport(frame, summary)
+    return ServePerfReport(frame, summary)
 
 
 def _mcp_version() -> str:

@@ -54,7 +54,7 @@ PREFERENCE_QUERIES = ["spatula or fork for eggs", "where to store cutlery", "kni
                       "chopping board"]
 
 
-def _queries(tool: str, view: MemoryView, n: int) -> list[dict]:
+def tool_queries(tool: str, view: MemoryView, n: int) -> list[dict]:
     if tool == "search":
         qs = [q for pair in zip(ACTIVITY_QUERIES, OBJECT_QUERIES) for q in pair]
         return [{"query": q} for q in qs[:n]]
@@ -85,7 +85,7 @@ TOOLS = ("search", "search_objects", "get_object_history", "get_state_at_time", 
          "get_routine_skill", "get_preferences")
 
 
-def _pct(xs: list[float], p: float) -> float:
+def percentile(xs: list[float], p: float) -> float:
     if not xs:
         return float("nan")
     xs = sorted(xs)
@@ -93,13 +93,13 @@ def _pct(xs: list[float], p: float) -> float:
 
 
 @dataclass
-class PerfReport:
+class ToolsPerfReport:
     latency: pl.DataFrame
     recall: pl.DataFrame
     summary: list[str] = field(default_factory=list)
 
 
-def _timed(fn, cpu: list[float] | None = None) -> float:
+def timed_ms(fn, cpu: list[float] | None = None) -> float:
     """Wall ms of one call; with `cpu`, the process's CPU ms (all threads) appended to it: on a
     shared machine wall time includes waiting for a core, CPU time does not."""
     t0, c0 = time.perf_counter(), time.process_time()
@@ -114,7 +114,7 @@ def _recall(a: list[str], b: list[str]) -> float:
 
 
 def run_perf(bank_path: str | Path, participants: list[str] | None = None, n_queries: int = 10,
-             recipes: list[str] | None = None, hnsw: bool = True, echo=print) -> PerfReport:
+             recipes: list[str] | None = None, hnsw: bool = True, echo=print) -> ToolsPerfReport:
     from memora_graph.embed import get_embedder
     from memora_graph.embed import torch_threads
 
@@ -141,22 +141,22 @@ def run_perf(bank_path: str | Path, participants: list[str] | None = None, n_que
                 try:
                     view.warm()
                     for tool in TOOLS:  # one untimed call each: prepared statements
-                        call_tool(view, tool, _queries(tool, view, 1)[0])
+                        call_tool(view, tool, tool_queries(tool, view, 1)[0])
                     opens[recipe].append((time.perf_counter() - t0) * 1e3)
                     for tool in TOOLS:
-                        qs = _queries(tool, view, n_queries)
+                        qs = tool_queries(tool, view, n_queries)
                         for args in qs:
                             view.encoder.clear(everywhere=True)
-                            cold[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args), cold_cpu[(recipe, tool)]))
+                            cold[(recipe, tool)].append(timed_ms(lambda: call_tool(view, tool, args), cold_cpu[(recipe, tool)]))
                         for args in qs:  # the same call again, its query embedding now cached
                             call_tool(view, tool, args)
-                            warm[(recipe, tool)].append(_timed(lambda: call_tool(view, tool, args)))
+                            warm[(recipe, tool)].append(timed_ms(lambda: call_tool(view, tool, args)))
                     if recipe == recipes[0]:
                         segs = view.vectors("segment")
                         for q in ACTIVITY_QUERIES[:n_queries]:
                             view.encoder.clear(everywhere=True)
-                            floor_cold.append(_timed(lambda: segs.topk(view.embed(q), 10), floor_cpu))
-                            floor_warm.append(_timed(lambda: segs.topk(view.embed(q), 10)))
+                            floor_cold.append(timed_ms(lambda: segs.topk(view.embed(q), 10), floor_cpu))
+                            floor_warm.append(timed_ms(lambda: segs.topk(view.embed(q), 10)))
                         _kuzu_recall(view, n_queries, recall_rows, method_ms)
                 finally:
                     view.close()
@@ -164,36 +164,36 @@ def run_perf(bank_path: str | Path, participants: list[str] | None = None, n_que
                  + ("" if path == bank.path else " (on a copy with its indexes built)"))
         if hnsw:
             _hnsw_recall(copy.bank_with({"fts", "hnsw"}), pids, embedder, n_queries, recall_rows, method_ms)
-    agreement = _encoder_agreement(bank.path, pids, embedder, n_queries, recall_rows)
+    agreement = encoder_agreement(bank.path, pids, embedder, n_queries, recall_rows)
 
     rows = []
     for (recipe, tool), xs in cold.items():
         ws = warm[(recipe, tool)]
         cs = cold_cpu[(recipe, tool)]
         rows.append({"recipe": recipe, "tool": tool, "calls": len(xs),
-                     "cold_p50_ms": round(_pct(xs, .5), 2), "cold_p95_ms": round(_pct(xs, .95), 2),
-                     "cold_cpu_p50_ms": round(_pct(cs, .5), 2), "cold_cpu_p95_ms": round(_pct(cs, .95), 2),
-                     "warm_p50_ms": round(_pct(ws, .5), 2), "warm_p95_ms": round(_pct(ws, .95), 2)})
+                     "cold_p50_ms": round(percentile(xs, .5), 2), "cold_p95_ms": round(percentile(xs, .95), 2),
+                     "cold_cpu_p50_ms": round(percentile(cs, .5), 2), "cold_cpu_p95_ms": round(percentile(cs, .95), 2),
+                     "warm_p50_ms": round(percentile(ws, .5), 2), "warm_p95_ms": round(percentile(ws, .95), 2)})
     rows.append({"recipe": "floor", "tool": "embed + numpy top-10", "calls": len(floor_cold),
-                 "cold_p50_ms": round(_pct(floor_cold, .5), 2), "cold_p95_ms": round(_pct(floor_cold, .95), 2),
-                 "cold_cpu_p50_ms": round(_pct(floor_cpu, .5), 2), "cold_cpu_p95_ms": round(_pct(floor_cpu, .95), 2),
-                 "warm_p50_ms": round(_pct(floor_warm, .5), 2), "warm_p95_ms": round(_pct(floor_warm, .95), 2)})
+                 "cold_p50_ms": round(percentile(floor_cold, .5), 2), "cold_p95_ms": round(percentile(floor_cold, .95), 2),
+                 "cold_cpu_p50_ms": round(percentile(floor_cpu, .5), 2), "cold_cpu_p95_ms": round(percentile(floor_cpu, .95), 2),
+                 "warm_p50_ms": round(percentile(floor_warm, .5), 2), "warm_p95_ms": round(percentile(floor_warm, .95), 2)})
     rows.append({"recipe": "encoder", "tool": f"query encoder {embedder.inner.query_encoder}", "calls": len(encoder_ms),
-                 "cold_p50_ms": round(_pct(encoder_ms, .5), 2), "cold_p95_ms": round(_pct(encoder_ms, .95), 2),
-                 "cold_cpu_p50_ms": round(_pct(encoder_cpu, .5), 2), "cold_cpu_p95_ms": round(_pct(encoder_cpu, .95), 2),
+                 "cold_p50_ms": round(percentile(encoder_ms, .5), 2), "cold_p95_ms": round(percentile(encoder_ms, .95), 2),
+                 "cold_cpu_p50_ms": round(percentile(encoder_cpu, .5), 2), "cold_cpu_p95_ms": round(percentile(encoder_cpu, .95), 2),
                  "warm_p50_ms": None, "warm_p95_ms": None})
     latency = pl.DataFrame(rows)
     recall = pl.DataFrame([{"search": m, "table": t, "queries": len(xs), "recall@10": round(statistics.fmean(xs), 4),
-                            "p50_ms": round(_pct(method_ms[(m, t)], .5), 2), "p95_ms": round(_pct(method_ms[(m, t)], .95), 2)}
+                            "p50_ms": round(percentile(method_ms[(m, t)], .5), 2), "p95_ms": round(percentile(method_ms[(m, t)], .95), 2)}
                            for (m, t), xs in sorted(recall_rows.items())])
-    summary = [f"view open + warm-up (per participant, {r}): p50 {_pct(xs, .5):.0f} ms, max {max(xs):.0f} ms"
+    summary = [f"view open + warm-up (per participant, {r}): p50 {percentile(xs, .5):.0f} ms, max {max(xs):.0f} ms"
                for r, xs in opens.items()]
     summary.append(f"participants {len(pids)}, {n_queries} queries per tool; cold = every query-embedding cache cleared "
                    f"first; targets p50 <= 5 ms, p95 <= 20 ms per call, recall@10 >= 0.95; new query: p50 <= 3 ms, "
                    f"p95 <= 10 ms; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (cpu columns: "
                    "this process's CPU time, which a shared machine does not inflate as much as wall time)")
     summary.append(agreement)
-    return PerfReport(latency, recall, summary)
+    return ToolsPerfReport(latency, recall, summary)
 
 
 def _kuzu_recall(view: MemoryView, n: int, out: dict, ms: dict) -> None:
@@ -202,7 +202,7 @@ def _kuzu_recall(view: MemoryView, n: int, out: dict, ms: dict) -> None:
         for q in qs[:n]:
             v = view.embed(q)
             exact = [i for i, _ in exact_table.topk(v, 10)]
-            ms[("numpy exact", table)].append(_timed(lambda: exact_table.topk(v, 10)))
+            ms[("numpy exact", table)].append(timed_ms(lambda: exact_table.topk(v, 10)))
             t0 = time.perf_counter()
             rows = view.fetch(f"_tool_knn_{table}", vector=v.tolist())[:10]
             ms[("kuzu brute force", table)].append((time.perf_counter() - t0) * 1e3)
@@ -210,7 +210,7 @@ def _kuzu_recall(view: MemoryView, n: int, out: dict, ms: dict) -> None:
             out[("numpy exact", table)].append(1.0)
 
 
-def _benchmark_queries() -> list[str]:
+def benchmark_queries() -> list[str]:
     return [q for q in dict.fromkeys(OBJECT_QUERIES + ACTIVITY_QUERIES + PATTERN_QUERIES + ROUTINE_QUERIES
                                      + PREFERENCE_QUERIES) if q]
 
@@ -222,12 +222,12 @@ def _encoder_latency(embedder, rounds: int = 3) -> tuple[list[float], list[float
     out, cpu = [], []
     with torch_threads(1, embedder):
         for _ in range(rounds):
-            for q in _benchmark_queries():
-                out.append(_timed(lambda: embedder.inner.encode([q], kind="query"), cpu))
+            for q in benchmark_queries():
+                out.append(timed_ms(lambda: embedder.inner.encode([q], kind="query"), cpu))
     return out, cpu
 
 
-def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: dict, reference=None) -> str:
+def encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: dict, reference=None) -> str:
     """recall@10 of exact search with the query encoder's vectors against exact search with the
     PyTorch query vectors, per table; and the share of tool calls (default recipe) whose top-10
     result ids differ between the two encoders."""
@@ -237,7 +237,7 @@ def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: 
     if name == "torch":
         return "query encoder torch: the reference itself (recall@10 1.0)"
     reference = reference or get_embedder(query_encoder="torch")
-    qs = _benchmark_queries()
+    qs = benchmark_queries()
     ours, theirs = embedder.inner.encode(qs, kind="query"), reference.inner.encode(qs, kind="query")
     differ = reordered = calls = 0
     for p in pids:
@@ -248,7 +248,7 @@ def _encoder_agreement(bank_path: Path, pids: list[str], embedder, n: int, out: 
                     exact = [x for x, _ in vt.topk(theirs[i], 10)]
                     out[(f"query encoder {name}", table)].append(_recall([x for x, _ in vt.topk(ours[i], 10)], exact))
             for tool in TOOLS:
-                for args in _queries(tool, a, n):
+                for args in tool_queries(tool, a, n):
                     ids_a, ids_b = _result_ids(call_tool(a, tool, args)), _result_ids(call_tool(b, tool, args))
                     calls += 1
                     same_sets = [(k, set(v)) for k, v in ids_a] == [(k, set(v)) for k, v in ids_b]
@@ -351,7 +351,7 @@ def _hnsw_recall(path: Path, pids: list[str], embedder, n: int, out: dict, ms: d
             view.close()
 
 
-__all__ = ["PerfReport", "run_perf", "TOOLS"]
+__all__ = ["ToolsPerfReport", "run_perf", "TOOLS"]
 
 
 @click.command("tools")

@@ -9,14 +9,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.llm.handles import Handles, _Names, _resolve, _segment_refs
-from memora_graph.consolidate.llm.model_step import _ModelStep
+from memora_graph.consolidate.llm.handles import Handles, EntityNames, resolve_refs, segment_refs
+from memora_graph.consolidate.llm.model_step import ModelStep
 from memora_graph.consolidate.llm.prompts import (
-    _EMPTY_SUMMARIES, CONSOLIDATION_SYSTEM, PROMPT_VERSIONS, _action, _clip, _num, _sample,
+    EMPTY_SUMMARIES, CONSOLIDATION_SYSTEM, PROMPT_VERSIONS, action_text, clip_text, short_number, evenly_sampled,
 )
 from memora_graph.consolidate.llm.replies import ConsolidationReply
-from memora_graph.consolidate.llm.reply_records import _merge_videos, _prep, _records, _Support
-from memora_graph.consolidate.memory import ParticipantMemory, Step, display
+from memora_graph.consolidate.llm.reply_records import merge_videos, preposition_for, reply_records, Support
+from memora_graph.consolidate.memory import ParticipantMemory, MemoryStep, display
 from memora_graph.consolidate.records import Consolidation, VideoConsolidation
 from memora_graph.text import uniq
 
@@ -32,7 +32,7 @@ class _Finding:
         return list(self.record.segments) if self.kind == "sequence" else list(self.record.supporting_episodes)
 
 
-class LLMConsolidator(_ModelStep):
+class LLMConsolidator(ModelStep):
     """Offline consolidation by a model: one call per completed video, then one across videos."""
 
     role = "consolidation"
@@ -42,23 +42,23 @@ class LLMConsolidator(_ModelStep):
         """The user message for one video and its segment handles ("", empty handles: no evidence)."""
         lim = self.limits
         steps = memory.steps_by_video().get(video, [])
-        by_segment: dict[str, list[Step]] = defaultdict(list)
+        by_segment: dict[str, list[MemoryStep]] = defaultdict(list)
         for s in steps:
             by_segment[s.segment].append(s)
         segments = [g for g in memory.segments if g["video"] == video
-                    and (by_segment.get(g["id"]) or (g.get("summary") or "").strip().lower() not in _EMPTY_SUMMARIES)]
+                    and (by_segment.get(g["id"]) or (g.get("summary") or "").strip().lower() not in EMPTY_SUMMARIES)]
         handles = Handles("S")
         if not segments:
             return "", handles
-        shown = _sample(segments, lim.segments_per_video)
+        shown = evenly_sampled(segments, lim.segments_per_video)
         log_lines = []
         for g in shown:
             acts = by_segment.get(g["id"], [])
             t0 = g.get("t_start", acts[0].t if acts else 0.0)
             t1 = g.get("t_end", acts[-1].t if acts else t0)
             place = g.get("location") or (acts[0].location if acts else "")
-            what = "; ".join(_action(s) for s in acts) if acts else g.get("summary", "")
-            log_lines.append(_clip(f"{handles.add(g['id'])} {_num(t0)}-{_num(t1)} s @{place}: {what}", lim.line_chars))
+            what = "; ".join(action_text(s) for s in acts) if acts else g.get("summary", "")
+            log_lines.append(clip_text(f"{handles.add(g['id'])} {short_number(t0)}-{short_number(t1)} s @{place}: {what}", lim.line_chars))
 
         objects: dict[str, dict] = {}
         for s in steps:
@@ -77,8 +77,8 @@ class LLMConsolidator(_ModelStep):
             if rec["places"]:
                 line += "; at " + ", ".join(p for p, _ in rec["places"].most_common(3) if p)
             if rec["put"]:
-                line += "; put " + ", ".join(f"{_prep(w)} {w} x{n}" for w, n in rec["put"].most_common(3))
-            obj_lines.append(_clip(line, lim.line_chars))
+                line += "; put " + ", ".join(f"{preposition_for(w)} {w} x{n}" for w, n in rec["put"].most_common(3))
+            obj_lines.append(clip_text(line, lim.line_chars))
 
         head = (f"Participant {memory.participant}, completed video {video}: {len(steps)} narrated actions; "
                 f"{len(segments)} segments of 10 s with activity")
@@ -104,14 +104,14 @@ class LLMConsolidator(_ModelStep):
                           ConsolidationReply)
         if reply is None:
             return VideoConsolidation(video=video)
-        return self._video_records(reply, video, handles, _Names(memory.steps_by_video().get(video, [])))
+        return self._video_records(reply, video, handles, EntityNames(memory.steps_by_video().get(video, [])))
 
-    def _video_records(self, reply: ConsolidationReply, video: str, handles: Handles, names: _Names) -> VideoConsolidation:
-        def support(refs: list[str]) -> _Support:
-            segments = _segment_refs(refs, handles)
-            return _Support(segments, segments, [], {video: max(len(segments), 1)}, max(len(segments), 1))
+    def _video_records(self, reply: ConsolidationReply, video: str, handles: Handles, names: EntityNames) -> VideoConsolidation:
+        def support(refs: list[str]) -> Support:
+            segments = segment_refs(refs, handles)
+            return Support(segments, segments, [], {video: max(len(segments), 1)}, max(len(segments), 1))
 
-        return VideoConsolidation(video=video, **_records(reply, support, names, self.limits))
+        return VideoConsolidation(video=video, **reply_records(reply, support, names, self.limits))
 
     # -- across videos -----------------------------------------------------------------------
     def participant_prompt(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> tuple[str, Handles]:
@@ -137,7 +137,7 @@ class LLMConsolidator(_ModelStep):
                     "workflow": lambda: r.pattern,
                     "sequence": lambda: f"{r.title}: {'; '.join(r.steps)}"}[f.kind]()
             kind = "action sequence" if f.kind == "sequence" else f.kind
-            lines.append(_clip(f"{handles.add(f)} {f.video} {kind} ({len(f.segments)} segments, confidence "
+            lines.append(clip_text(f"{handles.add(f)} {f.video} {kind} ({len(f.segments)} segments, confidence "
                                f"{r.confidence:.2f}): {what}", lim.line_chars))
         videos = [v.video for v in per_video]
         text = "\n".join([
@@ -162,15 +162,15 @@ class LLMConsolidator(_ModelStep):
         if reply is None:
             return out
 
-        def support(refs: list[str]) -> _Support:
+        def support(refs: list[str]) -> Support:
             """Finding handles -> what the findings rest on; a reference that is no finding of this
             prompt is passed on for the collector to drop."""
-            fs, raw = _resolve(refs, handles, _Finding)
-            return _Support(episodes=uniq([x for f in fs for x in f.record.supporting_episodes] + raw),
+            fs, raw = resolve_refs(refs, handles, _Finding)
+            return Support(episodes=uniq([x for f in fs for x in f.record.supporting_episodes] + raw),
                             segments=uniq([x for f in fs for x in f.segments] + raw),
                             entities=uniq(e for f in fs for e in f.record.entities),
-                            videos=_merge_videos(f.record.videos for f in fs),
+                            videos=merge_videos(f.record.videos for f in fs),
                             count=max(sum(f.record.count for f in fs), 1))
 
         return Consolidation(participant=memory.participant, videos=out.videos,
-                             **_records(reply, support, _Names(memory.steps), self.limits))
+                             **reply_records(reply, support, EntityNames(memory.steps), self.limits))

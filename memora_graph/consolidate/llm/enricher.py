@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from memora_graph.consolidate.llm.handles import Handles, _Names, _resolve
-from memora_graph.consolidate.llm.model_step import _ModelStep
+from memora_graph.consolidate.llm.handles import Handles, EntityNames, resolve_refs
+from memora_graph.consolidate.llm.model_step import ModelStep
 from memora_graph.consolidate.llm.prompts import (
-    ACTIVITY_TYPES, ALLOWED_SUBTYPES, ENRICHMENT_SYSTEM, PROMPT_VERSIONS, _action, _clip, _num, _sample,
+    ACTIVITY_TYPES, ALLOWED_SUBTYPES, ENRICHMENT_SYSTEM, PROMPT_VERSIONS, action_text, clip_text, short_number, evenly_sampled,
 )
 from memora_graph.consolidate.llm.replies import PreferenceItem, PreferencesReply, SkillItem, SkillsReply
-from memora_graph.consolidate.llm.reply_records import _activity, _merge_videos
+from memora_graph.consolidate.llm.reply_records import normalized_activity, merge_videos
 from memora_graph.consolidate.memory import ParticipantMemory
 from memora_graph.consolidate.records import (
     ActionSequence, Consolidation, Enrichment, Episode, GeneratedPreference, RoutineSkill,
@@ -30,7 +30,7 @@ class _Evidence:
     entities: list[str] = field(default_factory=list)
 
 
-class LLMEnricher(_ModelStep):
+class LLMEnricher(ModelStep):
     """InfMem enrichment by a model: routine skills, then generated preferences, over one list of
     evidence items (the rule episodes of every video, then the consolidated patterns)."""
 
@@ -42,16 +42,16 @@ class LLMEnricher(_ModelStep):
         episodes = [ep for _, steps in sorted(memory.steps_by_video().items()) for ep in rules.episodes(steps)]
         handles = Handles("E", width=3)
         lines = []
-        shown = _sample(episodes, lim.episodes)
+        shown = evenly_sampled(episodes, lim.episodes)
         for ep in shown:
             video, segments = ep[0].video, uniq(s.segment for s in ep)
             item = _Evidence(segments, {video: 1},
                              Episode(video=video, t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2), segments=segments),
                              uniq(o.entity for s in ep for o in s.objects))
-            acts = "; ".join(_action(s) for s in ep[: lim.steps_per_episode])
+            acts = "; ".join(action_text(s) for s in ep[: lim.steps_per_episode])
             if len(ep) > lim.steps_per_episode:
                 acts += f"; ... ({len(ep) - lim.steps_per_episode} more)"
-            lines.append(_clip(f"{handles.add(item)} {video} {_num(ep[0].t)}-{_num(ep[-1].t)} s @{ep[0].location}: {acts}",
+            lines.append(clip_text(f"{handles.add(item)} {video} {short_number(ep[0].t)}-{short_number(ep[-1].t)} s @{ep[0].location}: {acts}",
                                lim.line_chars))
         patterns = ([("storage", p, p.statement) for p in consolidation.storage_preferences]
                     + [("habit", h, h.habit) for h in consolidation.organizational_habits]
@@ -61,7 +61,7 @@ class LLMEnricher(_ModelStep):
         for kind, rec, statement in patterns[: lim.patterns]:
             segs = list(rec.segments) if isinstance(rec, ActionSequence) else list(rec.supporting_episodes)
             item = _Evidence(segs, dict(rec.videos), None, list(rec.entities))
-            pattern_lines.append(_clip(f"{handles.add(item)} [{kind}, {len(rec.videos)} videos] {statement}", lim.line_chars))
+            pattern_lines.append(clip_text(f"{handles.add(item)} [{kind}, {len(rec.videos)} videos] {statement}", lim.line_chars))
         if not lines and not pattern_lines:
             return "", handles
         head = f"Participant {memory.participant}: evidence items from {len(memory.videos)} completed videos."
@@ -97,7 +97,7 @@ class LLMEnricher(_ModelStep):
         evidence, handles = self.evidence(memory, consolidation)
         if not evidence:
             return out
-        names = _Names(memory.steps)
+        names = EntityNames(memory.steps)
         p = memory.participant
         skills = self._ask(p, "routine skills", "skills", "", f"{evidence}\n\n{self.skills_task()}", ENRICHMENT_SYSTEM,
                            SkillsReply)
@@ -112,22 +112,22 @@ class LLMEnricher(_ModelStep):
 
     @staticmethod
     def _cited(refs: list[str], handles: Handles) -> tuple[list[_Evidence], list[str]]:
-        items, raw = _resolve(refs, handles, _Evidence)
+        items, raw = resolve_refs(refs, handles, _Evidence)
         return items, uniq(raw)
 
-    def _skill(self, it: SkillItem, handles: Handles, names: _Names) -> RoutineSkill:
+    def _skill(self, it: SkillItem, handles: Handles, names: EntityNames) -> RoutineSkill:
         items, raw = self._cited(it.supporting_evidence_ids, handles)
         episodes = [i.episode for i in items if i.episode is not None]
         first = [e.segments[0] for e in episodes] + [s for i in items if i.episode is None for s in i.segments]
-        steps = [_clip(s, 80) for s in it.canonical_steps][: self.limits.steps_per_skill]
+        steps = [clip_text(s, 80) for s in it.canonical_steps][: self.limits.steps_per_skill]
         return RoutineSkill(
-            goal=it.goal, activity_type=_activity(it.activity_type, steps), canonical_steps=steps,
+            goal=it.goal, activity_type=normalized_activity(it.activity_type, steps), canonical_steps=steps,
             key_objects=it.key_objects, supporting_episodes=uniq(first + raw),
             segments=uniq([s for i in items for s in i.segments] + raw), episodes=episodes, count=max(len(items), 1),
             confidence=it.confidence, entities=names.entities(it.key_objects),
-            videos=_merge_videos(i.videos for i in items))
+            videos=merge_videos(i.videos for i in items))
 
-    def _preference(self, it: PreferenceItem, handles: Handles, names: _Names) -> GeneratedPreference:
+    def _preference(self, it: PreferenceItem, handles: Handles, names: EntityNames) -> GeneratedPreference:
         items, raw = self._cited(it.supporting_evidence_ids, handles)
         subtype = it.subtype.strip().lower()
         return GeneratedPreference(
@@ -136,4 +136,4 @@ class LLMEnricher(_ModelStep):
             count=max(len(items), 1), confidence=it.confidence,
             evidence_summary=it.evidence_summary or f"{len(items)} evidence item(s)",
             supporting_evidence_ids=uniq([s for i in items for s in i.segments] + raw),
-            entities=names.entities(it.objects), videos=_merge_videos(i.videos for i in items))
+            entities=names.entities(it.objects), videos=merge_videos(i.videos for i in items))

@@ -9,7 +9,7 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable
 from typing import Any
 
-from memora_graph.consolidate.memory import Step, display
+from memora_graph.consolidate.memory import MemoryStep, display
 from memora_graph.text import uniq
 
 
@@ -39,11 +39,11 @@ class Handles:
         return len(self._items)
 
 
-class _Names:
+class EntityNames:
     """Object names -> entity ids, for the USES / ABOUT links of model records. Names are not ids:
     a name that matches no object of the memory links nothing."""
 
-    def __init__(self, steps: Iterable[Step]):
+    def __init__(self, steps: Iterable[MemoryStep]):
         counts: dict[str, Counter[str]] = defaultdict(Counter)
         for s in steps:
             for o in s.objects:
@@ -64,7 +64,7 @@ class _Names:
         return out
 
 
-def _segment_refs(refs: Iterable[str], handles: Handles) -> list[str]:
+def segment_refs(refs: Iterable[str], handles: Handles) -> list[str]:
     """Segment handles -> segment ids; anything else (a real id, or an invented one) unchanged."""
     out = []
     for r in refs:
@@ -73,7 +73,7 @@ def _segment_refs(refs: Iterable[str], handles: Handles) -> list[str]:
     return uniq(out)
 
 
-def _resolve(refs: list[str], handles: Handles, kind: type) -> tuple[list, list[str]]:
+def resolve_refs(refs: list[str], handles: Handles, kind: type) -> tuple[list, list[str]]:
     """Split cited references into the prompt items of `kind` they name (each once, in citation
     order) and the rest, which are passed on as they are: the collector drops an id that is not
     in the bank."""

@@ -25,7 +25,7 @@ OFFLINE_MESSAGE = (
 )
 
 
-class _ModelStep:
+class ModelStep:
     """What both processors share: the backend, the limits, step reports and the one-call helper."""
 
     name = "llm"

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.memory import Step, display
+from memora_graph.consolidate.memory import MemoryStep, display
 
 PROMPT_VERSIONS = {"video": "consolidate-video-v1", "participant": "consolidate-participant-v1",
                    "skills": "enrich-skills-v1", "preferences": "enrich-preferences-v1"}
@@ -16,7 +16,7 @@ CONTEXTS = ("storage", "during_use", "after_use", "default")
 ACTIVITY_TYPES = tuple(sorted(set(vocab.ACTIVITY_TYPE.values())))
 ALLOWED_SUBTYPES = ("tool", "storage", "habit", "workflow", "ingredient", "technique", "order", "other")
 # Segment summaries that say nothing (the annotation path writes this for a turn without a narration).
-_EMPTY_SUMMARIES = frozenset({"", "no narrated action"})
+EMPTY_SUMMARIES = frozenset({"", "no narrated action"})
 
 
 @dataclass(frozen=True)
@@ -64,16 +64,16 @@ statements over generic cooking knowledge. Answer with one JSON object and nothi
 format the task asks for."""
 
 
-def _clip(text: Any, limit: int) -> str:
+def clip_text(text: Any, limit: int) -> str:
     text = " ".join(str(text).split())
     return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
 
 
-def _num(x: float) -> str:
+def short_number(x: float) -> str:
     return f"{round(float(x), 1):g}"
 
 
-def _sample(items: Sequence, cap: int) -> list:
+def evenly_sampled(items: Sequence, cap: int) -> list:
     """At most `cap` items, evenly spaced, in their order."""
     n = len(items)
     if n <= cap:
@@ -83,7 +83,7 @@ def _sample(items: Sequence, cap: int) -> list:
     return [items[round(i * (n - 1) / (cap - 1))] for i in range(cap)]
 
 
-def _action(s: Step) -> str:
+def action_text(s: MemoryStep) -> str:
     text = s.narration or s.text()
     if s.destination and s.destination != s.main.kind and display(s.destination) not in text:
         text += f" -> {display(s.destination)}"

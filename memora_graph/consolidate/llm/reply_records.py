@@ -9,8 +9,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.llm.handles import _Names
-from memora_graph.consolidate.llm.prompts import ACTIVITY_TYPES, CONTEXTS, PromptLimits, _clip
+from memora_graph.consolidate.llm.handles import EntityNames
+from memora_graph.consolidate.llm.prompts import ACTIVITY_TYPES, CONTEXTS, PromptLimits, clip_text
 from memora_graph.consolidate.llm.replies import ConsolidationReply
 from memora_graph.consolidate.records import (
     ActionSequence, OrganizationalHabit, StoragePreference, WorkflowPattern,
@@ -23,7 +23,7 @@ def _context(value: str) -> str:
     return v if v in CONTEXTS else "default"
 
 
-def _activity(value: str, steps: Iterable[str] = ()) -> str:
+def normalized_activity(value: str, steps: Iterable[str] = ()) -> str:
     v = value.strip().lower().replace("-", "_").replace(" ", "_")
     if v in ACTIVITY_TYPES:
         return v
@@ -37,17 +37,17 @@ def _activity(value: str, steps: Iterable[str] = ()) -> str:
     return vocab.ACTIVITY_TYPE[None]
 
 
-def _prep(where: str) -> str:
+def preposition_for(where: str) -> str:
     return "on" if {"rack", "counter", "board", "hob", "tray", "table", "worktop", "shelf", "stove", "top"} & set(
         where.lower().split()) else "in"
 
 
 def _storage_statement(obj: str, where: str, context: str) -> str:
     return {
-        "storage": f"Typically stores the {obj} {_prep(where)} the {where}",
-        "after_use": f"After using the {obj}, usually puts it {_prep(where)} the {where}",
+        "storage": f"Typically stores the {obj} {preposition_for(where)} the {where}",
+        "after_use": f"After using the {obj}, usually puts it {preposition_for(where)} the {where}",
         "during_use": f"Usually uses the {obj} at the {where}",
-        "default": f"Usually puts the {obj} {_prep(where)} the {where}",
+        "default": f"Usually puts the {obj} {preposition_for(where)} the {where}",
     }[context]
 
 
@@ -55,7 +55,7 @@ def _slug(text: str) -> str:
     return "_".join(text.lower().split()) or "object"
 
 
-def _merge_videos(parts: Iterable[dict[str, int]]) -> dict[str, int]:
+def merge_videos(parts: Iterable[dict[str, int]]) -> dict[str, int]:
     out: Counter[str] = Counter()
     for p in parts:
         out.update(p)
@@ -63,7 +63,7 @@ def _merge_videos(parts: Iterable[dict[str, int]]) -> dict[str, int]:
 
 
 @dataclass
-class _Support:
+class Support:
     """What one consolidation item rests on, once its references are resolved."""
 
     episodes: list[str]
@@ -73,7 +73,7 @@ class _Support:
     count: int
 
 
-def _records(reply: ConsolidationReply, support: Callable[[list[str]], _Support], names: _Names,
+def reply_records(reply: ConsolidationReply, support: Callable[[list[str]], Support], names: EntityNames,
              lim: PromptLimits) -> dict[str, list]:
     """A consolidation reply -> the record lists of VideoConsolidation / Consolidation."""
     cap = lim.items_per_list
@@ -101,10 +101,10 @@ def _records(reply: ConsolidationReply, support: Callable[[list[str]], _Support]
             entities=uniq(sp.entities + names.entities(it.objects)), videos=sp.videos))
     for it in reply.action_sequences[:cap]:
         sp = support(it.supporting_episodes)
-        steps = [_clip(x, 80) for x in it.key_steps][: lim.steps_per_skill]
+        steps = [clip_text(x, 80) for x in it.key_steps][: lim.steps_per_skill]
         out["action_sequences"].append(ActionSequence(
             title=it.goal or it.pattern_name or " -> ".join(steps[:4]), steps=steps,
-            activity_type=_activity(it.activity_type, steps), key_objects=it.key_objects, count=sp.count,
+            activity_type=normalized_activity(it.activity_type, steps), key_objects=it.key_objects, count=sp.count,
             confidence=it.confidence, supporting_episodes=sp.episodes, segments=sp.segments,
             entities=uniq(sp.entities + names.entities(it.key_objects)), videos=sp.videos))
     return out
