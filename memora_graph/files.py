@@ -59,6 +59,11 @@ def file_sha256(path: Path, st: os.stat_result | None = None) -> str:
     return _HASHED[key]
 
 
+def forget_hashes() -> None:
+    """Forget every sha256 this process computed (a benchmark timing the first hash of a file)."""
+    _HASHED.clear()
+
+
 def probe(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict:
     """Open a database read-only in a child process (replaying its write-ahead log in memory, as
     Kùzu does, without writing anything) and count its rows per table. Returns the counts, or

@@ -30,7 +30,8 @@ class Bank:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.manifest_file = ManifestFile(self.path)
-        self.marks = WriteMarks(self.manifest_file.update, self.manifest_file.exists)
+        # the marks are written through `update_manifest`, like every other change of the manifest
+        self.marks = WriteMarks(lambda change: self.update_manifest(change), self.exists)
         self.integrity = Integrity(self.manifest_file)
 
     # -- manifest (manifest.ManifestFile) ----------------------------------------------

@@ -154,6 +154,14 @@ def prefetch_queries(texts: list[str]) -> None:
             embedder.encode(texts, kind="query")
 
 
+def _ranked(matrix: np.ndarray, query: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's cosine to the query (-inf where `mask` is False) and the rows best first (stable)."""
+    scores = matrix @ query
+    if mask is not None:
+        scores = np.where(mask, scores, -np.inf)
+    return scores, np.argsort(-scores, kind="stable")
+
+
 def top_k(matrix: np.ndarray, query: np.ndarray, k: int, mask: np.ndarray | None = None,
           dedup: float = DEDUP_COSINE) -> list[tuple[int, float]]:
     """(row, cosine) of the k best rows, best first, collapsing rows that are near-duplicates
@@ -166,10 +174,7 @@ def top_k(matrix: np.ndarray, query: np.ndarray, k: int, mask: np.ndarray | None
     pairwise loop used (`reference_top_k`), so the result is the same, row for row."""
     if matrix.shape[0] == 0:
         return []
-    scores = matrix @ query
-    if mask is not None:
-        scores = np.where(mask, scores, -np.inf)
-    order = np.argsort(-scores, kind="stable")
+    scores, order = _ranked(matrix, query, mask)
     finite = np.isfinite(scores[order])
     end = len(order) if finite.all() else int(np.argmin(finite))  # the first non-finite score stops the walk
     taken: list[int] = []
@@ -210,10 +215,7 @@ def reference_top_k(matrix: np.ndarray, query: np.ndarray, k: int, mask: np.ndar
     """`top_k` pair by pair, as it was first written: the definition the fast one is checked against."""
     if matrix.shape[0] == 0:
         return []
-    scores = matrix @ query
-    if mask is not None:
-        scores = np.where(mask, scores, -np.inf)
-    order = np.argsort(-scores, kind="stable")
+    scores, order = _ranked(matrix, query, mask)
     taken: list[int] = []
     for i in order:
         if not np.isfinite(scores[i]) or len(taken) >= k:

@@ -76,7 +76,7 @@ class IncrementalConsolidation:
     def infer(self, memory: ParticipantMemory, entity_ids: set[str], procs: Processors) -> InferredKnowledge:
         """`consolidate.run.infer`, with each unchanged video's per-video pass taken from the cache."""
         rules = procs.consolidation
-        if procs.name != "deterministic" or not hasattr(rules, "_storage"):
+        if procs.name != "deterministic" or not hasattr(rules, "video_storage"):
             raise ConsolidationError(f"incremental consolidation runs the deterministic processors, not {procs.name!r}")
         by_video = memory.steps_by_video()
         recurring = rules.recurring(memory)
@@ -91,13 +91,13 @@ class IncrementalConsolidation:
                 fresh[video] = hit
             else:
                 self.recomputed += 1
-                part = VideoConsolidation(video=video, storage_preferences=rules._storage(video, steps),
-                                          organizational_habits=rules._habits(video, steps),
-                                          workflow_patterns=rules._workflows(video, steps))
+                part = VideoConsolidation(video=video, storage_preferences=rules.video_storage(video, steps),
+                                          organizational_habits=rules.video_habits(video, steps),
+                                          workflow_patterns=rules.video_workflows(video, steps))
                 fresh[video] = (fp, part.model_dump(mode="json"))
         self.videos = fresh
         per_video = {v: VideoConsolidation.model_validate(rec).model_copy(update={
-            "action_sequences": rules._sequences(v, by_video.get(v, []), recurring)}) for v, (_, rec) in fresh.items()}
+            "action_sequences": rules.video_sequences(v, by_video.get(v, []), recurring)}) for v, (_, rec) in fresh.items()}
 
         class _Cached:  # the per-video pass as `infer` calls it, answered from the results above
             name = rules.name

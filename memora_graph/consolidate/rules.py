@@ -77,12 +77,12 @@ class RuleConsolidator:
     def consolidate_video(self, memory: ParticipantMemory, video: str) -> VideoConsolidation:
         steps = memory.steps_by_video().get(video, [])
         return VideoConsolidation(
-            video=video, storage_preferences=self._storage(video, steps), organizational_habits=self._habits(video, steps),
-            workflow_patterns=self._workflows(video, steps),
-            action_sequences=self._sequences(video, steps, self.recurring(memory)),
+            video=video, storage_preferences=self.video_storage(video, steps), organizational_habits=self.video_habits(video, steps),
+            workflow_patterns=self.video_workflows(video, steps),
+            action_sequences=self.video_sequences(video, steps, self.recurring(memory)),
         )
 
-    def _storage(self, video: str, steps: list[MemoryStep]) -> list[StoragePreference]:
+    def video_storage(self, video: str, steps: list[MemoryStep]) -> list[StoragePreference]:
         seen: dict[tuple, dict] = {}
         used: dict[str, bool] = {}
 
@@ -125,7 +125,7 @@ class RuleConsolidator:
             ))
         return out
 
-    def _habits(self, video: str, steps: list[MemoryStep]) -> list[OrganizationalHabit]:
+    def video_habits(self, video: str, steps: list[MemoryStep]) -> list[OrganizationalHabit]:
         pairs: dict[tuple[str, str], dict] = {}
         triggers: Counter[str] = Counter()
         for i, a in enumerate(steps):
@@ -157,7 +157,7 @@ class RuleConsolidator:
             ))
         return out
 
-    def _workflows(self, video: str, steps: list[MemoryStep]) -> list[WorkflowPattern]:
+    def video_workflows(self, video: str, steps: list[MemoryStep]) -> list[WorkflowPattern]:
         flows: dict[tuple[str, str, str], dict] = {}
         last_use: dict[str, MemoryStep] = {}
         for s in steps:
@@ -225,7 +225,7 @@ class RuleConsolidator:
             self._recurring = (id(memory), {t for t, (_, n) in seen.items() if n >= self.min_videos})
         return self._recurring[1]
 
-    def _sequences(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
+    def video_sequences(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
         found: dict[tuple[str, ...], dict] = {}
         for tokens, window in self._windows(steps):
             if tokens in recurring:
@@ -250,7 +250,7 @@ class RuleConsolidator:
 
     def _sequence_evidence(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]],
                            evidence: dict[tuple[str, ...], _SequenceEvidence]) -> None:
-        """What `_sequences` would cite for one video, added to the chosen sequences' evidence
+        """What `video_sequences` would cite for one video, added to the chosen sequences' evidence
         (keyed by their steps' texts, as the merge groups them), without building the records:
         a video's windows are grouped by their tokens, a group takes the texts of its first window."""
         found: dict[tuple[str, ...], tuple] = {}

@@ -181,6 +181,13 @@ def write_json(dump: ParticipantDump, out: Path) -> Path:
     return out
 
 
+def _headed_dump(doc, path: Path) -> ParticipantDump:
+    """The dump an export's header describes (checked), with no tables yet."""
+    _check_header(doc, path)
+    return ParticipantDump(doc["participant"], doc["bank"], doc["manifest"], doc["migrations"],
+                           exported_at=doc.get("exported_at", ""))
+
+
 def _check_header(doc, where: Path) -> None:
     if not isinstance(doc, dict) or FORMAT_KEY not in doc:
         raise DataError(f"{where}: not a memora export (no '{FORMAT_KEY}' field); make one with `memora export`")
@@ -257,9 +264,7 @@ def read_json(path: Path) -> ParticipantDump:
         raise DataError(f"{path}: not a memora export (not JSON: {exc})") from exc
     except RecursionError:
         raise DataError(f"{path}: not a memora export (JSON nested too deep to read)") from None
-    _check_header(doc, path)
-    dump = ParticipantDump(doc["participant"], doc["bank"], doc["manifest"], doc["migrations"],
-                           exported_at=doc.get("exported_at", ""))
+    dump = _headed_dump(doc, path)
     for meta in doc["tables"]:
         name, kind, cols, src, dst = _table_from_meta(meta, path)
         rows = meta.get("data")
@@ -309,9 +314,7 @@ def read_parquet(folder: Path) -> ParticipantDump:
         raise DataError(f"{meta_path}: not a memora export (not JSON: {exc})") from exc
     except RecursionError:
         raise DataError(f"{meta_path}: not a memora export (JSON nested too deep to read)") from None
-    _check_header(doc, meta_path)
-    dump = ParticipantDump(doc["participant"], doc["bank"], doc["manifest"], doc["migrations"],
-                           exported_at=doc.get("exported_at", ""))
+    dump = _headed_dump(doc, meta_path)
     for meta in doc["tables"]:
         name, kind, cols, src, dst = _table_from_meta(meta, meta_path)
         file = folder / str(meta.get("file", ""))

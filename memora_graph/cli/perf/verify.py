@@ -45,16 +45,16 @@ def perf_verify_cmd(bank, participant, repeat, text):
         return time.perf_counter() - t0
 
     def fresh_hash():
-        files._HASHED.clear()
+        files.forget_hashes()
         files.file_sha256(db)
 
     def open_first():  # as the first open after a write: the file is hashed
-        files._HASHED.clear()
+        files.forget_hashes()
         b.forget_seen(participant)
         b.open(participant).close()
 
     def open_again():  # unchanged since a checked open: BANK/.verified.json spares the hash
-        files._HASHED.clear()
+        files.forget_hashes()
         b.open(participant).close()
 
     first, again, plain = "open + close, checked (hashed)", "open + close, checked (unchanged: cached)", \
