@@ -48,8 +48,8 @@ _CONTAINER_WORDS = frozenset({
 })
 
 
-class Action(NamedTuple):
-    """One verb class acting on one noun class, e.g. Action('wash', 'plate')."""
+class ActionClass(NamedTuple):
+    """One verb class acting on one noun class, e.g. ActionClass('wash', 'plate')."""
 
     verb: str
     noun: str
@@ -78,7 +78,7 @@ class ActionRow:
     narration: str
     verb: str  # as annotated, e.g. 'pour-into'
     noun: str  # as annotated, e.g. 'bottle:milk'
-    action: Action  # class keys
+    action: ActionClass  # class keys
     place: str  # second noun class key for put/take-like rows ('' when none)
     tool: str  # second noun class key for tool-using rows ('' when none)
     text_source: str
@@ -88,7 +88,7 @@ class ActionRow:
 class Run:
     """Consecutive steps of one video with the same action, collapsed into one event."""
 
-    action: Action
+    action: ActionClass
     steps: tuple[ActionRow, ...]
 
     @property
@@ -144,17 +144,17 @@ class Behaviour:
         self.videos = sorted(steps_by_video)
         self.noun_category = noun_category
         self.runs_by_video = {v: _collapse(steps) for v, steps in steps_by_video.items()}
-        self._seq_cache: dict[str, set[tuple[Action, ...]]] = {}
-        self._all_sequences: set[tuple[Action, ...]] | None = None
+        self._seq_cache: dict[str, set[tuple[ActionClass, ...]]] = {}
+        self._all_sequences: set[tuple[ActionClass, ...]] | None = None
         self._index()
 
     # -- statistics -------------------------------------------------------------------------
     def _index(self) -> None:
-        self.action_evidence: dict[Action, Evidence] = defaultdict(Evidence)
+        self.action_evidence: dict[ActionClass, Evidence] = defaultdict(Evidence)
         self.video_action_counts: dict[str, Counter] = {}
-        self.chain_next: dict[tuple[Action, ...], dict[Action, Evidence]] = defaultdict(lambda: defaultdict(Evidence))
+        self.chain_next: dict[tuple[ActionClass, ...], dict[ActionClass, Evidence]] = defaultdict(lambda: defaultdict(Evidence))
         self.places: dict[tuple[str, str], dict[str, Evidence]] = defaultdict(lambda: defaultdict(Evidence))
-        self.tools: dict[Action, dict[str, Evidence]] = defaultdict(lambda: defaultdict(Evidence))
+        self.tools: dict[ActionClass, dict[str, Evidence]] = defaultdict(lambda: defaultdict(Evidence))
         self.noun_evidence: dict[str, Evidence] = defaultdict(Evidence)
         for video in self.videos:
             runs = self.runs_by_video[video]
@@ -179,7 +179,7 @@ class Behaviour:
         runs = self.runs_by_video[video]
         return [tuple(runs[i:i + length]) for i in range(len(runs) - length + 1)]
 
-    def _sequences(self, video: str) -> set[tuple[Action, ...]]:
+    def _sequences(self, video: str) -> set[tuple[ActionClass, ...]]:
         if video not in self._seq_cache:
             actions = [r.action for r in self.runs_by_video[video]]
             self._seq_cache[video] = {
@@ -187,13 +187,13 @@ class Behaviour:
             }
         return self._seq_cache[video]
 
-    def occurs_in_video(self, video: str, actions: tuple[Action, ...]) -> bool:
+    def occurs_in_video(self, video: str, actions: tuple[ActionClass, ...]) -> bool:
         """True when the actions occur as consecutive runs somewhere in the video."""
         if len(actions) > MAX_SEQUENCE:
             raise ValueError(f"sequences longer than {MAX_SEQUENCE} are not indexed")
         return tuple(actions) in self._sequences(video)
 
-    def occurs_anywhere(self, actions: tuple[Action, ...]) -> bool:
+    def occurs_anywhere(self, actions: tuple[ActionClass, ...]) -> bool:
         if self._all_sequences is None:
             self._all_sequences = set().union(*(self._sequences(v) for v in self.videos))
         if len(actions) > MAX_SEQUENCE:
@@ -243,7 +243,7 @@ def build_behaviours(annotations: pl.DataFrame, class_dir: str | Path | None = N
     noun_category = {noun_key[i]: cat for i, cat in tables.noun_category.items()}
     by_pid: dict[str, dict[str, list[ActionRow]]] = defaultdict(lambda: defaultdict(list))
     for row in annotations.iter_rows(named=True):
-        action = Action(row["verb_key"], noun_key[int(row["noun_class"])])
+        action = ActionClass(row["verb_key"], noun_key[int(row["noun_class"])])
         place = tool = ""
         if action.verb in PUT_VERB_KEYS or action.verb in TAKE_VERB_KEYS:
             place = _second_noun(row, noun_key, noun_category, PLACE_CATEGORIES)
@@ -318,7 +318,7 @@ def object_text(noun: str) -> str:
     return "their hands" if noun == "hand" else f"the {noun_text(noun)}"
 
 
-def action_phrase(action: Action, form: str = "present", place: str = "", raw_verb: str = "") -> str:
+def action_phrase(action: ActionClass, form: str = "present", place: str = "", raw_verb: str = "") -> str:
     """'washes the plate'; with a place: 'puts the plate in the sink'; a bare put: 'puts down the plate'."""
     verb = verb_phrase(action.verb, form)
     if action.verb == "put" and not place:
@@ -344,7 +344,7 @@ def place_preposition(raw_verb: str, place: str, taking: bool = False) -> str:
     return "in" if place.split(":")[0] in _CONTAINER_WORDS else "on"
 
 
-def sequence_phrase(actions: list[Action] | tuple[Action, ...]) -> str:
+def sequence_phrase(actions: list[ActionClass] | tuple[ActionClass, ...]) -> str:
     """'rinses the pan, then scrubs the pan, then puts the pan down' style (capitalised)."""
     parts = [action_phrase(a) for a in actions]
     text = ", then ".join(parts)

@@ -30,7 +30,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from memora_graph.bench.behaviour import PUT_VERB_KEYS, Action, Behaviour, noun_text, verb_phrase
+from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text, verb_phrase
 
 OPEN_KINDS = ("place_last", "place_usual", "time_last", "time_first", "count", "yes", "no", "next", "absent", "general")
 PER_KIND = {"place_last": 6, "place_usual": 6, "time_last": 5, "time_first": 5, "count": 8, "yes": 6, "no": 5,
@@ -250,7 +250,7 @@ class _Ctx:
     split: str | None  # only this split's templates (None: both)
 
 
-def _fill(template: str, pid: str, action: Action | None = None, noun: str = "", other: str = "") -> str:
+def _fill(template: str, pid: str, action: ActionClass | None = None, noun: str = "", other: str = "") -> str:
     v = action.verb if action else "take"
     o = noun_text(noun or (action.noun if action else ""))
     return template.format(P=pid, Q=other, o=o, b=verb_phrase(v, "base"), p=past(v), g=verb_phrase(v, "gerund"),
@@ -270,7 +270,7 @@ def _steps(b: Behaviour):
         yield from b.steps_by_video[video]
 
 
-def _phrasable(a: Action) -> bool:
+def _phrasable(a: ActionClass) -> bool:
     return a.phrasable and a.noun not in ("hand", "") and a.verb not in ("let-go",)
 
 
@@ -311,7 +311,7 @@ def generate_open(b: Behaviour, others: dict[str, Behaviour], seed: int = 42, sp
         add("place_usual", _fill(t, b.participant_id, noun=noun), tid, sp, {"place": best}, {"count": n, "of": total})
 
     # when / which video, how many, has P ever
-    by_action: dict[Action, list] = {}
+    by_action: dict[ActionClass, list] = {}
     for s in steps:
         by_action.setdefault(s.action, []).append(s)
     multi = sorted(a for a, ss in by_action.items() if _phrasable(a) and len({s.video_id for s in ss}) >= 2)
@@ -334,9 +334,9 @@ def generate_open(b: Behaviour, others: dict[str, Behaviour], seed: int = 42, sp
     objects = Counter(a.noun for a in by_action)
     pairs = {(a.verb, a.noun) for a in by_action}
     put_nouns = {a.noun for a in by_action if a.verb in PUT_VERB_KEYS}
-    never = sorted({Action(v, n) for v in verbs for n in objects
+    never = sorted({ActionClass(v, n) for v in verbs for n in objects
                     if (v, n) not in pairs and verbs[v] >= 3 and objects[n] >= 3 and v not in PUT_VERB_KEYS
-                    and v not in ("take", "move", "hold", "use") and _phrasable(Action(v, n))
+                    and v not in ("take", "move", "hold", "use") and _phrasable(ActionClass(v, n))
                     and not (v in PUT_VERB_KEYS and n in put_nouns)})
     for a in ctx.rng.sample(never, min(per_kind["no"], len(never))):
         t, tid, sp = _template(ctx, "no")

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from memora_graph.bench.behaviour import (
-    Action, Behaviour, Evidence, action_phrase, clock, noun_text, object_text, place_preposition,
+    ActionClass, Behaviour, Evidence, action_phrase, clock, noun_text, object_text, place_preposition,
     pronoun_phrase, sequence_phrase, verb_phrase,
 )
 
@@ -118,7 +118,7 @@ class QaGenerator:
         self.nonfiller = [a for a in self.frequent if not a.is_filler]
 
     # -- shared helpers -------------------------------------------------------------------------
-    def _distract_actions(self, avoid: set[Action], prefer_nouns: set[str], k: int = 3) -> list[Action]:
+    def _distract_actions(self, avoid: set[ActionClass], prefer_nouns: set[str], k: int = 3) -> list[ActionClass]:
         same = [a for a in self.frequent if a.noun in prefer_nouns and a not in avoid]
         rest = [a for a in self.frequent if a.noun not in prefer_nouns and a not in avoid]
         pool = same[:6] + rest[:12]
@@ -220,7 +220,7 @@ class QaGenerator:
                 "SPref", 1, "object_for_verb", stem, f"The {noun_text(best)}",
                 [f"The {noun_text(n)}" for n in distract], ev.videos, ev.count / (ev.count + second),
                 {**ev.audit(), "runner_up_count": second, "verb": verb, "object": best},
-                [f"action:{Action(verb, best).key()}"],
+                [f"action:{ActionClass(verb, best).key()}"],
             ))
         return out
 
@@ -251,7 +251,7 @@ class QaGenerator:
                 "SPref", 1, "verb_for_object", stem, say(best), [say(v) for v in distract], ev.videos,
                 ev.count / (ev.count + second),
                 {**ev.audit(), "runner_up_count": second, "object": noun, "verb": best},
-                [f"action:{Action(best, noun).key()}"],
+                [f"action:{ActionClass(best, noun).key()}"],
             ))
         return out
 
@@ -344,8 +344,8 @@ class QaGenerator:
         return out
 
     # -- SRoutine -------------------------------------------------------------------------------
-    def _sequence_distractors(self, seq: tuple[Action, ...], observed, k: int = 3,
-                              forbid: tuple[Action, ...] = ()) -> list[tuple[Action, ...]]:
+    def _sequence_distractors(self, seq: tuple[ActionClass, ...], observed, k: int = 3,
+                              forbid: tuple[ActionClass, ...] = ()) -> list[tuple[ActionClass, ...]]:
         """Reorderings and one-step substitutions of seq that `observed(candidate)` says never happened."""
         options = []
         for perm in itertools.permutations(seq):
@@ -377,8 +377,8 @@ class QaGenerator:
 
     def sroutine(self) -> list[QuestionCandidate]:
         out, t = [], self.t
-        routines: dict[tuple[Action, ...], Evidence] = defaultdict(Evidence)
-        conts: dict[tuple[Action, int], dict[tuple[Action, ...], Evidence]] = defaultdict(lambda: defaultdict(Evidence))
+        routines: dict[tuple[ActionClass, ...], Evidence] = defaultdict(Evidence)
+        conts: dict[tuple[ActionClass, int], dict[tuple[ActionClass, ...], Evidence]] = defaultdict(lambda: defaultdict(Evidence))
         for video in self.b.videos:
             runs = self.b.runs_by_video[video]
             for i in range(len(runs)):
@@ -433,7 +433,7 @@ class QaGenerator:
         return out
 
     # -- ERecall --------------------------------------------------------------------------------
-    def _video_label(self, video: str) -> tuple[list[Action], str] | None:
+    def _video_label(self, video: str) -> tuple[list[ActionClass], str] | None:
         counts = self.b.video_action_counts[video]
         first = {}
         for i, run in enumerate(self.b.runs_by_video[video]):

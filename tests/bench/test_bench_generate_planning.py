@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from memora_graph.bench.behaviour import Action, ActionRow, build_behaviours, noun_text
+from memora_graph.bench.behaviour import ActionClass, ActionRow, build_behaviours, noun_text
 from memora_graph.bench.generate_generalize import FAMILIES, generate_generalize
 from memora_graph.bench.generate_replay import (
     ReplayConfig, classify_task, enrich_narration, generate_replay, match_object, match_score, repeat_rate,
@@ -52,7 +52,7 @@ def test_typing_thresholds_worked_by_hand():
 
 def _step(i: int, start: float, verb: str = "take", stop: float | None = None) -> ActionRow:
     return ActionRow(f"P00_100_{i}", "P00_100", start, start + 1 if stop is None else stop, f"{verb} thing", verb, "thing",
-                Action(verb, "thing"), "", "", "annotation")
+                ActionClass(verb, "thing"), "", "", "annotation")
 
 
 def test_segmentation_rules_worked_by_hand():
