@@ -27,7 +27,7 @@ from memora_graph.perceive.narrations import NarrationReader, load_narrations
 from memora_graph.store import Store
 from support.live import KITCHEN, moments
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 def _rows(bank: Path, participant: str, cypher: str) -> list[dict]:
     with Store(Bank(bank).db_path(participant), read_only=True) as store:
         return store.query(cypher, {"p": participant}).to_dicts()
