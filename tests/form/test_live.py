@@ -103,6 +103,23 @@ def test_bad_input_names_the_field(tmp_path):
         load_narrations(path, participant="P01")
 
 
+def test_a_line_that_is_not_json_is_named_and_the_lines_before_it_are_kept(tmp_path):
+    path = tmp_path / "n.jsonl"
+    path.write_text('{"video_id": "v1", "start": 0, "end": 2, "text": "open the fridge"}\n\n{"video_id": "v1", "start"\n')
+    with pytest.raises(DataError, match=r"n.jsonl: row 3: not JSON"):
+        load_narrations(path, participant="P01")
+    bank = tmp_path / "bank"
+    stream = ('{"video": "v1", "start": 0, "end": 2, "text": "open the fridge"}\n'
+              '{"video": "v1", "start": 3, "end": 4, "text": "take the milk"}\n'
+              'take the cup\n')
+    res = CliRunner().invoke(main, ["remember", str(bank), "--participant", "P01", "--jsonl", "-"], input=stream)
+    assert res.exit_code != 0 and "stdin: row 3: not JSON" in res.output
+    assert "the rows before it were committed" in res.output and "Traceback" not in res.output
+    segs = _rows(bank, "P01", "MATCH (g:Segment) WHERE g.participant = $p RETURN g.id AS id ORDER BY g.id")
+    assert [r["id"] for r in segs] == ["v1#t0000", "v1#t0001"]
+    assert verify_bank(bank).ok
+
+
 def test_narration_sources_csv_jsonl_parquet_build(tmp_path):
     import polars as pl
 
