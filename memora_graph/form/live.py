@@ -414,7 +414,8 @@ class LiveWriter:
                               duration, n_actions)
             delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
                      "places": [pp.location_id for pp in new_places + changed_places],
-                     "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]]}
+                     "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]],
+                     "history": sorted({ev["entity"] for ev in result.events})}  # whose state history grew
             if self._on_commit is not None:
                 self._on_commit(delta)
         return ops, delta

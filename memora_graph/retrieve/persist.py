@@ -4,7 +4,8 @@ one tool call maps files instead of querying Kùzu and recomputing.
 Per participant, `BANK/.cache/tools-PXX/` holds the embedding matrices (L2-normalised, one
 memory-mapped `.npy` per table with its ids), the BM25 index of every table (posting arrays and
 document lengths, memory-mapped `.npy`), the observation graph (entity <-> segment arrays and
-co-occurrence counts, memory-mapped `.npy`) and the rows of the small participant-wide tool
+co-occurrence counts, memory-mapped `.npy`), the history index (every entity's history summary and
+history in order, memory-mapped `.npy`: retrieve/history.py) and the rows of the small participant-wide tool
 queries (entity registry, places, videos, routines, preferences, inferred links). Nothing is
 parsed or rebuilt whole at open: at 1,000 h the JSON postings and observation rows took 7 s.
 
@@ -37,9 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from memora_graph.retrieve.graph import ObservationGraph
+from memora_graph.retrieve.history import ARRAYS as HISTORY_ARRAYS
+from memora_graph.retrieve.history import HistoryIndex
 from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 
-FORMAT = 2
+FORMAT = 3  # 3: the history index (retrieve/history.py)
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 DIRNAME = "tools-{participant}"
 # participant-wide named queries (no parameter but $participant) whose rows are kept
@@ -177,6 +180,12 @@ class PersistedStores:
     def graph(self) -> ObservationGraph:
         return self._read("graph.json", lambda p: ObservationGraph.from_arrays(*self._arrays("graph", GRAPH_ARRAYS)))
 
+    def has_history(self) -> bool:
+        return "history.json" in self.meta.get("files", {})
+
+    def history(self) -> HistoryIndex:
+        return self._read("history.json", lambda p: HistoryIndex.from_arrays(*self._arrays("history", HISTORY_ARRAYS)))
+
     def _read(self, name: str, read):
         """`read(path)` of a checked file; a file whose hash was recorded but which does not
         read (truncated, then recorded again by hand) is damaged, not a traceback."""
@@ -223,6 +232,7 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
             put(f"vectors-{table}.npy", lambda p, v=vt: np.save(p, np.ascontiguousarray(v.mat), allow_pickle=False))
             put_arrays(f"bm25-{table}", *view.bm25(table).arrays())
         put_arrays("graph", *view.graph.arrays())
+        put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))

@@ -22,7 +22,6 @@ import math
 from collections import Counter
 
 import numpy as np
-import polars as pl
 
 from memora_graph.perceive.vocab import PLACE_NAMES
 from memora_graph.records import segment_id
@@ -527,21 +526,11 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
         return Reply(args, found=False,
                      error=f"no object matching {query!r}; try search_objects first")
     e = view.entities[ids[0]]
-    # The whole history is read as a few thin columns (one columnar fetch, summarised in polars);
-    # only the entries shown are read whole: at 1,000 h one object has tens of thousands of entries.
-    outline = view.frame("_tool_history_outline", entity=e["id"])
-    total = outline.height
-    keep = max_entries if max_entries and total > max_entries else total
-    moved = (outline.with_row_index("i")
-             .with_columns(prev=pl.col("location").shift(1), prev_video=pl.col("video").shift(1))
-             .filter((pl.col("i") > 0) & pl.col("location").ne_missing(pl.col("prev"))
-                     & pl.col("location").is_not_null() & (pl.col("location") != "")))
-    if max_entries:
-        moved = moved.tail(max_entries)
-    transitions = [{"video": r["video"], "t": r["t"], "from": r["prev"], "to": r["location"],
-                    "across_videos": r["video"] != r["prev_video"], "segment_id": segment_id(r["video"], int(r["turn"])),
-                    "event_id": r["id"]} for r in moved.iter_rows(named=True)]
-    tail = view.by_id("_tool_history_entry", outline["id"].tail(keep).to_list() if keep else [])
+    # The summary, the last moves and the ids of the last entries come from the persisted history
+    # index (retrieve/history.py: a bounded read), or from one thin columnar outline of the whole
+    # history; only the entries shown are read whole, each by key.
+    h = view.history_parts(e["id"], max_entries)
+    tail = view.by_id("_tool_history_entry", h.tail_ids)
     shown = []
     for r in tail:
         shown.append({"event_id": r["id"], "segment_id": segment_id(r["video"], int(r["turn"])), "video": r["video"],
@@ -549,27 +538,15 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
                       "zone": r["zone"] or None, "held_by": r["held_by"] or None, "relative_to": r["relative_to"] or None,
                       "relation": r["relation"] or None, "action": r["action"] or None, "narration": r["narration"],
                       "editor_op": r["op"]})
-    named = (pl.col("state").is_not_null() & (pl.col("state") != ""),
-             pl.col("location").is_not_null() & (pl.col("location") != ""))
-    per_video = outline.group_by("video", maintain_order=True).agg(
-        pl.len().alias("observations"), pl.col("t").first().alias("first_t"), pl.col("t").last().alias("last_t"),
-        pl.col("state").filter(named[0]).unique(maintain_order=True).alias("states"),
-        pl.col("location").filter(named[1]).unique(maintain_order=True).alias("locations"),
-        pl.col("state").last().alias("final_state"), pl.col("location").last().alias("final_location"))
-    videos = [{"video": v["video"], "observations": int(v["observations"]), "first_t": v["first_t"], "last_t": v["last_t"],
-               "states": v["states"], "locations": v["locations"], "final_state": v["final_state"],
-               "final_location": v["final_location"]} for v in per_video.iter_rows(named=True)]
-    segments = sorted({segment_id(v, int(t)) for v, t in outline.select("video", "turn").unique().iter_rows()})
     return Reply(
         args, found=True, object_id=e["object_id"], entity_id=e["id"], name=e["name"],
         match_type=how, status=e["status"], current_state=e["state"], current_location=e["location"],
-        all_states_observed=sorted(set(outline.filter(named[0])["state"].to_list())),
-        all_locations_observed=sorted(set(outline.filter(named[1])["location"].to_list())),
-        videos=videos, location_transitions=transitions,
-        state_history=shown, history_total=total, history_shown=len(shown),
+        all_states_observed=h.states, all_locations_observed=h.locations,
+        videos=h.videos, location_transitions=h.transitions,
+        state_history=shown, history_total=h.total, history_shown=len(shown),
         first_seen={"video": e["first_video"], "t": e["first_seen"]}, last_seen={"video": e["last_video"], "t": e["last_seen"]},
         other_matches=[{"entity_id": i, "name": view.entities[i]["name"], "status": view.entities[i]["status"]} for i in ids[1:6]],
-        evidence=[e["id"], *segments[:20]],
+        evidence=[e["id"], *h.segments],
     )
 
 

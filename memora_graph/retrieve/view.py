@@ -26,6 +26,7 @@ from memora_graph.embed import single_thread_blas
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
 from memora_graph.retrieve.graph import ObservationGraph
+from memora_graph.retrieve.history import HistoryIndex, HistoryParts, outline_parts
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
     VectorTable
 
@@ -287,6 +288,22 @@ class MemoryView:
                 return got
         return ObservationGraph(self.frame("_tool_observations").iter_rows(named=True))  # rows one at a time
 
+    @cached_property
+    def history(self) -> HistoryIndex | None:
+        """Every entity's history summary, from the persisted stores (None without them: each call
+        then reads the entity's outline from Kùzu)."""
+        if self._persisted is not None and self._persisted.has_history():
+            return self._from_persisted(lambda p: p.history())
+        return None
+
+    def history_parts(self, entity: str, max_entries: int) -> HistoryParts:
+        """What get_object_history answers with from an entity's history: from the history index
+        (a bounded read), or from the entity's outline in Kùzu when there is no index or a
+        remembered moment added to the entity's history since the index was written."""
+        if self.history is not None and entity not in self.__dict__.get("_history_added", ()):
+            return self.history.parts(entity, max_entries)
+        return outline_parts(self.frame("_tool_history_outline", entity=entity), max_entries)
+
     # -- signals ---------------------------------------------------------------------------
     def knn(self, table: str, q: np.ndarray, k: int) -> list[tuple[str, float]]:
         if self.config.vector == "numpy":
@@ -358,6 +375,9 @@ class MemoryView:
             vectors.pop("place", None)
             bm25.pop("place", None)
         loaded.pop("videos", None)
+        # entities whose history grew: their history is read from Kùzu until the stores are written again
+        loaded.setdefault("_history_added", set()).update(delta.get("history", delta.get("entities", [])))
+        loaded["_history_added"].update(e for e, _ in delta.get("observations", []))
         if "graph" in loaded:
             loaded["graph"].add(sid, delta.get("observations", []))
 
@@ -375,7 +395,7 @@ class MemoryView:
         """Load everything the tools read once (what the first call would otherwise pay)."""
         for t in TABLES:
             self.vectors(t)
-        _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph
+        _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph, self.history
         if self.config.keyword == "bm25":
             for t in TABLES:
                 self._bm25(t)
