@@ -1,7 +1,8 @@
-// description: Every entity's state history, only the columns the history summary needs (written once into the persisted tool stores: retrieve/history.py); ordered as _tool_history_outline orders one entity's.
+// description: Every entity's state history, whole, in the order _tool_history_outline gives one entity's (written once into the persisted tool stores' history index: retrieve/history.py).
 // params: participant
 MATCH (e:Entity)-[h:HAS_STATE]->(s:StateEvent)
 WHERE e.participant = $participant
 RETURN e.id AS entity, s.id AS id, s.video AS video, s.turn AS turn, s.t AS t, s.state AS state,
-       s.location AS location, h.ord AS ord
+       s.location AS location, s.zone AS zone, s.held_by AS held_by, s.relative_to AS relative_to,
+       s.relation AS relation, s.action AS action, s.narration AS narration, s.op AS op, h.ord AS ord
 ORDER BY entity, video, t, ord

@@ -30,7 +30,11 @@ import polars as pl
 
 from memora_graph.records import segment_id
 
-ARRAYS = ("offsets", "ids", "video", "turn", "t", "loc", "move_offsets", "moves", "doc_offsets", "docs")
+ARRAYS = ("offsets", "ids", "video", "turn", "t", "loc", "move_offsets", "moves", "doc_offsets", "docs",
+          "entry_offsets", "entries")
+# the fields of one entry as _tool_history_entry returns them (each entry is kept as a JSON list of these)
+ENTRY_FIELDS = ("id", "video", "turn", "t", "state", "location", "zone", "held_by", "relative_to", "relation", "action",
+                "narration", "op")
 EVIDENCE_SEGMENTS = 20  # the first segments (in id order) an answer cites
 
 
@@ -44,6 +48,7 @@ class HistoryParts:
     segments: list[str]  # the first EVIDENCE_SEGMENTS segment ids, sorted
     transitions: list[dict]  # the last max_entries moves, oldest first
     tail_ids: list[str]  # the ids of the last max_entries entries, oldest first
+    tail: list[dict] | None = None  # those entries whole (as _tool_history_entry reads them), where kept
 
 
 def _named(col: str) -> pl.Expr:
@@ -150,9 +155,16 @@ class HistoryIndex:
             chunks.append(b)
             doc_offsets[i + 1] = doc_offsets[i] + len(b)
         blob = np.frombuffer(b"".join(chunks), dtype=np.uint8).copy()
+        entry_chunks = [json.dumps(list(r), ensure_ascii=False).encode("utf-8")
+                        for r in frame.select(ENTRY_FIELDS).iter_rows()]
+        entry_offsets = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum([len(b) for b in entry_chunks], out=entry_offsets[1:])
+        entries = np.frombuffer(b"".join(entry_chunks), dtype=np.uint8).copy()
+        del entry_chunks
         arrays = {"offsets": offsets, "ids": ids, "video": video, "turn": frame["turn"].to_numpy().astype(np.int64),
                   "t": frame["t"].to_numpy().astype(np.float64), "loc": loc, "move_offsets": move_offsets,
-                  "moves": moves, "doc_offsets": doc_offsets, "docs": blob}
+                  "moves": moves, "doc_offsets": doc_offsets, "docs": blob,
+                  "entry_offsets": entry_offsets, "entries": entries}
         return cls({"entities": entities, "videos": videos, "locations": locations}, arrays)
 
     def parts(self, entity: str, max_entries: int) -> HistoryParts:
@@ -166,6 +178,7 @@ class HistoryIndex:
         total = hi - lo
         keep = max_entries if max_entries and total > max_entries else total
         tail_ids = [b.decode("utf-8") for b in a["ids"][hi - keep:hi].tolist()] if keep else []
+        tail = _entries(a["entries"], a["entry_offsets"][hi - keep:hi + 1]) if keep else []
         moves = a["moves"][int(a["move_offsets"][i]):int(a["move_offsets"][i + 1])]
         if max_entries:
             moves = moves[-max_entries:] if len(moves) > max_entries else moves
@@ -177,4 +190,14 @@ class HistoryIndex:
                                 "to": self.locations[int(loc[j])], "across_videos": v != pv,
                                 "segment_id": segment_id(v, int(turn[j])), "event_id": ids[j].decode("utf-8")})
         return HistoryParts(total=total, videos=doc["videos"], states=doc["states"], locations=doc["locations"],
-                            segments=doc["segments"], transitions=transitions, tail_ids=tail_ids)
+                            segments=doc["segments"], transitions=transitions, tail_ids=tail_ids, tail=tail)
+
+
+def _entries(blob: np.ndarray, offsets: np.ndarray) -> list[dict]:
+    """The entries between consecutive `offsets` of the JSON-lists byte array, as dicts."""
+    if len(offsets) < 2:
+        return []
+    lo, hi = int(offsets[0]), int(offsets[-1])
+    raw = blob[lo:hi].tobytes()
+    cuts = (offsets - lo).tolist()
+    return [dict(zip(ENTRY_FIELDS, json.loads(raw[cuts[k]:cuts[k + 1]]))) for k in range(len(cuts) - 1)]

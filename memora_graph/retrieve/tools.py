@@ -527,10 +527,10 @@ def get_object_history(view: MemoryView, object_query: str, max_entries: int = 6
                      error=f"no object matching {query!r}; try search_objects first")
     e = view.entities[ids[0]]
     # The summary, the last moves and the ids of the last entries come from the persisted history
-    # index (retrieve/history.py: a bounded read), or from one thin columnar outline of the whole
-    # history; only the entries shown are read whole, each by key.
+    # index (retrieve/history.py: a bounded read, the entries shown included), or from one thin
+    # columnar outline of the whole history and the entries shown read whole, each by key.
     h = view.history_parts(e["id"], max_entries)
-    tail = view.by_id("_tool_history_entry", h.tail_ids)
+    tail = h.tail if h.tail is not None else view.by_id("_tool_history_entry", h.tail_ids)
     shown = []
     for r in tail:
         shown.append({"event_id": r["id"], "segment_id": segment_id(r["video"], int(r["turn"])), "video": r["video"],
