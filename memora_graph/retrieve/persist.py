@@ -3,7 +3,8 @@ one tool call maps files instead of querying Kùzu and recomputing.
 
 Per participant, `BANK/.cache/tools-PXX/` holds the embedding matrices (L2-normalised, one
 memory-mapped `.npy` per table with its ids), the BM25 index of every table (posting arrays and
-document lengths, memory-mapped `.npy`), the observation graph (entity <-> segment arrays and
+document lengths, memory-mapped `.npy`), the distinct rows of a large embedding matrix (scanned
+instead of every row: search.py, `VectorTable.sims`), the observation graph (entity <-> segment arrays and
 co-occurrence counts, memory-mapped `.npy`), the history index (every entity's history summary and
 history in order, memory-mapped `.npy`: retrieve/history.py) and the rows of the small participant-wide tool
 queries (entity registry, places, videos, routines, preferences, inferred links). Nothing is
@@ -42,7 +43,7 @@ from memora_graph.retrieve.history import ARRAYS as HISTORY_ARRAYS
 from memora_graph.retrieve.history import HistoryIndex
 from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 
-FORMAT = 3  # 3: the history index (retrieve/history.py)
+FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of large vector tables
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 DIRNAME = "tools-{participant}"
 # participant-wide named queries (no parameter but $participant) whose rows are kept
@@ -50,6 +51,7 @@ DIRNAME = "tools-{participant}"
 ROW_QUERIES = ("_tool_entities", "_tool_places", "_tool_videos", "_tool_routines", "_tool_preferences",
                "_tool_inferred_links")
 BM25_ARRAYS = ("offsets", "docs", "tfs", "lengths")
+UNIQUE_ARRAYS = ("rows", "inverse")
 GRAPH_ARRAYS = ("segments", "seg_offsets", "seg_entities", "place_offsets", "place_loc", "place_n", "pairs", "counts")
 
 log = logging.getLogger("memora_graph.integrity")
@@ -165,7 +167,14 @@ class PersistedStores:
                 raise ValueError(f"{mat.shape} vectors for {len(ids)} ids")
             return VectorTable.normalized(ids, mat)
 
-        return self._read(f"vectors-{table}.npy", load)
+        vt = self._read(f"vectors-{table}.npy", load)
+        if f"unique-{table}.json" in self.meta.get("files", {}):
+            def distinct(p: Path) -> VectorTable:
+                header, arrays = self._arrays(f"unique-{table}", UNIQUE_ARRAYS)
+                return vt.with_unique(arrays["rows"], arrays["inverse"], int(header["head"]))
+
+            vt = self._read(f"unique-{table}.json", distinct)
+        return vt
 
     def _arrays(self, prefix: str, names: tuple[str, ...]) -> tuple[dict, dict[str, np.ndarray]]:
         header = json.loads(self._path(f"{prefix}.json").read_text())
@@ -231,6 +240,9 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
             put(f"ids-{table}.json", lambda p, v=vt: p.write_text(json.dumps(v.ids)))
             put(f"vectors-{table}.npy", lambda p, v=vt: np.save(p, np.ascontiguousarray(v.mat), allow_pickle=False))
             put_arrays(f"bm25-{table}", *view.bm25(table).arrays())
+            unique = vt.unique_rows()
+            if unique is not None:  # the table's distinct rows: scanned instead of all (search.py, VectorTable.sims)
+                put_arrays(f"unique-{table}", {"head": unique[2]}, {"rows": unique[0], "inverse": unique[1]})
         put_arrays("graph", *view.graph.arrays())
         put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
