@@ -1,6 +1,7 @@
 """The retrieval structures made to open and answer fast at 1,000 h give what the straightforward
 versions give: BM25 over flat posting arrays scores as the per-posting loop, the compact
-observation graph answers as the dict-of-sets one."""
+observation graph answers as the dict-of-sets one, the distinct-rows scan of a vector table gives
+`mat @ q` bit for bit (tests/retrieve/test_history.py: the history index)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,10 @@ import math
 import random
 from collections import Counter, defaultdict
 
-from memora_graph.retrieve.search import Bm25
+import numpy as np
+
+from memora_graph.embed import single_thread_blas
+from memora_graph.retrieve.search import UNIQUE_BLOCK, Bm25, VectorTable
 from memora_graph.text import index_tokens
 
 WORDS = "take put wash plate bowl knife cut onion pan stir open close tap sponge rinse cup kettle fill pour".split()
@@ -109,3 +113,41 @@ def test_object_history_reads_only_what_it_shows_and_answers_as_before(small_ban
                 assert {k: got[k] for k in want} == want, (e["id"], m)
                 checked += want["history_total"] > m
         assert checked > 10  # histories longer than what is shown
+
+
+def _repeating_table(n: int, distinct: int, seed: int = 0) -> VectorTable:
+    """n unit rows drawn from `distinct` ones (segments repeat their narrated actions)."""
+    rng = np.random.default_rng(seed)
+    base = rng.standard_normal((distinct, 384)).astype(np.float32)
+    mat = base[rng.integers(0, distinct, n)]
+    return VectorTable([f"seg{i:06d}" for i in range(n)], mat)
+
+
+def test_the_distinct_rows_scan_gives_every_value_and_rank_of_the_whole_scan():
+    """Every cosine bit for bit, hence the same exact top-k (ties included: the same argpartition
+    over the same values), at every row count after the last whole block, and after appends (a
+    remembered segment's row)."""
+    single_thread_blas()  # as a view runs
+    rng = np.random.default_rng(1)
+    queries = [q / np.linalg.norm(q) for q in rng.standard_normal((12, 384)).astype(np.float32)]
+    queries.append(np.asarray(_repeating_table(10, 10, seed=0).mat[3]))  # a query equal to stored rows: ties
+    for extra in (0, 1, 2, 5, UNIQUE_BLOCK - 1):
+        whole = _repeating_table(20 * UNIQUE_BLOCK + extra, 150)
+        unique = whole.unique_rows(min_rows=1)
+        assert unique is not None and len(unique[0]) < len(whole) / 4
+        fast = VectorTable.normalized(whole.ids, whole.mat).with_unique(*unique)
+        for q in queries:
+            assert np.array_equal(fast.sims(q), whole.mat @ q), extra
+            assert fast.topk(q, 50) == whole.topk(q, 50)
+        grown, plain = fast, whole
+        for i in range(3):
+            row = whole.mat[i * 7]
+            grown, plain = grown.appended(f"new{i}", row), plain.appended(f"new{i}", row)
+            for q in queries[:4]:
+                assert np.array_equal(grown.sims(q), plain.mat @ q), (extra, i)
+                assert grown.topk(q, 20) == plain.topk(q, 20)
+
+
+def test_tables_mostly_distinct_or_small_are_scanned_whole():
+    assert _repeating_table(20 * UNIQUE_BLOCK, 20 * UNIQUE_BLOCK * 10).unique_rows(min_rows=1) is None
+    assert _repeating_table(5 * UNIQUE_BLOCK, 10).unique_rows() is None  # under UNIQUE_MIN_ROWS

@@ -1,0 +1,96 @@
+"""The persisted history index (retrieve/history.py) answers get_object_history as reading the
+object's whole history from Kùzu does, for every object and history length, and after remembered
+moments add to histories (the entities they touched are read from Kùzu again)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from memora_graph.form.live import LiveWriter
+from memora_graph.retrieve import MemoryView, call_tool
+from memora_graph.retrieve.history import HistoryIndex, outline_parts
+from memora_graph.retrieve.view import persist_bank
+
+from support.live import moments
+
+P = "P37"
+LENGTHS = (1, 5, 60, 1000)
+
+
+@pytest.fixture()
+def bank(small_bank, tmp_path):
+    path = tmp_path / "bank"
+    shutil.copytree(small_bank[0], path, ignore=shutil.ignore_patterns("tools-*"))
+    return path
+
+
+def _answers(view: MemoryView, entities: list[str]) -> list[str]:
+    out = []
+    for e in entities:
+        for n in LENGTHS:
+            r = call_tool(view, "get_object_history", {"object_query": e, "max_entries": n}).as_json()
+            out.append(json.dumps(r, sort_keys=True))
+    return out
+
+
+def test_the_index_gives_the_parts_the_outline_gives(bank, embedder):
+    with MemoryView.open(bank, P, embedder, persist=False) as view:
+        index = HistoryIndex.from_arrays(*HistoryIndex.build(view.frame("_tool_history_all")).arrays())
+        long = max(view.entities, key=lambda e: view.entities[e]["n_observations"] or 0)
+        assert index.parts(long, 1000).total > 60, "a history longer than the default shown"
+        for e in sorted(view.entities):
+            for n in LENGTHS:
+                want = outline_parts(view.frame("_tool_history_outline", entity=e), n)
+                want.tail = view.by_id("_tool_history_entry", want.tail_ids)
+                got = index.parts(e, n)
+                assert got == want, (e, n)
+        assert index.parts("no-such-entity", 60).total == 0
+
+
+def test_every_history_answer_is_the_same_from_the_persisted_index(bank, embedder):
+    with MemoryView.open(bank, P, embedder, persist=False) as view:
+        entities = sorted(view.entities)
+        reference = _answers(view, entities)
+    persist_bank(bank, [P])
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view.history is not None
+        assert _answers(view, entities) == reference
+        assert view._store is None, "history answers read the persisted stores only: Kùzu stays closed"
+
+
+def _parts(view: MemoryView, entity: str, n: int):
+    got = view.history_parts(entity, n)
+    if got.tail is None:
+        got.tail = view.by_id("_tool_history_entry", got.tail_ids)
+    return got
+
+
+def test_remembered_moments_join_the_histories(bank, embedder):
+    """A view reading the persisted index that takes in remembered moments (`absorb`, as a
+    server's readers do) answers for the objects they touched from Kùzu, the others from the
+    index: the same parts as a view opened afterwards on the database."""
+    persist_bank(bank, [P])
+    view = MemoryView.open(bank, P, embedder)
+    try:
+        view.warm()
+        assert view.history is not None
+        deltas = []
+        with LiveWriter(bank, P, embedder=embedder) as memory:
+            for m in moments(12, video="P37_live"):
+                deltas.append(memory.remember(m).delta)
+        for d in deltas:
+            view.absorb(d)
+        grown = sorted({e for d in deltas for e in d["history"]})
+        old = [e for e in grown if e in view.history._row]
+        assert old, "the moments added to objects the index holds"
+        untouched = sorted(set(view.history.entities) - set(grown))[:5]
+        got = {(e, n): _parts(view, e, n) for e in grown + untouched for n in LENGTHS}
+    finally:
+        view.close()
+    with MemoryView.open(bank, P, embedder, persist=False) as fresh:
+        want = {(e, n): _parts(fresh, e, n) for e in grown + untouched for n in LENGTHS}
+    assert got == want
+    assert all(any(v["video"] == "P37_live" for v in want[(e, 60)].videos) for e in old)
