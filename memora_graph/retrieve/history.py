@@ -79,8 +79,8 @@ def outline_parts(outline: pl.DataFrame, max_entries: int) -> HistoryParts:
     if max_entries:
         moved = moved.tail(max_entries)
     transitions = [{"video": r["video"], "t": r["t"], "from": r["prev"], "to": r["location"],
-                    "across_videos": r["video"] != r["prev_video"], "segment_id": segment_id(r["video"], int(r["turn"])),
-                    "event_id": r["id"]} for r in moved.iter_rows(named=True)]
+                    "across_videos": r["video"] != r["prev_video"],
+                    "segment_id": segment_id(r["video"], int(r["turn"])), "event_id": r["id"]} for r in moved.iter_rows(named=True)]
     videos = [_video_record(v) for v in _per_video(outline, ["video"]).iter_rows(named=True)]
     segments = sorted({segment_id(v, int(t)) for v, t in outline.select("video", "turn").unique().iter_rows()})
     return HistoryParts(

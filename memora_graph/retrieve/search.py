@@ -120,7 +120,8 @@ class VectorTable:
         self._unique = (rows, inverse, head)
         return self
 
-    def unique_rows(self, checks: int = 4, min_rows: int = UNIQUE_MIN_ROWS) -> tuple[np.ndarray, np.ndarray, int] | None:
+    def unique_rows(self, checks: int = 4,
+                    min_rows: int = UNIQUE_MIN_ROWS) -> tuple[np.ndarray, np.ndarray, int] | None:
         """(distinct rows of the first `head` rows, zero rows added up to a multiple of UNIQUE_BLOCK;
         each of those rows' index among them; `head`), or None where scanning them would not save
         much (fewer than `min_rows` rows, or more than UNIQUE_MAX_SHARE of them distinct) or where

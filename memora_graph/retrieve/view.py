@@ -395,7 +395,8 @@ class MemoryView:
         """Load everything the tools read once (what the first call would otherwise pay)."""
         for t in TABLES:
             self.vectors(t)
-        _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph, self.history
+        _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph
+        _ = self.history
         if self.config.keyword == "bm25":
             for t in TABLES:
                 self._bm25(t)

@@ -130,7 +130,7 @@ def test_the_distinct_rows_scan_gives_every_value_and_rank_of_the_whole_scan():
     single_thread_blas()  # as a view runs
     rng = np.random.default_rng(1)
     queries = [q / np.linalg.norm(q) for q in rng.standard_normal((12, 384)).astype(np.float32)]
-    queries.append(np.asarray(_repeating_table(10, 10, seed=0).mat[3]))  # a query equal to stored rows: ties
+    queries.append(np.asarray(_repeating_table(10, 10, seed=0).mat[3]))  # equal to stored rows: ties
     for extra in (0, 1, 2, 5, UNIQUE_BLOCK - 1):
         whole = _repeating_table(20 * UNIQUE_BLOCK + extra, 150)
         unique = whole.unique_rows(min_rows=1)
