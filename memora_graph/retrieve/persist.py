@@ -3,7 +3,8 @@ one tool call maps files instead of querying Kùzu and recomputing.
 
 Per participant, `BANK/.cache/tools-PXX/` holds the embedding matrices (L2-normalised, one
 memory-mapped `.npy` per table with its ids), the BM25 index of every table (posting arrays and
-document lengths, memory-mapped `.npy`), the distinct rows of a large embedding matrix (scanned
+document lengths, memory-mapped `.npy`), every segment row as `_tool_segment` reads one (retrieve/rows.py), the distinct rows of a large
+embedding matrix (scanned
 instead of every row: search.py, `VectorTable.sims`), the observation graph (entity <-> segment arrays and
 co-occurrence counts, memory-mapped `.npy`), the history index (every entity's history summary and
 history in order, memory-mapped `.npy`: retrieve/history.py) and the rows of the small participant-wide tool
@@ -41,11 +42,15 @@ import numpy as np
 from memora_graph.retrieve.graph import ObservationGraph
 from memora_graph.retrieve.history import ARRAYS as HISTORY_ARRAYS
 from memora_graph.retrieve.history import HistoryIndex
+from memora_graph.retrieve.rows import ARRAYS as KEYED_ARRAYS
+from memora_graph.retrieve.rows import KeyedRows
 from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 
 FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of large vector tables
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 DIRNAME = "tools-{participant}"
+# by-key named queries whose every row is kept (retrieve/rows.py), with the query giving them all
+KEYED_QUERIES = {"_tool_segment": "_tool_segment_rows"}
 # participant-wide named queries (no parameter but $participant) whose rows are kept
 # (the observation rows are kept as the graph's arrays; the segment texts only feed BM25, kept as its arrays)
 ROW_QUERIES = ("_tool_entities", "_tool_places", "_tool_videos", "_tool_routines", "_tool_preferences",
@@ -189,6 +194,13 @@ class PersistedStores:
     def graph(self) -> ObservationGraph:
         return self._read("graph.json", lambda p: ObservationGraph.from_arrays(*self._arrays("graph", GRAPH_ARRAYS)))
 
+    def has_keyed(self, query: str) -> bool:
+        return f"keyed{query}.json" in self.meta.get("files", {})
+
+    def keyed(self, query: str) -> KeyedRows:
+        return self._read(f"keyed{query}.json",
+                          lambda p: KeyedRows.from_arrays(*self._arrays(f"keyed{query}", KEYED_ARRAYS)))
+
     def has_history(self) -> bool:
         return "history.json" in self.meta.get("files", {})
 
@@ -245,6 +257,8 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
                 put_arrays(f"unique-{table}", {"head": unique[2]}, {"rows": unique[0], "inverse": unique[1]})
         put_arrays("graph", *view.graph.arrays())
         put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
+        for query, every in KEYED_QUERIES.items():
+            put_arrays(f"keyed{query}", *KeyedRows.build(view.frame(every)).arrays())
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))

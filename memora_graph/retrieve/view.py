@@ -199,8 +199,28 @@ class MemoryView:
 
     def by_id(self, name: str, ids: list[str]) -> list[dict]:
         """The rows of a one-id named query for each id, in order (an id not found gives none):
-        a prepared lookup by key each, where a filter over ids reads the whole table."""
-        return [r for i in ids for r in self.store.fetch(name, participant=self.participant, id=i)]
+        from the rows kept with the persisted stores (retrieve/rows.py) where they hold that
+        query, else a prepared lookup by key each, where a filter over ids reads the whole table."""
+        keyed = self._keyed(name)
+        if keyed is None:
+            return [r for i in ids for r in self.store.fetch(name, participant=self.participant, id=i)]
+        added = self.__dict__.get("_keys_added", ())
+        out = []
+        for i in ids:
+            if i in added:
+                out += self.store.fetch(name, participant=self.participant, id=i)
+            else:
+                r = keyed.get(i)
+                if r is not None:
+                    out.append(r)
+        return out
+
+    def _keyed(self, name: str):
+        cache = self.__dict__.setdefault("_keyed_cache", {})
+        if name not in cache:
+            p = self._persisted
+            cache[name] = self._from_persisted(lambda p: p.keyed(name)) if p is not None and p.has_keyed(name) else None
+        return cache[name]
 
     def frame(self, name: str, **params):
         """A named query's rows as a polars frame (one columnar fetch: for many thin rows)."""
@@ -375,6 +395,7 @@ class MemoryView:
             vectors.pop("place", None)
             bm25.pop("place", None)
         loaded.pop("videos", None)
+        loaded.setdefault("_keys_added", set()).add(sid)  # a segment the kept rows do not hold
         # entities whose history grew: their history is read from Kùzu until the stores are written again
         loaded.setdefault("_history_added", set()).update(delta.get("history", delta.get("entities", [])))
         loaded["_history_added"].update(e for e, _ in delta.get("observations", []))
@@ -396,7 +417,7 @@ class MemoryView:
         for t in TABLES:
             self.vectors(t)
         _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph
-        _ = self.history
+        _ = self.history, self._keyed("_tool_segment")
         if self.config.keyword == "bm25":
             for t in TABLES:
                 self._bm25(t)
