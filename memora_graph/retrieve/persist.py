@@ -49,8 +49,9 @@ from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of large vector tables
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 DIRNAME = "tools-{participant}"
-# by-key named queries whose every row is kept (retrieve/rows.py), with the query giving them all
-KEYED_QUERIES = {"_tool_segment": "_tool_segment_rows"}
+# named queries of one key whose every row is kept (retrieve/rows.py): the query giving them all, and
+# the column that is the key of a query giving a list of rows per key (None: one row per id)
+KEYED_QUERIES = {"_tool_segment": ("_tool_segment_rows", None), "_tool_video_events": ("_tool_video_events_all", "video")}
 # participant-wide named queries (no parameter but $participant) whose rows are kept
 # (the observation rows are kept as the graph's arrays; the segment texts only feed BM25, kept as its arrays)
 ROW_QUERIES = ("_tool_entities", "_tool_places", "_tool_videos", "_tool_routines", "_tool_preferences",
@@ -257,8 +258,10 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
                 put_arrays(f"unique-{table}", {"head": unique[2]}, {"rows": unique[0], "inverse": unique[1]})
         put_arrays("graph", *view.graph.arrays())
         put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
-        for query, every in KEYED_QUERIES.items():
-            put_arrays(f"keyed{query}", *KeyedRows.build(view.frame(every)).arrays())
+        for query, (every, group) in KEYED_QUERIES.items():
+            frame = view.frame(every)
+            rows = KeyedRows.build(frame) if group is None else KeyedRows.build_grouped(frame, group)
+            put_arrays(f"keyed{query}", *rows.arrays())
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))

@@ -1,7 +1,8 @@
 """Rows of a by-key named query kept with the persisted tool stores, so that a tool reads the
 records it returns from memory-mapped arrays instead of one Kùzu lookup each.
 
-`search_activities` reads about 30 segments a call (its results and their neighbours) and
+`get_state_at_time` reads a video's state entries (`_tool_video_events`: ~2,650 rows, 17 ms of
+Kùzu CPU, with spikes to 70 ms); `search_activities` reads about 30 segments a call (its results and their neighbours) and
 `search` about 14, by key (`_tool_segment`): ~0.65 ms of CPU each in Kùzu, most of those tools'
 own work at 100 h. `KeyedRows` holds every row of such a query: the keys sorted (a fixed-width
 array, found by binary search) and each row as a JSON list of the query's columns in one byte
@@ -20,8 +21,11 @@ ARRAYS = ("keys", "offsets", "rows")
 
 
 class KeyedRows:
-    def __init__(self, columns: list[str], arrays: dict[str, np.ndarray]):
-        self.columns = columns
+    """The rows of a by-key query (`get(key)`: its row), or of a query giving each key a list of
+    rows in order (`grouped`: `rows(key)`, as `_tool_video_events` gives a video's entries)."""
+
+    def __init__(self, columns: list[str], arrays: dict[str, np.ndarray], grouped: bool = False):
+        self.columns, self.grouped = columns, grouped
         self._keys, self._offsets, self._rows = arrays["keys"], arrays["offsets"], arrays["rows"]
 
     @classmethod
@@ -39,18 +43,44 @@ class KeyedRows:
         return cls(columns, {"keys": np.asarray(keys, dtype=f"<U{width}"), "offsets": offsets,
                              "rows": np.frombuffer(b"".join(chunks), dtype=np.uint8).copy()})
 
+    @classmethod
+    def build_grouped(cls, frame: pl.DataFrame, key: str) -> KeyedRows:
+        """From a query's rows of every key, in the order the per-key query gives them."""
+        frame = frame.sort(key, maintain_order=True)  # stable: each key's rows keep their order
+        columns = [c for c in frame.columns if c != key]
+        keys, chunks = [], []
+        for (k,), part in frame.group_by(key, maintain_order=True):
+            keys.append(k)
+            chunks.append(json.dumps([list(r) for r in part.select(columns).iter_rows()],
+                                     ensure_ascii=False).encode("utf-8"))
+        offsets = np.zeros(len(chunks) + 1, dtype=np.int64)
+        np.cumsum([len(c) for c in chunks], out=offsets[1:])
+        width = max((len(k) for k in keys), default=1)
+        return cls(columns, {"keys": np.asarray(keys, dtype=f"<U{width}"), "offsets": offsets,
+                             "rows": np.frombuffer(b"".join(chunks), dtype=np.uint8).copy()}, grouped=True)
+
     def arrays(self) -> tuple[dict, dict[str, np.ndarray]]:
-        return {"columns": self.columns}, {"keys": self._keys, "offsets": self._offsets, "rows": self._rows}
+        return {"columns": self.columns, "grouped": self.grouped}, {"keys": self._keys, "offsets": self._offsets, "rows": self._rows}
 
     @classmethod
     def from_arrays(cls, header: dict, arrays: dict[str, np.ndarray]) -> KeyedRows:
         if not isinstance(header.get("columns"), list) or len(arrays["offsets"]) != len(arrays["keys"]) + 1:
             raise ValueError("keyed rows: header or offsets do not fit the keys")
-        return cls(header["columns"], arrays)
+        return cls(header["columns"], arrays, bool(header.get("grouped")))
 
-    def get(self, key: str) -> dict | None:
+    def _raw(self, key: str):
         i = int(np.searchsorted(self._keys, key))
         if i >= len(self._keys) or self._keys[i] != key:
             return None
         lo, hi = int(self._offsets[i]), int(self._offsets[i + 1])
-        return dict(zip(self.columns, json.loads(self._rows[lo:hi].tobytes())))
+        return json.loads(self._rows[lo:hi].tobytes())
+
+    def get(self, key: str) -> dict | None:
+        """A by-key query's row for `key` (None: the query returns none)."""
+        raw = self._raw(key)
+        return None if raw is None else dict(zip(self.columns, raw))
+
+    def rows(self, key: str) -> list[dict]:
+        """A grouped query's rows for `key`, in order."""
+        cols = self.columns
+        return [dict(zip(cols, r)) for r in self._raw(key) or ()]

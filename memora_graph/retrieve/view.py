@@ -195,6 +195,11 @@ class MemoryView:
             got = self._from_persisted(lambda p: p.rows(name))
             if got is not None:
                 return got
+        if len(params) == 1 and self._persisted is not None:  # a video's entries, kept (retrieve/rows.py)
+            keyed = self._keyed(name)
+            value = next(iter(params.values()))
+            if keyed is not None and keyed.grouped and value not in self.__dict__.get("_keys_added", ()):
+                return keyed.rows(value)
         return self.store.fetch(name, participant=self.participant, **params)
 
     def by_id(self, name: str, ids: list[str]) -> list[dict]:
@@ -202,7 +207,7 @@ class MemoryView:
         from the rows kept with the persisted stores (retrieve/rows.py) where they hold that
         query, else a prepared lookup by key each, where a filter over ids reads the whole table."""
         keyed = self._keyed(name)
-        if keyed is None:
+        if keyed is None or keyed.grouped:
             return [r for i in ids for r in self.store.fetch(name, participant=self.participant, id=i)]
         added = self.__dict__.get("_keys_added", ())
         out = []
@@ -395,7 +400,7 @@ class MemoryView:
             vectors.pop("place", None)
             bm25.pop("place", None)
         loaded.pop("videos", None)
-        loaded.setdefault("_keys_added", set()).add(sid)  # a segment the kept rows do not hold
+        loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
         # entities whose history grew: their history is read from Kùzu until the stores are written again
         loaded.setdefault("_history_added", set()).update(delta.get("history", delta.get("entities", [])))
         loaded["_history_added"].update(e for e, _ in delta.get("observations", []))
@@ -417,7 +422,7 @@ class MemoryView:
         for t in TABLES:
             self.vectors(t)
         _ = self.entities, self.places, self.videos, self.routines, self.preferences, self.graph
-        _ = self.history, self._keyed("_tool_segment")
+        _ = self.history, self._keyed("_tool_segment"), self._keyed("_tool_video_events")
         if self.config.keyword == "bm25":
             for t in TABLES:
                 self._bm25(t)

@@ -90,25 +90,32 @@ def test_remembered_moments_join_the_histories(bank, embedder):
         got = {(e, n): _parts(view, e, n) for e in grown + untouched for n in LENGTHS}
         segments = sorted({d["segment"] for d in deltas})
         got_segments = view.by_id("_tool_segment", segments)  # remembered: not in the kept rows
+        got_events = view.fetch("_tool_video_events", video="P37_live")
     finally:
         view.close()
     with MemoryView.open(bank, P, embedder, persist=False) as fresh:
         want = {(e, n): _parts(fresh, e, n) for e in grown + untouched for n in LENGTHS}
         assert got_segments == fresh.by_id("_tool_segment", segments) and len(got_segments) == len(segments)
+        assert got_events == fresh.fetch("_tool_video_events", video="P37_live") and got_events
     assert got == want
     assert all(any(v["video"] == "P37_live" for v in want[(e, 60)].videos) for e in old)
 
 
 def test_kept_segment_rows_are_the_rows_kuzu_returns(bank, embedder):
-    """Every segment read by key from the rows kept with the stores (retrieve/rows.py) is the row
-    Kùzu returns; a key not held gives none, as Kùzu does; Kùzu stays closed."""
+    """Every segment read by key, and every video's state entries, from the rows kept with the
+    stores (retrieve/rows.py) are the rows Kùzu returns, in its order; a key not held gives none,
+    as Kùzu does; Kùzu stays closed."""
     with MemoryView.open(bank, P, embedder, persist=False) as view:
         ids = sorted(r["id"] for r in view.fetch("_tool_segment_rows"))
         want = view.by_id("_tool_segment", ids + ["P37_999#t0000"])
+        videos = sorted(view.videos)
+        want_events = [view.fetch("_tool_video_events", video=v) for v in videos + ["P37_999"]]
     persist_bank(bank, [P])
     with MemoryView.open(bank, P, embedder) as view:
         assert view._keyed("_tool_segment") is not None
         got = view.by_id("_tool_segment", ids + ["P37_999#t0000"])
+        got_events = [view.fetch("_tool_video_events", video=v) for v in videos + ["P37_999"]]
         assert view._store is None
+    assert [json.dumps(e) for e in got_events] == [json.dumps(e) for e in want_events] and all(want_events[:-1])
     assert len(got) == len(ids) and got == want
     assert [json.dumps(r) for r in got] == [json.dumps(r) for r in want]  # same fields, same order, same values
