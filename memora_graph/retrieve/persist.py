@@ -50,8 +50,9 @@ FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of l
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 DIRNAME = "tools-{participant}"
 # named queries of one key whose every row is kept (retrieve/rows.py): the query giving them all, and
-# the column that is the key of a query giving a list of rows per key (None: one row per id)
-KEYED_QUERIES = {"_tool_segment": ("_tool_segment_rows", None), "_tool_video_events": ("_tool_video_events_all", "video")}
+# for a query giving a list of rows per key, the key column and the columns its rows are ordered by
+KEYED_QUERIES = {"_tool_segment": ("_tool_segment_rows", None, ()),
+                 "_tool_video_events": ("_tool_video_events_all", "video", ("t", "ord"))}
 # participant-wide named queries (no parameter but $participant) whose rows are kept
 # (the observation rows are kept as the graph's arrays; the segment texts only feed BM25, kept as its arrays)
 ROW_QUERIES = ("_tool_entities", "_tool_places", "_tool_videos", "_tool_routines", "_tool_preferences",
@@ -258,9 +259,9 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
                 put_arrays(f"unique-{table}", {"head": unique[2]}, {"rows": unique[0], "inverse": unique[1]})
         put_arrays("graph", *view.graph.arrays())
         put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
-        for query, (every, group) in KEYED_QUERIES.items():
+        for query, (every, group, order) in KEYED_QUERIES.items():
             frame = view.frame(every)
-            rows = KeyedRows.build(frame) if group is None else KeyedRows.build_grouped(frame, group)
+            rows = KeyedRows.build(frame) if group is None else KeyedRows.build_grouped(frame, group, order)
             put_arrays(f"keyed{query}", *rows.arrays())
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}

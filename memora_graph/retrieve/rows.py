@@ -44,9 +44,11 @@ class KeyedRows:
                              "rows": np.frombuffer(b"".join(chunks), dtype=np.uint8).copy()})
 
     @classmethod
-    def build_grouped(cls, frame: pl.DataFrame, key: str) -> KeyedRows:
-        """From a query's rows of every key, in the order the per-key query gives them."""
-        frame = frame.sort(key, maintain_order=True)  # stable: each key's rows keep their order
+    def build_grouped(cls, frame: pl.DataFrame, key: str, order: tuple[str, ...]) -> KeyedRows:
+        """From a query's rows of every key; each key's rows sorted by `order` (the per-key
+        query's ORDER BY, a unique key). Sorted here: a participant-wide fetch of Kùzu came
+        back out of its ORDER BY (10 h synthetic bank, `_tool_video_events_all`)."""
+        frame = frame.sort([key, *order])
         columns = [c for c in frame.columns if c != key]
         keys, chunks = [], []
         for (k,), part in frame.group_by(key, maintain_order=True):
