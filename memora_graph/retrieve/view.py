@@ -221,10 +221,11 @@ class MemoryView:
         return out
 
     def _keyed(self, name: str):
+        """The rows of named query `name` kept with the persisted stores (retrieve/rows.py), or None."""
         cache = self.__dict__.setdefault("_keyed_cache", {})
         if name not in cache:
-            p = self._persisted
-            cache[name] = self._from_persisted(lambda p: p.keyed(name)) if p is not None and p.has_keyed(name) else None
+            held = self._persisted is not None and self._persisted.has_keyed(name)
+            cache[name] = self._from_persisted(lambda p: p.keyed(name)) if held else None
         return cache[name]
 
     def frame(self, name: str, **params):
