@@ -56,6 +56,51 @@ _OPEN: set[tuple[str, str]] = set()  # (bank, participant) of the writers open i
 _OPEN_LOCK = threading.Lock()
 
 
+LIVE_ENCODERS = ("onnx", "torch")
+
+
+class _OnnxPassages:
+    """A remember's passages (the segment's summary, new identity and place texts) through the
+    ONNX Runtime fp32 export of the bank's MiniLM (memora_graph/onnx_embed.py), one text at a
+    time: ~6 ms of CPU where the PyTorch model takes ~20 (sentence-transformers' per-call work
+    dominates a single short text). Its vectors match the PyTorch model's to cosine >= 0.9999999
+    on P01's narrations (each component within 2.2e-7; PyTorch one text at a time, as remembers
+    ran before, is within 1.1e-7 of a build's batches), and no top-10 list changed when a
+    vector is swapped for it (docs/live-memory.md, "Where a remember's CPU goes")."""
+
+    def __init__(self, model: str):
+        from memora_graph.onnx_embed import OnnxEmbedder
+
+        self._onnx = OnnxEmbedder(variant="fp32", threads=1)
+        self.name, self.dim = model, self._onnx.dim
+
+    def uses_torch(self, kind: str) -> bool:
+        return False
+
+    def encode(self, texts: list[str], kind: str = "passage") -> np.ndarray:
+        return self._onnx.encode(texts, kind=kind)
+
+
+def live_embedder(model: str):
+    """The embedder of a live writer: for the bundled MiniLM, its ONNX fp32 export (see
+    `_OnnxPassages`), unless MEMORA_LIVE_ENCODER=torch; another model: its PyTorch model. An
+    export that cannot be made falls back to PyTorch (logged)."""
+    from memora_graph.embed import DEFAULT_MODEL, CachedEmbedder, get_embedder
+
+    choice = (os.environ.get("MEMORA_LIVE_ENCODER") or "onnx").strip().lower()
+    if choice not in LIVE_ENCODERS:
+        raise BankError(f"unknown live encoder {choice!r} (MEMORA_LIVE_ENCODER); choose one of: "
+                        + ", ".join(LIVE_ENCODERS))
+    if choice == "torch" or model != DEFAULT_MODEL:
+        return get_embedder(model)
+    try:
+        return CachedEmbedder(_OnnxPassages(model))
+    except Exception as exc:  # noqa: BLE001 - no ONNX Runtime or no export: the PyTorch model embeds
+        logging.getLogger("memora_graph.embed").warning(f"live memory embeds with PyTorch: the ONNX export of "
+                                                        f"{model} is not available ({exc})")
+        return get_embedder(model)
+
+
 class WriterBusy(BankError):
     """Another writer (a live writer, a build, a reader holding the file) has the participant."""
 
@@ -179,7 +224,7 @@ class LiveWriter:
 
     # -- opening -----------------------------------------------------------------------
     def _open(self, embedder, reader, lock_wait_s: float) -> None:
-        from memora_graph.embed import get_embedder
+        from memora_graph.embed import DEFAULT_MODEL
 
         p = self.participant
         mine = (str(self.bank.path.resolve()), p)
@@ -194,12 +239,12 @@ class LiveWriter:
             raise WriterBusy(self._busy_message()) from None
         if self.bank.exists():
             data = self.bank.manifest()
-            self.embedder = embedder or get_embedder(data["embed_model"])
+            self.embedder = embedder or live_embedder(data["embed_model"])
             if data.get("mode") != "edited":
                 raise BankError(f"{self.bank.path}: a '{data.get('mode')}' bank; live memory writes edited banks only")
             recover(self.bank, p)
         else:
-            self.embedder = embedder or get_embedder()
+            self.embedder = embedder or live_embedder(os.environ.get("MEMORA_EMBED_MODEL", DEFAULT_MODEL))
             self.bank.init(mode="edited", embed_model=self.embedder.name, consolidated=False)
         if p not in self.bank.manifest()["participants"]:
             self._create()
@@ -427,8 +472,9 @@ class LiveWriter:
         p, dim, sid = self.participant, self.embedder.dim, seg.segment_id
         with self.store.transaction():
             if seg.video_id not in self.videos:
+                # its length, turns and actions are the moment's statement's to set
                 self._add("_live_add_video", [{"id": seg.video_id, "duration": duration, "n_turns": turn + 1,
-                                               "n_actions": n_actions, "mode": self.mode, "built_at": _now(),
+                                               "n_actions": 0, "mode": self.mode, "built_at": _now(),
                                                "build_seconds": 0.0}])
             # Places and entities first (the moment's edges point at them), then one statement for
             # the moment itself: the video grown, the segment (and its NEXT edge), its
@@ -450,9 +496,8 @@ class LiveWriter:
             if relocated:
                 self.store.write("_located_at_clear", participant=p, ids=relocated)
             self._add("_live_add_located", located)
-            moment = {**seg_row, "emb": _floats(seg_vec), "video_duration": duration, "video_turns": turn + 1,
-                      "video_actions": n_actions, "key": key, "result": json.dumps(answer), "at": _now(),
-                      "in_place": in_place}
+            moment = {**seg_row, "emb": _floats(seg_vec), "duration": duration, "key": key,
+                      "result": json.dumps(answer), "at": _now(), "rows": in_place}
             if v.last_segment is not None:
                 got = int(self.store.write("_live_add_moment_next", prev=v.last_segment, **moment)[0]["n"])
             else:
