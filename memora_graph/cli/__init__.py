@@ -41,7 +41,7 @@ param_option = click.option(
 )
 
 # name -> (where the command lives, its one-line help as `memora --help` lists it without importing it;
-# tests/test_cli_options.py checks it against the command's own)
+# tests/cli/test_cli_options.py checks it against the command's own)
 COMMANDS = {
     "ask": ("memora_graph.cli.agent:ask_cmd",
             "Ask one person's memory a question, answered by the typed reader (deterministic, no model)."),

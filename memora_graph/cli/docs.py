@@ -5,7 +5,7 @@
 
 Every command and subcommand of `memora` (lazy ones loaded) gets a section with its help text as
 `memora COMMAND --help` prints it at a fixed width, so the page is the same on every machine.
-tests/test_docs.py fails when the page is stale or a command is missing from it.
+tests/cli/test_docs.py fails when the page is stale or a command is missing from it.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ WIDTH = 100
 HEADER = """# Command-line reference
 
 Generated from each command's `--help` by `python -m memora_graph.cli.docs` (do not edit by hand:
-`tests/test_docs.py` fails when this page and the commands disagree). The README has one line per
+`tests/cli/test_docs.py` fails when this page and the commands disagree). The README has one line per
 command; the topic pages in this folder explain what the commands do.
 
 """

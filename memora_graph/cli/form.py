@@ -63,6 +63,7 @@ def remember_cmd(bank, text, participant, video, start, end, key, record, stream
     """
     from memora_graph.errors import DataError
     from memora_graph.form.live import LiveWriter
+    from memora_graph.perceive.narrations import json_lines
 
     given = [n for n, v in (("TEXT", text), ("--json", record), ("--jsonl", stream)) if v is not None]
     if len(given) != 1:
@@ -87,13 +88,7 @@ def remember_cmd(bank, text, participant, video, start, end, key, record, stream
             emit(_remember(writer, obj, "--json"))
         else:
             name = "stdin" if stream.name == "<stdin>" else stream.name
-            for n, line in enumerate(stream, start=1):
-                if not line.strip():
-                    continue
-                try:
-                    obj = json.loads(line)
-                except json.JSONDecodeError as exc:
-                    raise DataError(f"{name}: row {n}: not JSON ({exc.msg}); the rows before it were committed") from None
+            for n, obj in json_lines(stream, name, "; the rows before it were committed"):
                 emit(_remember(writer, obj, f"{name}: row {n}"))
 
 

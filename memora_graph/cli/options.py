@@ -3,7 +3,7 @@ progress bars, backend options, the output-format options, and click choices rea
 
 Only click is imported at module level, so that `memora --help` imports no command module, no
 polars, numpy or torch: a group lists its lazy subcommands from the one-line help recorded next
-to their import path (tests/test_cli_options.py checks the two agree).
+to their import path (tests/cli/test_cli_options.py checks the two agree).
 """
 
 from __future__ import annotations

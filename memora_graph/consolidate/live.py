@@ -7,7 +7,7 @@ editor resolves them now) and recomputes only the videos whose steps changed sin
 the videos that received new moments, or whose objects a later merge re-identified. What spans
 videos (the recurring action sequences, the participant-level merge, the routine skills and
 generated preferences of enrichment) is recomputed from the whole memory, as a batch run does,
-so an incremental run writes exactly the records a batch run would (tests/test_live_consolidate.py
+so an incremental run writes exactly the records a batch run would (tests/serve/test_live_serve.py
 compares them). The memory itself is still read whole (`load_memory`).
 
 `BackgroundConsolidation` runs it inside `memora serve --writable --consolidate-every N`: after N

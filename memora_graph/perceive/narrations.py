@@ -182,6 +182,18 @@ def check_moment(where: str, video_id: object, start: object, end: object, text:
     return video_id.strip(), times[0], times[1], text
 
 
+def json_lines(lines, name: str, after_error: str = ""):
+    """(row number, parsed value) for each non-blank line of a JSON Lines stream; a line that is not
+    JSON raises a DataError naming `name` and the row (`after_error` is appended to its message)."""
+    for n, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            yield n, json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise DataError(f"{name}: row {n}: not JSON ({exc.msg}){after_error}") from None
+
+
 def _read_table(path: Path) -> pl.DataFrame:
     kind = FORMATS.get(path.suffix.lower())
     if kind is None:
@@ -194,13 +206,7 @@ def _read_table(path: Path) -> pl.DataFrame:
             return pl.read_parquet(path)
         rows = []
         with path.open(encoding="utf-8") as fh:
-            for n, line in enumerate(fh, start=1):
-                if not line.strip():
-                    continue
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError as exc:
-                    raise DataError(f"{path}: row {n}: not JSON ({exc.msg})") from None
+            for n, row in json_lines(fh, str(path)):
                 if not isinstance(row, dict):
                     raise DataError(f"{path}: row {n}: expected a JSON object with video_id, start, end, text")
                 rows.append({k: (v if isinstance(v, str) or v is None else json.dumps(v)) for k, v in row.items()}

@@ -136,7 +136,7 @@ def test_the_issue_repros_fail_through_the_cli_and_mcp(bank):
     async def over_stdio() -> None:
         params = StdioServerParameters(command=sys.executable, args=["-m", "memora_graph.cli", "serve", str(path),
                                                                      "--participant", "P09"],
-                                       env={"PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+                                       env={"PYTHONPATH": str(Path(__file__).resolve().parents[3])})
         async with Client(params) as client:
             for text in repros:
                 res = await client.call_tool("cypher", {"query": text})
@@ -167,7 +167,7 @@ def test_csv_streams_every_row_past_the_cap(bank, tmp_path):
     import subprocess
 
     out = tmp_path / "all.csv"
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     with open(out, "w") as fh:
         res = subprocess.run([sys.executable, "-m", "memora_graph.cli", "query", str(path),
                               "MATCH (a:StateEvent), (b:StateEvent) RETURN a.id AS a, b.id AS b", "--participant",
@@ -250,7 +250,7 @@ def test_serve_reports_the_mode_when_it_starts(bank):
     import subprocess
 
     path, _ = bank
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     for env, says in (({}, "ad-hoc Cypher kernel-confined (Landlock ABI"), ({NO_LANDLOCK_ENV: "1"}, "ad-hoc Cypher unconfined")):
         res = subprocess.run([sys.executable, "-m", "memora_graph.cli", "serve", str(path), "--participant", "P09"],
                              stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=300,

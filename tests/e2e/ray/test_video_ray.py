@@ -13,7 +13,7 @@ from memora_graph.testing.scripted_server import ScriptedServer, Turn
 from memora_graph.bank import Bank
 from memora_graph.cli import main
 
-from test_video_build import CLIP0, CLIP1, CLIP2, EDIT0, EDIT1, EDIT2, USAGE
+from e2e.video.test_video_build import CLIP0, CLIP1, CLIP2, EDIT0, EDIT1, EDIT2, USAGE
 
 pytestmark = pytest.mark.ray
 

@@ -27,7 +27,7 @@ from memora_graph.perceive.narrations import NarrationReader, load_narrations
 from memora_graph.store import Store
 from support.live import KITCHEN, moments
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 def _rows(bank: Path, participant: str, cypher: str) -> list[dict]:
     with Store(Bank(bank).db_path(participant), read_only=True) as store:
         return store.query(cypher, {"p": participant}).to_dicts()
@@ -101,6 +101,23 @@ def test_bad_input_names_the_field(tmp_path):
     path.write_text("video_id,start,end,text\nv1,0,2,open the fridge\nv1,5,3,close the fridge\n")
     with pytest.raises(DataError, match=r"n.csv: row 3, field 'end': ends before start 5"):
         load_narrations(path, participant="P01")
+
+
+def test_a_line_that_is_not_json_is_named_and_the_lines_before_it_are_kept(tmp_path):
+    path = tmp_path / "n.jsonl"
+    path.write_text('{"video_id": "v1", "start": 0, "end": 2, "text": "open the fridge"}\n\n{"video_id": "v1", "start"\n')
+    with pytest.raises(DataError, match=r"n.jsonl: row 3: not JSON"):
+        load_narrations(path, participant="P01")
+    bank = tmp_path / "bank"
+    stream = ('{"video": "v1", "start": 0, "end": 2, "text": "open the fridge"}\n'
+              '{"video": "v1", "start": 3, "end": 4, "text": "take the milk"}\n'
+              'take the cup\n')
+    res = CliRunner().invoke(main, ["remember", str(bank), "--participant", "P01", "--jsonl", "-"], input=stream)
+    assert res.exit_code != 0 and "stdin: row 3: not JSON" in res.output
+    assert "the rows before it were committed" in res.output and "Traceback" not in res.output
+    segs = _rows(bank, "P01", "MATCH (g:Segment) WHERE g.participant = $p RETURN g.id AS id ORDER BY g.id")
+    assert [r["id"] for r in segs] == ["v1#t0000", "v1#t0001"]
+    assert verify_bank(bank).ok
 
 
 def test_narration_sources_csv_jsonl_parquet_build(tmp_path):

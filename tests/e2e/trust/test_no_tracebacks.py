@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from memora_graph.bank import Bank
 from memora_graph.cli import main
 from memora_graph.errors import BankError
-from trust.corpus import BAD_MANIFESTS, bad_cli_inputs
+from e2e.trust.corpus import BAD_MANIFESTS, bad_cli_inputs
 
 
 def make_scratch(root, bank) -> None:

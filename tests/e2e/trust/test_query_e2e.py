@@ -16,7 +16,7 @@ from memora_graph.bank import Bank
 from memora_graph.cli import main
 from memora_graph.cypher_guard import check_read_query
 from memora_graph.errors import QueryTimeout, StoreError
-from trust.corpus import ALLOWED, NEVER, attacks
+from e2e.trust.corpus import ALLOWED, NEVER, attacks
 
 
 def invoke(*args):

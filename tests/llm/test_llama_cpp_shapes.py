@@ -1,7 +1,7 @@
 """What llama-cpp-python's OpenAI-compatible server (python -m llama_cpp.server, 0.3.36) answers, in
 the exact shapes recorded against it, replayed by the scripted server on 127.0.0.1 so that the
 default test run keeps the project honest about them. The opt-in group `pytest -m real_model`
-(tests/real_model/) runs the real server."""
+(tests/e2e/real_model/) runs the real server."""
 
 from __future__ import annotations
 

@@ -7,8 +7,8 @@
 - tracebacks across the bad inputs: the attacks through `memora query`, the bad parameters and
   paths of every command, and the bad annotation files through `memora build`.
 
-    python tests/trust/figures.py BANK      # BANK: a built bank with P09 and P37 (it is copied)
-    python tests/trust/figures.py BANK --no-baseline   # skip the unguarded runs (about 2 s each)
+    python tests/e2e/trust/figures.py BANK      # BANK: a built bank with P09 and P37 (it is copied)
+    python tests/e2e/trust/figures.py BANK --no-baseline   # skip the unguarded runs (about 2 s each)
 """
 
 from __future__ import annotations
@@ -23,16 +23,16 @@ import time
 from collections import Counter
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/, for trust.*
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests/, for e2e.trust.*
 
 from click.testing import CliRunner  # noqa: E402
 
 from memora_graph.cli import main  # noqa: E402
 from memora_graph.cypher_guard import check_read_query, check_write_query  # noqa: E402
 from memora_graph.errors import QueryRefused  # noqa: E402
-from trust.corpus import ALLOWED, BAD_MANIFESTS, DISGUISES, FORBIDDEN, NEVER, attacks, bad_cli_inputs  # noqa: E402
-from trust.test_no_tracebacks import make_scratch, outcome  # noqa: E402
-from trust.test_strict_annotations import BAD_ROWS, write_csv  # noqa: E402
+from e2e.trust.corpus import ALLOWED, BAD_MANIFESTS, DISGUISES, FORBIDDEN, NEVER, attacks, bad_cli_inputs  # noqa: E402
+from e2e.trust.test_no_tracebacks import make_scratch, outcome  # noqa: E402
+from e2e.trust.test_strict_annotations import BAD_ROWS, write_csv  # noqa: E402
 
 # Runs one statement on P09's database opened read-only, through the library's unguarded Store
 # (what `memora query` did before the guard), and prints what Kùzu returned.

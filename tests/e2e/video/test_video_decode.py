@@ -8,7 +8,7 @@ import wave
 import av
 import numpy as np
 import pytest
-from conftest import SHORT_SECONDS, TONE_HZ
+from e2e.conftest import SHORT_SECONDS, TONE_HZ
 
 from memora_graph.errors import DataError
 from memora_graph.perceive.video import DecodeOptions, list_videos, probe_video, segment_video

@@ -23,7 +23,7 @@ SENTENCES = ["knife", "bowl", "wash the dishes", "cut vegetables on the board", 
              "what happens after washing a plate", "spatula or fork for eggs", "take milk from the fridge",
              "pour water into the kettle", "", ("a considerably longer sentence about putting every clean plate "
                                                 "back into the cupboard above the sink once the drying rack is full")]
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="session")

@@ -22,7 +22,7 @@ from memora_graph.retrieve import specs
 from memora_graph.serve import ArgumentError, MemoryService
 from memora_graph.cli.perf.serve import ServerProcess
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 INVALID_PARAMS = -32602
 
 # valid arguments for every served tool, for P37 (videos P37_101..103)

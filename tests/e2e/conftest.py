@@ -1,4 +1,4 @@
-"""Synthetic videos made with PyAV for the video tests: generated frames whose red channel
+"""Synthetic videos made with PyAV for the video tests (e2e/video, e2e/ray): generated frames whose red channel
 encodes the time, and a 440 Hz sine-wave audio track."""
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from memora_graph.cypher_guard import (
     MAX_CASE_DEPTH, MAX_DEPTH, check_param, check_read_query, check_write_query, parse_params, tokenize,
 )
 from memora_graph.errors import QueryRefused
-from trust.corpus import ALLOWED, FORBIDDEN, NEVER, attacks
+from e2e.trust.corpus import ALLOWED, FORBIDDEN, NEVER, attacks
 
 PATHS = {"{bank}": "/tmp/bank", "{other}": "/tmp/bank/P37.kuzu", "{out}": "/tmp/out"}
 

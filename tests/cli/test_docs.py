@@ -15,7 +15,7 @@ import pytest
 from memora_graph.cli import docs as cli_docs
 from memora_graph.paths import epic_dir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 PAGES = [README, *sorted((ROOT / "docs").rglob("*.md"))]
 SHELL_STOPS = {"&&", "||", "|", ";", "&", ">", ">>", "2>&1", "<"}
