@@ -183,8 +183,13 @@ class BackgroundConsolidation:
     def run_once(self, n_new: int = 0) -> InferredKnowledge:
         reader = self.writer.store.reader()
         try:
+            # the inferred records' vectors from the passage model a batch run uses (the writer's
+            # own embedder may be MiniLM's ONNX export, form/live.py `live_embedder`)
+            from memora_graph.embed import get_embedder
+
+            embedder = get_embedder(self.writer.embedder.name)
             knowledge = consolidate_incremental(reader, self.writer.store, self.writer.participant,
-                                                self.writer.embedder, self.state, lock=self.lock,
+                                                embedder, self.state, lock=self.lock,
                                                 on_written=self.on_done)
         finally:
             reader.close()

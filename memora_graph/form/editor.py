@@ -224,6 +224,12 @@ class EntityEditor:
     def live(self) -> list[EntityState]:
         return [e for e in self.entities.values() if e.status == "active"]
 
+    def active_of_kinds(self, kinds: set[str]) -> list[EntityState]:
+        """The active entities of these kinds (what a deterministic edit of observations of
+        these kinds may change), from the live index: numpy passes, not a loop over the registry."""
+        index = self._live_index()
+        return [e for k in sorted(kinds) for e in index.of_kind(k)]
+
     def _live_index(self) -> _LiveIndex:
         """The registry's live rows, kept up to date by `_apply` (rebuilt when `entities` was
         replaced or grew behind the editor's back, as a resumed build does)."""

@@ -56,6 +56,51 @@ _OPEN: set[tuple[str, str]] = set()  # (bank, participant) of the writers open i
 _OPEN_LOCK = threading.Lock()
 
 
+LIVE_ENCODERS = ("onnx", "torch")
+
+
+class _OnnxPassages:
+    """A remember's passages (the segment's summary, new identity and place texts) through the
+    ONNX Runtime fp32 export of the bank's MiniLM (memora_graph/onnx_embed.py), one text at a
+    time: ~6 ms of CPU where the PyTorch model takes ~20 (sentence-transformers' per-call work
+    dominates a single short text). Its vectors match the PyTorch model's to cosine >= 0.9999999
+    on P01's narrations (each component within 2.2e-7; PyTorch one text at a time, as remembers
+    ran before, is within 1.1e-7 of a build's batches), and no top-10 list changed when a
+    vector is swapped for it (docs/live-memory.md, "Where a remember's CPU goes")."""
+
+    def __init__(self, model: str):
+        from memora_graph.onnx_embed import OnnxEmbedder
+
+        self._onnx = OnnxEmbedder(variant="fp32", threads=1)
+        self.name, self.dim = model, self._onnx.dim
+
+    def uses_torch(self, kind: str) -> bool:
+        return False
+
+    def encode(self, texts: list[str], kind: str = "passage") -> np.ndarray:
+        return self._onnx.encode(texts, kind=kind)
+
+
+def live_embedder(model: str):
+    """The embedder of a live writer: for the bundled MiniLM, its ONNX fp32 export (see
+    `_OnnxPassages`), unless MEMORA_LIVE_ENCODER=torch; another model: its PyTorch model. An
+    export that cannot be made falls back to PyTorch (logged)."""
+    from memora_graph.embed import DEFAULT_MODEL, CachedEmbedder, get_embedder
+
+    choice = (os.environ.get("MEMORA_LIVE_ENCODER") or "onnx").strip().lower()
+    if choice not in LIVE_ENCODERS:
+        raise BankError(f"unknown live encoder {choice!r} (MEMORA_LIVE_ENCODER); choose one of: "
+                        + ", ".join(LIVE_ENCODERS))
+    if choice == "torch" or model != DEFAULT_MODEL:
+        return get_embedder(model)
+    try:
+        return CachedEmbedder(_OnnxPassages(model))
+    except Exception as exc:  # noqa: BLE001 - no ONNX Runtime or no export: the PyTorch model embeds
+        logging.getLogger("memora_graph.embed").warning(f"live memory embeds with PyTorch: the ONNX export of "
+                                                        f"{model} is not available ({exc})")
+        return get_embedder(model)
+
+
 class WriterBusy(BankError):
     """Another writer (a live writer, a build, a reader holding the file) has the participant."""
 
@@ -179,7 +224,7 @@ class LiveWriter:
 
     # -- opening -----------------------------------------------------------------------
     def _open(self, embedder, reader, lock_wait_s: float) -> None:
-        from memora_graph.embed import get_embedder
+        from memora_graph.embed import DEFAULT_MODEL
 
         p = self.participant
         mine = (str(self.bank.path.resolve()), p)
@@ -194,12 +239,12 @@ class LiveWriter:
             raise WriterBusy(self._busy_message()) from None
         if self.bank.exists():
             data = self.bank.manifest()
-            self.embedder = embedder or get_embedder(data["embed_model"])
+            self.embedder = embedder or live_embedder(data["embed_model"])
             if data.get("mode") != "edited":
                 raise BankError(f"{self.bank.path}: a '{data.get('mode')}' bank; live memory writes edited banks only")
             recover(self.bank, p)
         else:
-            self.embedder = embedder or get_embedder()
+            self.embedder = embedder or live_embedder(os.environ.get("MEMORA_EMBED_MODEL", DEFAULT_MODEL))
             self.bank.init(mode="edited", embed_model=self.embedder.name, consolidated=False)
         if p not in self.bank.manifest()["participants"]:
             self._create()
@@ -323,12 +368,15 @@ class LiveWriter:
                 segment = perceive_moment(p, video, turn, action, v.ctx, self.reader.classes)
             else:
                 segment = segment.model_copy(update={"turn_id": turn})
-            # state the writer changes only once the transaction committed: on failure it is rebuilt
-            snapshot = self._snapshot(segment)
+            # state the writer changes only once the transaction committed: on failure it is rebuilt.
+            # An edit changes active entities of the observed kinds only (an edit on any other id is
+            # repaired into an ADD): those are copied, not the registry, which grows with the hours.
+            touchable = self.editor.active_of_kinds({o.kind for o in segment.objects})
+            snapshot = self._snapshot(touchable)
             try:
                 # one short text at a time: torch's thread pool only spins against the readers' threads
                 with torch_threads(1, self.embedder, kind="passage"):
-                    result, rows = self._write(key, segment, v, turn)
+                    result, rows = self._write(key, segment, v, turn, touchable)
             except BaseException:
                 self._restore(snapshot)
                 raise
@@ -342,30 +390,27 @@ class LiveWriter:
             answer.seconds = time.perf_counter() - t0
             return answer
 
-    def _snapshot(self, seg: LayeredSegment):
-        """What an edit changes in the writer's memory (the touched entities, the places), to
-        put back if the transaction fails: the registry then matches the database again."""
+    def _snapshot(self, touchable: list):
+        """What an edit changes in the writer's memory (the entities it may touch, the places,
+        the counters), to put back if the transaction fails: the registry then matches the
+        database again. New entities are the registry's last keys (a dict keeps its order)."""
         import copy
 
-        kinds = {o.kind for o in seg.objects}
-        touched = {i: copy.copy(e) for i, e in self.editor.entities.items() if e.kind in kinds}
-        return (touched, set(self.editor.entities), copy.deepcopy(self.places.places), self.editor._ord,
-                self._op_seq, copy.deepcopy(self.videos.get(seg.video_id)))
+        return ({e.id: copy.copy(e) for e in touchable}, len(self.editor.entities),
+                copy.deepcopy(self.places.places), self.editor._ord, self._op_seq)
 
     def _restore(self, snap) -> None:
-        touched, ids, places, ord_, op_seq, video = snap
-        for i in list(self.editor.entities):
-            if i not in ids:
-                del self.editor.entities[i]
+        touched, n, places, ord_, op_seq = snap
+        for i in list(self.editor.entities)[n:]:
+            del self.editor.entities[i]
         for i, e in touched.items():
             self.editor.entities[i] = e
         self.editor._index = None  # rebuilt from the registry on the next edit
         self.places.places, self.editor._ord, self._op_seq = places, ord_, op_seq
 
-    def _write(self, key: str, seg: LayeredSegment, v: _Video, turn: int) -> tuple[list[dict], dict]:
+    def _write(self, key: str, seg: LayeredSegment, v: _Video, turn: int, touchable: list) -> tuple[list[dict], dict]:
         p, dim = self.participant, self.embedder.dim
-        before = {e.id: (e.status, e.location) for e in self.editor.entities.values()
-                  if e.kind in {o.kind for o in seg.objects}}
+        before = {e.id: (e.status, e.location) for e in touchable}
         known_places = set(self.places.places)
         old_turns = {k: pp.turn_count for k, pp in self.places.places.items()}
         texts = [seg.activity.summary] + sorted({identity_text(o.name, o.category) for o in seg.objects})
@@ -413,6 +458,8 @@ class LiveWriter:
                               new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
                               duration, n_actions)
             delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
+                     "segment_row": {"id": sid, "emb": seg_vec, "summary": seg_row["summary"],
+                                     "narrative": seg_row["narrative"]},
                      "places": [pp.location_id for pp in new_places + changed_places],
                      "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]],
                      "history": sorted({ev["entity"] for ev in result.events})}  # whose state history grew
@@ -426,19 +473,15 @@ class LiveWriter:
         p, dim, sid = self.participant, self.embedder.dim, seg.segment_id
         with self.store.transaction():
             if seg.video_id not in self.videos:
+                # its length, turns and actions are the moment's statement's to set
                 self._add("_live_add_video", [{"id": seg.video_id, "duration": duration, "n_turns": turn + 1,
-                                               "n_actions": n_actions, "mode": self.mode, "built_at": _now(),
+                                               "n_actions": 0, "mode": self.mode, "built_at": _now(),
                                                "build_seconds": 0.0}])
-            else:
-                self.store.write("_live_video_update", participant=p, video=seg.video_id, duration=duration,
-                               n_turns=turn + 1, n_actions=n_actions)
-            self._add("_live_add_segment", [{**seg_row, "emb": _floats(seg_vec)}])
-            if v.last_segment is not None:
-                # scalar ids: Kùzu looks them up in the primary-key index (an UNWIND row's id scanned the table)
-                got = self.store.write("_live_add_next", participant=p, from_id=v.last_segment, to_id=sid)
-                if int(got[0]["n"]) != 1:
-                    raise StoreError(f"{self.store.path}: the previous segment {v.last_segment} is missing; nothing of "
-                                     "this moment was kept")
+            # Places and entities first (the moment's edges point at them), then one statement for
+            # the moment itself: the video grown, the segment (and its NEXT edge), its
+            # acknowledgement and its IN_PLACE edges, every id bound as a scalar so Kùzu looks it
+            # up in the primary-key index (an id from an UNWIND row scans the table, which grows
+            # with the hours of memory).
             self._add("_live_add_places", [{**place_row(pp), "emb": _floats(vec)}
                                            for pp, vec in zip(new_places, place_vecs[: len(new_places)])])
             if changed_places:
@@ -454,20 +497,28 @@ class LiveWriter:
             if relocated:
                 self.store.write("_located_at_clear", participant=p, ids=relocated)
             self._add("_live_add_located", located)
-            self._add("_live_add_in_place", in_place)
+            moment = {**seg_row, "emb": _floats(seg_vec), "duration": duration, "key": key,
+                      "result": json.dumps(answer), "at": _now(), "rows": in_place}
+            if v.last_segment is not None:
+                got = int(self.store.write("_live_add_moment_next", prev=v.last_segment, **moment)[0]["n"])
+            else:
+                got = int(self.store.write("_live_add_moment", **moment)[0]["n"])
+            if got != len(in_place) or not in_place:
+                missing = f"the previous segment {v.last_segment} or " if v.last_segment else ""
+                raise StoreError(f"{self.store.path}: the moment's segment was not written ({missing}its video "
+                                 f"{seg.video_id} or one of its places is missing); nothing of this moment was kept")
             self._add("_live_add_spatial", spatial)
-            self._add("_live_add_events", [{**ev, "place": place_id(p, ev["location"])} for ev in result.events])
+            self._add("_live_add_events", [{**ev, "place": place_id(p, ev["location"])} for ev in result.events],
+                      segment=sid)
             self._add("_live_add_ops", op_rows)
             self._add("_live_add_merged", merged)
-            self._add("_live_add_remembered", [{"id": key, "video": seg.video_id, "t": seg.t_start, "segment": sid,
-                                                "result": json.dumps(answer), "at": _now()}])
 
-    def _add(self, name: str, rows: list[dict]) -> None:
+    def _add(self, name: str, rows: list[dict], **params) -> None:
         """Run one of the live writer's CREATE queries; every row must land (a row whose
         endpoints are missing would otherwise vanish silently): else the transaction fails."""
         if not rows:
             return
-        got = int(self.store.write(name, participant=self.participant, rows=rows)[0]["n"])
+        got = int(self.store.write(name, participant=self.participant, rows=rows, **params)[0]["n"])
         if got != len(rows):
             raise StoreError(f"{self.store.path}: {name} wrote {got} of {len(rows)} rows (a missing entity, place or "
                              "segment); nothing of this moment was kept")

@@ -161,8 +161,10 @@ class VectorTable:
         return [(self.ids[i], float(s[i])) for i in order]
 
     def appended(self, rid: str, vector: np.ndarray) -> VectorTable:
-        """This table with one more row (a remembered segment). The matrix grows by doubling
-        behind the rows in use, so a stream of appends copies it O(log n) times, not per row."""
+        """This table with one more row (a remembered segment), updated in place. The matrix grows
+        by doubling behind the rows in use, so a stream of appends copies it O(log n) times, not per
+        row; the ids and their index are copied once (they may be shared with what loaded them),
+        then grow by one: an append costs the same at 1,000 h as at 10 h."""
         v = np.asarray(vector, dtype=np.float32).reshape(-1)
         norm = float(np.linalg.norm(v))
         v = v / norm if norm > 0 else v
@@ -173,11 +175,12 @@ class VectorTable:
             store = np.zeros((max(64, 2 * (n + 1)), width), dtype=np.float32)
             store[:n] = self.mat
         store[n] = v
-        out = VectorTable.normalized([*self.ids, rid], store[: n + 1])
-        out._store = store
-        if "_unique" in self.__dict__:
-            out._unique = self._unique
-        return out
+        if not self.__dict__.get("_owned"):
+            self.ids, self.index, self._owned = list(self.ids), dict(self.index), True
+        self.ids.append(rid)
+        self.index[rid] = n
+        self.mat, self._store = store[: n + 1], store
+        return self
 
     def vec(self, rid: str) -> np.ndarray | None:
         n = self.index.get(rid)
@@ -254,12 +257,21 @@ class Bm25:
         document); the lengths grow by one."""
         toks = index_tokens(text)
         n = len(self.ids)
-        self.ids = [*self.ids, rid]
+        if not self.__dict__.get("_owned"):  # the ids may be shared with what loaded them: copied once
+            self.ids, self._owned = list(self.ids), True
+            self._total = int(np.asarray(self.lengths, dtype=np.int64).sum())
+        self.ids.append(rid)
         extra = self.__dict__.setdefault("_added", {})
         for t, c in Counter(toks).items():
             extra.setdefault(t, []).append((n, c))
-        self.lengths = np.append(np.asarray(self.lengths, dtype=np.int64), len(toks))
-        self.avg = float(self.lengths.sum()) / len(self.lengths)
+        grown = self.__dict__.get("_lengths")  # the lengths grow by doubling, as VectorTable's rows
+        if grown is None or grown.shape[0] <= n:
+            grown = np.zeros(max(64, 2 * (n + 1)), dtype=np.int64)
+            grown[:n] = self.lengths
+        grown[n] = len(toks)
+        self._lengths, self.lengths = grown, grown[: n + 1]
+        self._total += len(toks)
+        self.avg = float(self._total) / (n + 1)
         self.n = len(self.ids)
         return self
 

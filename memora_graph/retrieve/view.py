@@ -386,7 +386,8 @@ class MemoryView:
         sid = delta["segment"]
         vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
         if "segment" in vectors or "segment" in bm25:
-            row = self.store.fetch("_live_segment_row", participant=self.participant, id=sid)[0]
+            row = delta.get("segment_row") or self.store.fetch("_live_segment_row", participant=self.participant,
+                                                               id=sid)[0]  # the writer hands it over: no read
             if "segment" in vectors:
                 vectors["segment"] = vectors["segment"].appended(sid, np.asarray(row["emb"], dtype=np.float32))
             if "segment" in bm25:

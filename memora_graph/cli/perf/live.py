@@ -13,12 +13,13 @@ what `memora serve --writable` runs) and measured:
 - incremental consolidation: a first run (every video), then the time per 100 new segments.
 
 On a shared machine wall times include waiting for a core; CPU time (this process, all threads)
-does not. Each size's result is saved as JSON in the work folder and reused by a later run.
+does not; each row records the load average at its start and end. Each size's result is saved as JSON in the work folder and reused by a later run.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import statistics
 import threading
@@ -37,6 +38,14 @@ SKIP_TOOLS = ("cypher",)  # a child process per call in a read-only server; its 
 def _pct(xs: list[float], p: float) -> float:
     xs = sorted(xs)
     return round(xs[min(len(xs) - 1, max(0, int(round(p * (len(xs) - 1)))))], 2) if xs else float("nan")
+
+
+def _load() -> float | None:
+    """The machine's 1-minute load average (wall times on a shared machine are read against it)."""
+    try:
+        return round(os.getloadavg()[0], 2)
+    except OSError:
+        return None
 
 
 def _narrations(participant: str, n: int) -> list[str]:
@@ -77,7 +86,8 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
     texts = _narrations(participant, 2000)
     service = MemoryService(bank, participant, writable=True)
     counts = service.bank.manifest()["participants"][participant]["counts"]
-    out = {"segments_before": counts.get("segments"), "state_events_before": counts.get("state_events")}
+    out = {"segments_before": counts.get("segments"), "state_events_before": counts.get("state_events"),
+           "load_start": _load()}
     step = [0]
 
     def remember() -> tuple[float, float]:
@@ -160,6 +170,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
             cons.stop()
     finally:
         service.close()
+    out["load_end"] = _load()
     return out
 
 
@@ -231,4 +242,5 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
                    f"(CPU {r['remember_cpu_p50_ms']} / {r['remember_cpu_p95_ms']}) {'meets' if ok else 'misses'} "
                    f"<= {TARGET_P50_MS:g} / {TARGET_P95_MS:g}; tool p95 while remembering {r['tool_p95_ratio']}x idle "
                    f"(target <= {TARGET_RATIO:g}); incremental consolidation {r['consolidate_per_100_s']} s per 100 "
-                   f"new segments (first run {r['consolidate_first_s']} s)")
+                   f"new segments (first run {r['consolidate_first_s']} s); load average {r.get('load_start')} "
+                   f"-> {r.get('load_end')}")
