@@ -557,13 +557,12 @@ class Bank:
         return db
 
     def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None,
-             op: str = "write", buffer_pool_bytes: int = 0) -> Store:
+             op: str = "write") -> Store:
         """Open a participant's database after checking it (`check`): against its integrity
         record before Kùzu opens it, then its record counts against the manifest. `verify=False`
         (`--no-verify`; default: on unless MEMORA_NO_VERIFY is set) skips every check knowingly.
         A read-write store records the database's integrity again when it closes; until then the
-        manifest's write mark names `op` (a live writer's is "live"). `buffer_pool_bytes` caps
-        Kùzu's page cache (0: Kùzu's default, most of the machine's memory)."""
+        manifest's write mark names `op` (a live writer's is "live")."""
         from memora_graph.store import Store
 
         data = self.manifest()
@@ -584,7 +583,7 @@ class Bank:
         if not read_only and not ours:
             self.mark_writing(participant, op)
         try:
-            store = Store(self.db_path(participant), read_only=read_only, buffer_pool_bytes=buffer_pool_bytes,
+            store = Store(self.db_path(participant), read_only=read_only,
                           on_close=None if read_only or ours else (lambda s: self.record_integrity(participant)),
                           on_fail=None if read_only or ours else (lambda s: self.abandon_writing(participant)))
         except BaseException:

@@ -30,7 +30,7 @@ from memora_graph.consolidate.rules import RuleConsolidator, RuleEnricher, stabl
 from memora_graph.errors import ConsolidationError
 from memora_graph.llm.backends import CallRecord
 from memora_graph.embed import encode_passages
-from memora_graph.form.build import BUILD_BUFFER_POOL_BYTES, model_call_frame
+from memora_graph.form.build import model_call_frame
 from memora_graph.store import Store
 
 
@@ -354,7 +354,7 @@ def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = 
     t0 = time.perf_counter()
     building = bank.writing_here(participant)  # the last step of this process's build: it records the integrity
     # checked first (unless this process is building it); records its integrity again on close
-    store = bank.open(participant, read_only=False, buffer_pool_bytes=BUILD_BUFFER_POOL_BYTES)
+    store = bank.open(participant, read_only=False)
     spent: dict[str, float] = {}
     try:
         store.apply_schema()

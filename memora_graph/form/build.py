@@ -306,7 +306,7 @@ class ParticipantBuilder:
         place_vecs = self.embedder.encode([pp.text() for pp in new_places + changed_places])
         self.bank.mark_writing(p, "build")  # until the bank records the database's integrity again
         try:
-            self.store = Store(self.db, read_only=False, bulk=True, buffer_pool_bytes=BUILD_BUFFER_POOL_BYTES)
+            self.store = Store(self.db, read_only=False, bulk=True)
         except BaseException:
             if self._resuming:
                 self.bank.abandon_writing(p)  # still the earlier write's unfinished state
@@ -384,11 +384,6 @@ class ParticipantBuilder:
 
 # rows per COPY of the bulk load: bounds what a long build holds (a segment row with its vector is ~2 KB)
 COPY_CHUNK_ROWS = 50_000
-# Kùzu's page cache (and query memory) while a build writes a participant and consolidates it.
-# Kùzu's default is most of the machine's memory, and it keeps every page it wrote or read: at
-# 1,000 hours the database is ~2.7 GB, all of it resident by the end of the bulk load, and as
-# much again for the consolidation's reads. Pages beyond this are written out and read again.
-BUILD_BUFFER_POOL_BYTES = 1 << 30
 NODE_ORDER = ("Video", "Segment", "Place", "Entity", "StateEvent", "EditOp", "ModelCall")
 REL_ORDER = ("HAS_VIDEO", "HAS_SEGMENT", "NEXT", "IN_PLACE", "SPATIAL", "HAS_STATE", "OBSERVED_IN", "AT",
              "EDITED", "MERGED_INTO")
