@@ -10,8 +10,6 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, field
 
-import polars as pl
-
 from memora_graph.consolidate import vocab
 from memora_graph.store import Store
 

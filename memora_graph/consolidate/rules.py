@@ -42,13 +42,6 @@ def _prep(location_words: str) -> str:
     return "on" if _ON & set(location_words.split()) else "in"
 
 
-def _merge_videos(parts: list[dict[str, int]]) -> dict[str, int]:
-    out: Counter[str] = Counter()
-    for p in parts:
-        out.update(p)
-    return dict(sorted(out.items()))
-
-
 def stable_id(participant: str, kind: str, *key) -> str:
     digest = hashlib.blake2b("\x1f".join(map(str, key)).encode(), digest_size=5).hexdigest()
     return f"{participant}:{kind}:{digest}"
