@@ -7,9 +7,8 @@ the processors cite (segment ids, entity ids) comes from here, so it exists in t
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
-
-import polars as pl
 
 from memora_graph.consolidate import vocab
 from memora_graph.store import Store
@@ -49,8 +48,8 @@ class MemoryStep:  # slots: a 1,000 h participant has about a million steps
         return self.objects[0]
 
     @property
-    def token(self) -> str:
-        return f"{self.verb}:{self.main.kind}"
+    def token(self) -> str:  # interned: the recurring n-grams of a long participant are keyed by tuples of them
+        return sys.intern(f"{self.verb}:{self.main.kind}")
 
     @property
     def is_filler(self) -> bool:
@@ -102,18 +101,19 @@ class ParticipantMemory:
         return {s["id"] for s in self.segments}
 
 
+# segments (~ state events / 3.5) per read of the state history: a participant is read a batch of
+# videos at a time, so the rows Kùzu and Arrow hold at once are bounded (at 1,000 h the whole
+# history at once was over a million rows, gigabytes beside the steps made from them)
+EVENT_BATCH_SEGMENTS = 40_000
+
+
 def load_memory(store: Store, participant: str) -> ParticipantMemory:
     segments = store.run("_consolidate_segments", participant=participant).to_dicts()
-    events = store.run("_consolidate_events", participant=participant)  # read row by row: at 1,000 h a
-    # participant has over a million state events, and a dict per row at once would cost gigabytes.
-    # Sorted again here: Kùzu's ORDER BY was seen to return one row of 11,757 out of place (a 10 h
-    # synthetic participant; where depends on how the rows lie on disk), which moved a narration's
-    # entries apart and changed a routine; (video, t, ord) is unique, so this order is the intended one.
-    events = events.sort("video", "t", "ord", maintain_order=True)
-    merged = dict(events.filter((pl.col("status") == "merged") & (pl.col("merged_into").fill_null("") != ""))
-                  .select("entity", "merged_into").iter_rows())
+    # who each merged duplicate was merged into (the entities a step names resolve through it)
+    merged = dict(store.run("_consolidate_merged", participant=participant).iter_rows())
 
     objs: dict[tuple, Obj] = {}  # one Obj per distinct (kind, entity, category, fixture), shared by its steps
+    text: dict[str, str] = {}  # one str per distinct value of the short columns (videos, places, verbs)
 
     def resolve(entity: str) -> str:
         seen = set()
@@ -122,21 +122,50 @@ def load_memory(store: Store, participant: str) -> ParticipantMemory:
             entity = merged[entity]
         return entity
 
+    def one(value: str | None) -> str:
+        value = value or ""
+        return text.setdefault(value, value)
+
     steps: list[MemoryStep] = []
-    current: MemoryStep | None = None
-    key = None
-    for e in events.iter_rows(named=True):  # ordered by video, t, ord: one narration's entries are adjacent
-        k = (e["video"], e["t"], e["narration"])
-        okey = (e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
-        obj = objs.get(okey)
-        if obj is None:
-            obj = objs[okey] = Obj(*okey)
-        if k != key:
-            current = MemoryStep(video=e["video"], segment=e["segment"], t=float(e["t"]), verb=e["action"], objects=[obj],
-                           location=e["location"] or "", zone=e["zone"] or "", destination=e["relative_to"] or "",
-                           relation=e["relation"] or "", narration=e["narration"] or "")
-            steps.append(current)
-            key = k
-        elif obj.kind not in {o.kind for o in current.objects}:
-            current.objects.append(obj)
+    for videos in _batches(segments):
+        events = store.run("_consolidate_events_of", participant=participant, videos=videos)
+        # ordered here, not by Kùzu: its ORDER BY was seen to return one row of 11,757 out of place (a
+        # 10 h synthetic participant; where depends on how the rows lie on disk), which moved a
+        # narration's entries apart and changed a routine; (video, t, ord) is unique. The batches
+        # are runs of sorted videos, so the steps come in the participant's (video, t, ord) order.
+        events = events.sort("video", "t", "ord", maintain_order=True)
+        current: MemoryStep | None = None
+        key = None
+        for e in events.iter_rows(named=True):  # one narration's entries are adjacent
+            k = (e["video"], e["t"], e["narration"])
+            okey = (e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+            obj = objs.get(okey)
+            if obj is None:
+                obj = objs[okey] = Obj(*okey)
+            if k != key:
+                current = MemoryStep(video=one(e["video"]), segment=e["segment"], t=float(e["t"]), verb=one(e["action"]),
+                               objects=[obj], location=one(e["location"]), zone=one(e["zone"]),
+                               destination=one(e["relative_to"]), relation=one(e["relation"]),
+                               narration=e["narration"] or "")
+                steps.append(current)
+                key = k
+            elif obj.kind not in {o.kind for o in current.objects}:
+                current.objects.append(obj)
+        del events
     return ParticipantMemory(participant, segments, steps)
+
+
+def _batches(segments: list[dict]) -> list[list[str]]:
+    """The participant's videos in order, in runs of about EVENT_BATCH_SEGMENTS segments."""
+    per_video: dict[str, int] = {}
+    for g in segments:
+        per_video[g["video"]] = per_video.get(g["video"], 0) + 1
+    out: list[list[str]] = []
+    size = 0
+    for video in sorted(per_video):
+        if not out or size + per_video[video] > EVENT_BATCH_SEGMENTS:
+            out.append([])
+            size = 0
+        out[-1].append(video)
+        size += per_video[video]
+    return out

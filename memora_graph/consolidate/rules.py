@@ -42,13 +42,6 @@ def _prep(location_words: str) -> str:
     return "on" if _ON & set(location_words.split()) else "in"
 
 
-def _merge_videos(parts: list[dict[str, int]]) -> dict[str, int]:
-    out: Counter[str] = Counter()
-    for p in parts:
-        out.update(p)
-    return dict(sorted(out.items()))
-
-
 def stable_id(participant: str, kind: str, *key) -> str:
     digest = hashlib.blake2b("\x1f".join(map(str, key)).encode(), digest_size=5).hexdigest()
     return f"{participant}:{kind}:{digest}"
@@ -280,114 +273,142 @@ class RuleConsolidator:
 
     def consolidate_streaming(self, memory: ParticipantMemory) -> Consolidation:
         """`consolidate_participant(memory, [consolidate_video(memory, v) for v in memory.videos])`,
-        the same records, merged video by video: a video's action sequences (the bulk of its
-        consolidation: every recurring window with its segments) are folded into per-sequence
-        counts and dropped, and the few sequences kept are read again for their evidence. Peak
-        memory no longer grows with the videos' sequences (35 MB a video at 1,000 h)."""
+        the same records, merged video by video: each video's records are folded into per-key
+        counts and videos and dropped (their evidence lists, every segment and entity they were
+        counted from, were what grew with the hours: gigabytes at 1,000 h); the few records kept
+        are read again, video by video, for their evidence."""
         videos = memory.videos
-        storage, habits, workflows = [], [], []
-        fold = _SequenceFold()
+        by_video = memory.steps_by_video()
+        storage, habits, workflows, sequences = _StorageFold(), _HabitFold(), _WorkflowFold(), _SequenceFold()
         for video in videos:
             v = self.consolidate_video(memory, video)
-            storage += v.storage_preferences
-            habits += v.organizational_habits
-            workflows += v.workflow_patterns
+            for p in v.storage_preferences:
+                storage.add(p)
+            for h in v.organizational_habits:
+                habits.add(h)
+            for w in v.workflow_patterns:
+                workflows.add(w)
             for a in v.action_sequences:
-                fold.add(a)
-        chosen = self._choose_sequences(fold)
-        evidence = {steps: _SequenceEvidence() for steps in chosen}
-        if evidence:
-            by_video, recurring = memory.steps_by_video(), self.recurring(memory)
-            for video in videos:  # the second read: only the chosen sequences' evidence is kept
-                self._sequence_evidence(by_video.get(video, []), recurring, evidence)
+                sequences.add(a)
+        kept_storage = self._choose_storage(storage)
+        kept_habits = self._choose_habits(habits)
+        kept_workflows = self._choose_workflows(workflows)
+        chosen = self._choose_sequences(sequences)
+        ev_storage = {key: _Evidence() for key, _ in kept_storage}
+        ev_habits = {key: _Evidence() for key, _ in kept_habits}
+        ev_workflows = {key: _Evidence() for key, _ in kept_workflows}
+        ev_sequences = {steps: _SequenceEvidence() for steps in chosen}
+        recurring = self.recurring(memory) if ev_sequences else set()
+        for video in videos:  # the second read: only the kept records' evidence is gathered
+            steps = by_video.get(video, [])
+            if ev_storage and any(video in storage.groups[k[:2]][k[2]].videos for k in ev_storage):
+                _gather(ev_storage, self._storage(video, steps), _StorageFold.key)
+            if ev_habits and any(video in habits.groups[k].videos for k in ev_habits):
+                _gather(ev_habits, self._habits(video, steps), _HabitFold.key)
+            if ev_workflows and any(video in workflows.groups[k].videos for k in ev_workflows):
+                _gather(ev_workflows, self._workflows(video, steps), _WorkflowFold.key)
+            if ev_sequences:
+                self._sequence_evidence(steps, recurring, ev_sequences)
         return Consolidation(
-            participant=memory.participant, videos=list(videos), storage_preferences=self._merge_storage(storage),
-            organizational_habits=self._merge_habits(habits), workflow_patterns=self._merge_workflows(workflows),
-            action_sequences=[self._merged_sequence(steps, fold.groups[steps], evidence[steps]) for steps in chosen],
+            participant=memory.participant, videos=list(videos),
+            storage_preferences=_with_evidence(StoragePreference, kept_storage, ev_storage),
+            organizational_habits=_with_evidence(OrganizationalHabit, kept_habits, ev_habits),
+            workflow_patterns=_with_evidence(WorkflowPattern, kept_workflows, ev_workflows),
+            action_sequences=[self._merged_sequence(steps, sequences.groups[steps], ev_sequences[steps])
+                              for steps in chosen],
         )
 
     def _merge_storage(self, items: list[StoragePreference]) -> list[StoragePreference]:
-        by_object: dict[tuple[str, str], dict[str, list[StoragePreference]]] = defaultdict(lambda: defaultdict(list))
+        fold = _StorageFold()
         for p in items:
-            by_object[(p.object, p.context)][p.preferred_location].append(p)
+            fold.add(p)
+        kept = self._choose_storage(fold)
+        evidence = {key: _Evidence() for key, _ in kept}
+        _gather(evidence, items, _StorageFold.key)
+        return _with_evidence(StoragePreference, kept, evidence)
+
+    def _choose_storage(self, fold: _StorageFold) -> list[tuple[tuple, dict]]:
+        """The storage preferences kept (their fields but the evidence), best first, by key."""
         out = []
-        for (kind, context), locations in by_object.items():
-            counts = {loc: sum(p.count for p in ps) for loc, ps in locations.items()}
+        for (kind, context), locations in fold.groups.items():
+            counts = {loc: g.count for loc, g in locations.items()}
             best = min(counts, key=lambda loc: (-counts[loc], loc))
-            ps = locations[best]
-            videos = _merge_videos([p.videos for p in ps])
+            g = locations[best]
+            videos = dict(sorted(g.videos.items()))
             total = sum(counts.values())
             if len(videos) < self.min_videos or counts[best] < (3 if context == "default" else 2):
                 continue
-            where, place = best, ps[0].place
+            where, place = best, g.first.place
             statement = {
                 "storage": f"Typically stores the {display(kind)} {_prep(where)} the {where}",
                 "after_use": f"After using the {display(kind)}, usually puts it {_prep(where)} the {where}",
                 "during_use": f"Usually uses the {display(kind)} at the {where}",
                 "default": f"Usually puts the {display(kind)} {_prep(where)} the {where}",
             }[context]
-            out.append(StoragePreference(
-                object=kind, object_name=display(kind), statement=statement, preferred_location=where, place=place, context=context,
-                count=counts[best], total=total, alternatives={k: v for k, v in sorted(counts.items()) if k != best},
-                confidence=_conf(counts[best] / total * _support(len(videos))),
-                supporting_episodes=_uniq(s for p in ps for s in p.supporting_episodes),
-                entities=_uniq(e for p in ps for e in p.entities), videos=videos,
-            ))
-        out.sort(key=lambda p: (-p.count, p.object, p.context))
+            out.append(((kind, context, best), dict(
+                object=kind, object_name=display(kind), statement=statement, preferred_location=where, place=place,
+                context=context, count=counts[best], total=total,
+                alternatives={k: v for k, v in sorted(counts.items()) if k != best},
+                confidence=_conf(counts[best] / total * _support(len(videos))), videos=videos,
+            )))
+        out.sort(key=lambda kv: (-kv[1]["count"], kv[1]["object"], kv[1]["context"]))
         kept, per_context = [], Counter()
-        for p in out:
-            per_context[p.context] += 1
-            if per_context[p.context] <= self.caps[p.context]:
-                kept.append(p)
+        for key, p in out:
+            per_context[p["context"]] += 1
+            if per_context[p["context"]] <= self.caps[p["context"]]:
+                kept.append((key, p))
         return kept
 
     def _merge_habits(self, items: list[OrganizationalHabit]) -> list[OrganizationalHabit]:
-        groups: dict[tuple[str, str], list[OrganizationalHabit]] = defaultdict(list)
-        trigger_total: Counter[str] = Counter()
-        seen_trigger_video: set[tuple[str, str]] = set()
+        fold = _HabitFold()
         for h in items:
-            groups[(h.trigger, h.next_action)].append(h)
-            video = next(iter(h.videos))
-            if (h.trigger, video) not in seen_trigger_video:  # trigger_count is per video, once per trigger
-                seen_trigger_video.add((h.trigger, video))
-                trigger_total[h.trigger] += h.trigger_count
+            fold.add(h)
+        kept = self._choose_habits(fold)
+        evidence = {key: _Evidence() for key, _ in kept}
+        _gather(evidence, items, _HabitFold.key)
+        return _with_evidence(OrganizationalHabit, kept, evidence)
+
+    def _choose_habits(self, fold: _HabitFold) -> list[tuple[tuple, dict]]:
         out = []
-        for (trigger, nxt), hs in groups.items():
-            videos = _merge_videos([h.videos for h in hs])
-            count = sum(h.count for h in hs)
-            share = count / max(trigger_total[trigger], 1)
+        for (trigger, nxt), g in fold.groups.items():
+            videos = dict(sorted(g.videos.items()))
+            count = g.count
+            share = count / max(fold.trigger_total[trigger], 1)
             if len(videos) < self.min_videos or count < self.habit_min_count or share < self.habit_min_share:
                 continue
-            out.append(OrganizationalHabit(
-                trigger=trigger, next_action=nxt, trigger_step=hs[0].trigger_step, next_step=hs[0].next_step,
-                habit=hs[0].habit, count=count, trigger_count=trigger_total[trigger],
-                objects_involved=hs[0].objects_involved, confidence=_conf(share * _support(len(videos))),
-                supporting_episodes=_uniq(s for h in hs for s in h.supporting_episodes),
-                entities=_uniq(e for h in hs for e in h.entities), videos=videos,
-            ))
-        out.sort(key=lambda h: (-h.count, h.trigger, h.next_action))
+            h0 = g.first
+            out.append(((trigger, nxt), dict(
+                trigger=trigger, next_action=nxt, trigger_step=h0.trigger_step, next_step=h0.next_step,
+                habit=h0.habit, count=count, trigger_count=fold.trigger_total[trigger],
+                objects_involved=h0.objects_involved, confidence=_conf(share * _support(len(videos))), videos=videos,
+            )))
+        out.sort(key=lambda kv: (-kv[1]["count"], kv[1]["trigger"], kv[1]["next_action"]))
         return out[: self.caps["habit"]]
 
     def _merge_workflows(self, items: list[WorkflowPattern]) -> list[WorkflowPattern]:
-        groups: dict[tuple[str, str, str], list[WorkflowPattern]] = defaultdict(list)
+        fold = _WorkflowFold()
         for w in items:
-            groups[(w.category, w.use, w.then)].append(w)
+            fold.add(w)
+        kept = self._choose_workflows(fold)
+        evidence = {key: _Evidence() for key, _ in kept}
+        _gather(evidence, items, _WorkflowFold.key)
+        return _with_evidence(WorkflowPattern, kept, evidence)
+
+    def _choose_workflows(self, fold: _WorkflowFold) -> list[tuple[tuple, dict]]:
         out = []
-        for (cat, use, then), ws in groups.items():
-            videos = _merge_videos([w.videos for w in ws])
-            objects = _uniq(o for w in ws for o in w.objects)
-            count = sum(w.count for w in ws)
+        for (cat, use, then), g in fold.groups.items():
+            videos = dict(sorted(g.videos.items()))
+            objects = list(g.extra)
+            count = g.count
             if len(videos) < self.min_videos or len(objects) < 2 or count < self.workflow_min_count:
                 continue
-            head, _, tail = ws[0].pattern.partition(") are usually ")
+            head, _, tail = g.first.pattern.partition(") are usually ")
             pattern = f"{cat.capitalize()} ({', '.join(objects[:4])}) are usually {tail}"
-            out.append(WorkflowPattern(
+            out.append(((cat, use, then), dict(
                 pattern=pattern, category=cat, use=use, then=then, objects=objects, count=count,
-                confidence=_conf(_support(len(videos)) * min(1.0, len(objects) / 3)),
-                supporting_episodes=_uniq(s for w in ws for s in w.supporting_episodes),
-                entities=_uniq(e for w in ws for e in w.entities), videos=videos,
-            ))
-        out.sort(key=lambda w: (-w.count, w.category, w.use))
+                confidence=_conf(_support(len(videos)) * min(1.0, len(objects) / 3)), videos=videos,
+            )))
+        out.sort(key=lambda kv: (-kv[1]["count"], kv[1]["category"], kv[1]["use"]))
         return out[: self.caps["workflow"]]
 
     def _merge_sequences(self, items: list[ActionSequence]) -> list[ActionSequence]:
@@ -434,10 +455,10 @@ class RuleConsolidator:
 class _SequenceGroup:
     """One step sequence across videos: its first occurrence (title, actions), count and videos."""
 
-    __slots__ = ("first", "count", "videos")
+    __slots__ = ("first", "count", "videos", "extra")
 
-    def __init__(self, first: ActionSequence):
-        self.first, self.count, self.videos = first, 0, Counter()
+    def __init__(self, first):
+        self.first, self.count, self.videos, self.extra = first, 0, Counter(), None
 
 
 class _SequenceFold:
@@ -472,6 +493,98 @@ class _SequenceEvidence:
         self.episodes.update(dict.fromkeys(episodes))
         self.segments.update(dict.fromkeys(segments))
         self.entities.update(dict.fromkeys(entities))
+
+
+class _Fold:
+    """Per-video records of one kind folded by their merge key: the first record (fields the merge
+    takes from it), the summed count and the videos; without the evidence lists."""
+
+    __slots__ = ("groups",)
+
+    def __init__(self):
+        self.groups: dict = {}
+
+    @staticmethod
+    def _thin(record):
+        return record.model_copy(update={"supporting_episodes": [], "entities": [], "videos": {}})
+
+    def _group(self, table: dict, key, record) -> _SequenceGroup:
+        g = table.get(key)
+        if g is None:
+            g = table[key] = _SequenceGroup(self._thin(record))
+        g.count += record.count
+        g.videos.update(record.videos)
+        return g
+
+
+class _StorageFold(_Fold):
+    """Storage preferences by (object, context), then by preferred location."""
+
+    @staticmethod
+    def key(p: StoragePreference) -> tuple:
+        return (p.object, p.context, p.preferred_location)
+
+    def add(self, p: StoragePreference) -> None:
+        self._group(self.groups.setdefault((p.object, p.context), {}), p.preferred_location, p)
+
+
+class _HabitFold(_Fold):
+    """Habits by (trigger, next action), and each trigger's count (once per video)."""
+
+    __slots__ = ("trigger_total", "_seen")
+
+    def __init__(self):
+        super().__init__()
+        self.trigger_total: Counter[str] = Counter()
+        self._seen: set[tuple[str, str]] = set()
+
+    @staticmethod
+    def key(h: OrganizationalHabit) -> tuple:
+        return (h.trigger, h.next_action)
+
+    def add(self, h: OrganizationalHabit) -> None:
+        self._group(self.groups, (h.trigger, h.next_action), h)
+        video = next(iter(h.videos))
+        if (h.trigger, video) not in self._seen:  # trigger_count is per video, once per trigger
+            self._seen.add((h.trigger, video))
+            self.trigger_total[h.trigger] += h.trigger_count
+
+
+class _WorkflowFold(_Fold):
+    """Workflow patterns by (category, use, then), with the objects they moved (in first-seen order)."""
+
+    @staticmethod
+    def key(w: WorkflowPattern) -> tuple:
+        return (w.category, w.use, w.then)
+
+    def add(self, w: WorkflowPattern) -> None:
+        g = self._group(self.groups, (w.category, w.use, w.then), w)
+        if g.extra is None:
+            g.extra = {}
+        g.extra.update(dict.fromkeys(w.objects))
+
+
+class _Evidence:
+    """The ordered, duplicate-free union of a kept record's segments and entities."""
+
+    __slots__ = ("episodes", "entities")
+
+    def __init__(self):
+        self.episodes, self.entities = {}, {}
+
+
+def _gather(evidence: dict[tuple, _Evidence], records, key) -> None:
+    """Add the evidence of `records` (in order) to the kept keys' evidence."""
+    for r in records:
+        ev = evidence.get(key(r))
+        if ev is not None:
+            ev.episodes.update(dict.fromkeys(r.supporting_episodes))
+            ev.entities.update(dict.fromkeys(r.entities))
+
+
+def _with_evidence(model, kept: list[tuple[tuple, dict]], evidence: dict) -> list:
+    return [model(**fields, supporting_episodes=list(evidence[key].episodes), entities=list(evidence[key].entities))
+            for key, fields in kept]
 
 
 def _longest_cover(videos: dict[tuple[str, ...], int]) -> dict[tuple[str, ...], int]:

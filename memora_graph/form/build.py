@@ -437,10 +437,11 @@ def build_participant(bank: Bank, participant: str, actions: pl.DataFrame, durat
     with bank.participant_lock(participant):
         builder = ParticipantBuilder(bank, participant, embedder, mode=mode, policy=policy)
         try:
-            by_video: dict[str, list[dict]] = {}
-            for row in actions.iter_rows(named=True):
-                by_video.setdefault(row["video_id"], []).append(row)
-            for video_id in sorted(by_video):
+            # each video's rows as dicts only when it is built: a dict per row for every video at
+            # once was ~2 GB at 1,000 hours (1.15 M rows), held for the whole build
+            rows_of = dict(actions.select("video_id").with_row_index("_row").group_by("video_id", maintain_order=True)
+                           .agg(pl.col("_row")).iter_rows())
+            for video_id in sorted(rows_of):
                 if video_id in builder.done:
                     out.videos_skipped += 1
                     if on_video:
@@ -448,7 +449,8 @@ def build_participant(bank: Bank, participant: str, actions: pl.DataFrame, durat
                     continue
                 if stop_after is not None and out.videos_built >= stop_after:
                     break
-                timings, n = builder.build_video(video_id, by_video[video_id], durations.get(video_id, 0.0), classes)
+                video_actions = actions[rows_of[video_id]].to_dicts()
+                timings, n = builder.build_video(video_id, video_actions, durations.get(video_id, 0.0), classes)
                 out.timings.add(timings)
                 out.videos_built += 1
                 out.segments += n

@@ -33,7 +33,7 @@ def _sample(field: str):
 def _dummy(param: str, cypher: str = ""):
     if param == "rows":  # one row with every field the query reads, matching no node
         return [{f: _sample(f) for f in sorted(set(re.findall(r"\br\.(\w+)", cypher)))}]
-    if param == "ids":
+    if param in ("ids", "videos"):
         return ["nothing"]
     if param == "vector":
         return [0.0] * 384
