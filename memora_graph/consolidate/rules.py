@@ -265,9 +265,12 @@ class RuleConsolidator:
     def consolidate_participant(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> Consolidation:
         return Consolidation(
             participant=memory.participant, videos=[v.video for v in per_video],
-            storage_preferences=self._merge_storage([p for v in per_video for p in v.storage_preferences]),
-            organizational_habits=self._merge_habits([h for v in per_video for h in v.organizational_habits]),
-            workflow_patterns=self._merge_workflows([w for v in per_video for w in v.workflow_patterns]),
+            storage_preferences=self._merged(StoragePreference, _StorageFold, self._choose_storage,
+                                             [p for v in per_video for p in v.storage_preferences]),
+            organizational_habits=self._merged(OrganizationalHabit, _HabitFold, self._choose_habits,
+                                               [h for v in per_video for h in v.organizational_habits]),
+            workflow_patterns=self._merged(WorkflowPattern, _WorkflowFold, self._choose_workflows,
+                                           [w for v in per_video for w in v.workflow_patterns]),
             action_sequences=self._merge_sequences([a for v in per_video for a in v.action_sequences]),
         )
 
@@ -302,11 +305,11 @@ class RuleConsolidator:
         for video in videos:  # the second read: only the kept records' evidence is gathered
             steps = by_video.get(video, [])
             if ev_storage and any(video in storage.groups[k[:2]][k[2]].videos for k in ev_storage):
-                _gather(ev_storage, self._storage(video, steps), _StorageFold.key)
+                _gather(ev_storage, self.video_storage(video, steps), _StorageFold.key)
             if ev_habits and any(video in habits.groups[k].videos for k in ev_habits):
-                _gather(ev_habits, self._habits(video, steps), _HabitFold.key)
+                _gather(ev_habits, self.video_habits(video, steps), _HabitFold.key)
             if ev_workflows and any(video in workflows.groups[k].videos for k in ev_workflows):
-                _gather(ev_workflows, self._workflows(video, steps), _WorkflowFold.key)
+                _gather(ev_workflows, self.video_workflows(video, steps), _WorkflowFold.key)
             if ev_sequences:
                 self._sequence_evidence(steps, recurring, ev_sequences)
         return Consolidation(
@@ -318,14 +321,17 @@ class RuleConsolidator:
                               for steps in chosen],
         )
 
-    def _merge_storage(self, items: list[StoragePreference]) -> list[StoragePreference]:
-        fold = _StorageFold()
-        for p in items:
-            fold.add(p)
-        kept = self._choose_storage(fold)
+    @staticmethod
+    def _merged(record, fold_type, choose, items: list) -> list:
+        """The whole-list merge of one kind of record: folded into per-key counts and videos, the
+        kept ones chosen from the fold, then their evidence gathered from the items."""
+        fold = fold_type()
+        for item in items:
+            fold.add(item)
+        kept = choose(fold)
         evidence = {key: _Evidence() for key, _ in kept}
-        _gather(evidence, items, _StorageFold.key)
-        return _with_evidence(StoragePreference, kept, evidence)
+        _gather(evidence, items, fold_type.key)
+        return _with_evidence(record, kept, evidence)
 
     def _choose_storage(self, fold: _StorageFold) -> list[tuple[tuple, dict]]:
         """The storage preferences kept (their fields but the evidence), best first, by key."""
@@ -359,15 +365,6 @@ class RuleConsolidator:
                 kept.append((key, p))
         return kept
 
-    def _merge_habits(self, items: list[OrganizationalHabit]) -> list[OrganizationalHabit]:
-        fold = _HabitFold()
-        for h in items:
-            fold.add(h)
-        kept = self._choose_habits(fold)
-        evidence = {key: _Evidence() for key, _ in kept}
-        _gather(evidence, items, _HabitFold.key)
-        return _with_evidence(OrganizationalHabit, kept, evidence)
-
     def _choose_habits(self, fold: _HabitFold) -> list[tuple[tuple, dict]]:
         out = []
         for (trigger, nxt), g in fold.groups.items():
@@ -384,15 +381,6 @@ class RuleConsolidator:
             )))
         out.sort(key=lambda kv: (-kv[1]["count"], kv[1]["trigger"], kv[1]["next_action"]))
         return out[: self.caps["habit"]]
-
-    def _merge_workflows(self, items: list[WorkflowPattern]) -> list[WorkflowPattern]:
-        fold = _WorkflowFold()
-        for w in items:
-            fold.add(w)
-        kept = self._choose_workflows(fold)
-        evidence = {key: _Evidence() for key, _ in kept}
-        _gather(evidence, items, _WorkflowFold.key)
-        return _with_evidence(WorkflowPattern, kept, evidence)
 
     def _choose_workflows(self, fold: _WorkflowFold) -> list[tuple[tuple, dict]]:
         out = []
