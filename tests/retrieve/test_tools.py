@@ -116,6 +116,7 @@ def test_every_tool_query_is_scoped_even_when_asked_for_the_other_participant(me
     views = {p: MemoryView(merged, p, embedder) for p in SMALL}
     probe = {p: {"ids": sorted(views[p].vectors("segment").ids)[:20] + sorted(views[p].entities)[:10],
                  "entity": sorted(views[p].entities)[0], "video": sorted(views[p].videos)[0],
+                 "videos": sorted(views[p].videos)[:2],
                  "vector": views[p].vectors("segment").mat[0].tolist(), "query": "take put wash knife plate",
                  "id": sorted(views[p].vectors("segment").ids)[0]}
              for p in SMALL}
