@@ -305,6 +305,8 @@ class LiveWriter:
         self.editor = EntityEditor(p, get_editor_policy(self.mode), embed=self._embed_one, entities=entities,
                                    next_ord=next_ord)
         self.places = PlaceMemory(p, places)
+        # the client keys acknowledged so far (only this writer adds any while it is open)
+        self._keys: set[str] = {r["id"] for r in s.fetch("_live_remembered_keys", participant=p)}
         self._place_vecs: set[str] = set()  # places whose stored vector this writer wrote for their current text
         self.videos: dict[str, _Video] = {}
         for r in s.rows("_live_videos", participant=p):
@@ -365,8 +367,10 @@ class LiveWriter:
             if self.store is None:
                 raise BankError(f"{self.bank.path}: this writer of {self.participant} is closed")
             p = self.participant
-            with self._store_lock:
-                done = self.store.fetch("_live_remembered", participant=p, id=key)
+            done = None
+            if key in self._keys:  # a retry: its first answer, from the database
+                with self._store_lock:
+                    done = self.store.fetch("_live_remembered", participant=p, id=key)
             if done:
                 answer = json.loads(done[0]["result"])
                 return Remembered(**{**answer, "duplicate": True}, seconds=time.perf_counter() - t0)
@@ -388,6 +392,7 @@ class LiveWriter:
             except BaseException:
                 self._restore(snapshot)
                 raise
+            self._keys.add(key)
             n_actions = len(segment.activity.action_breakdown)
             v.turns, v.last_segment = turn + 1, segment.segment_id
             v.duration, v.actions = max(v.duration, segment.t_end), v.actions + n_actions
