@@ -60,7 +60,7 @@ LIVE_ENCODERS = ("onnx", "torch")
 # the columns of a StateEvent row the live writer writes (queries/_live_add_event.cypher)
 _EVENT = ("id", "entity", "video", "turn", "t", "ord", "state", "location", "prev_state", "prev_location", "zone",
           "held_by", "relative_to", "relation", "action", "narration", "op")
-_SCALAR_ROWS = 3  # up to this many events or operations: one statement each, else one UNWIND over them
+_SCALAR_ROWS = 3  # up to this many changed entities, events or operations: one statement each, else one UNWIND
 # the Entity columns an edit changes (what queries/_live_entity_update.cypher sets)
 _ENTITY_UPDATE = ("id", "status", "merged_into", "state", "location", "held_by", "color", "material", "size",
                   "last_seen", "last_video", "last_turn", "n_observations")
@@ -392,7 +392,6 @@ class LiveWriter:
             except BaseException:
                 self._restore(snapshot)
                 raise
-            self._keys.add(key)
             n_actions = len(segment.activity.action_breakdown)
             v.turns, v.last_segment = turn + 1, segment.segment_id
             v.duration, v.actions = max(v.duration, segment.t_end), v.actions + n_actions
@@ -477,6 +476,8 @@ class LiveWriter:
                               place_vecs,
                               new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
                               duration, n_actions)
+            # committed: the key is acknowledged and the vectors written (even if on_commit fails)
+            self._keys.add(key)
             self._place_vecs.update(pp.id for pp in new_places + restated)
             delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
                      "segment_row": {"id": sid, "emb": seg_vec, "summary": seg_row["summary"],
@@ -519,8 +520,11 @@ class LiveWriter:
             self._add("_live_add_entities", [{**entity_row(e), "emb": _floats(e.emb if e.emb is not None else
                                                                                 np.zeros(dim, np.float32))}
                                              for e in new_ents])
-            for e in changed:
-                self._one("_live_entity_update", **{k: getattr(e, k) for k in _ENTITY_UPDATE})
+            if len(changed) <= _SCALAR_ROWS:
+                for e in changed:
+                    self._one("_live_entity_update", **{k: getattr(e, k) for k in _ENTITY_UPDATE})
+            else:
+                self.store.write("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
             if relocated:
                 self.store.write("_located_at_clear", participant=p, ids=relocated)
             self._add("_live_add_located", located)
