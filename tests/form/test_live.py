@@ -233,3 +233,33 @@ def test_kill_9_twenty_times_during_a_stream(tmp_path):
     todo = moments(60) + moments(20, video="home-2")
     acked = stream_with_kills(bank, todo, kills=22, seed=7)
     _check_after_kills(bank, todo, acked)
+
+
+def test_remembered_places_and_entities_match_the_writers_memory(tmp_path):
+    """What the live writer's per-row statements leave is its memory: every entity's columns are
+    the editor's, and every place's vector is the writer's embedding of the place's text, also
+    for a place whose stored vector another embedder wrote (it is rewritten at its next visit)."""
+    import numpy as np
+
+    from memora_graph.form.build import entity_row
+
+    bank = tmp_path / "bank"
+    with LiveWriter(bank, "P01") as memory:
+        for m in moments(12):
+            memory.remember(m)
+        memory.store.query("MATCH (p:Place) SET p.emb = $z", {"z": [0.0] * memory.embedder.dim})
+    with LiveWriter(bank, "P01") as memory:  # a new writer: the zeroed vectors are not its own
+        for m in moments(12, video="home-2", offset=100.0):
+            memory.remember(m)
+        places = {p.id: p for p in memory.places.places.values()}
+        stored = memory.store.query("MATCH (p:Place) RETURN p.id AS id, p.emb AS emb, p.zones AS zones, "
+                                    "p.turn_count AS n").to_dicts()
+        assert {r["id"] for r in stored} == set(places)
+        for r in stored:
+            p = places[r["id"]]
+            assert (r["zones"], r["n"]) == (p.zones, p.turn_count)
+            assert np.array_equal(np.asarray(r["emb"], np.float32), memory.embedder.encode([p.text()])[0])
+        cols = list(entity_row(next(iter(memory.editor.entities.values()))))
+        got = memory.store.query("MATCH (e:Entity) RETURN " + ", ".join(f"e.{c} AS {c}" for c in cols)).to_dicts()
+        assert sorted(got, key=lambda r: r["id"]) == sorted((entity_row(e) for e in memory.editor.entities.values()),
+                                                             key=lambda r: r["id"])
