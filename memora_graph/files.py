@@ -64,11 +64,29 @@ def forget_hashes() -> None:
     _HASHED.clear()
 
 
+def die_with_parent(parent: int) -> None:
+    """Make this (child) process end when `parent` does, kill -9 included (Linux: prctl
+    PR_SET_PDEATHSIG). A probe left running by a killed writer keeps the database open (read-only),
+    and the next writer then finds it "busy"; with this, the probe goes with the process that asked
+    for it. Exits at once if `parent` is already gone. Elsewhere (no prctl) it does nothing."""
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:  # 1 = PR_SET_PDEATHSIG
+            return
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it died before the request took effect: we were re-parented already
+        os._exit(1)
+
+
 def probe(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict:
     """Open a database read-only in a child process (replaying its write-ahead log in memory, as
     Kùzu does, without writing anything) and count its rows per table. Returns the counts, or
     raises BankError naming the file when Kùzu fails or crashes on it."""
-    cmd = [sys.executable, "-m", "memora_graph.integrity.probe", str(db), participant]
+    cmd = [sys.executable, "-m", "memora_graph.integrity.probe", str(db), participant, str(os.getpid())]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
                                                                       os.environ.get("PYTHONPATH", "")]))}
     try:

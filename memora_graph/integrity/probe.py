@@ -1,5 +1,5 @@
 """Child process of `memora_graph.files.probe`: open one database read-only and print its rows per table as
-JSON. Run as `python -m memora_graph.integrity.probe DB PARTICIPANT`; a crash here (SIGSEGV on
+JSON. Run as `python -m memora_graph.integrity.probe DB PARTICIPANT [PARENT_PID]`; a crash here (SIGSEGV on
 a damaged file or a foreign write-ahead log) only ends this process."""
 
 from __future__ import annotations
@@ -10,9 +10,12 @@ import sys
 
 def main(argv: list[str]) -> int:
     from memora_graph.errors import MemoraError
+    from memora_graph.files import die_with_parent
     from memora_graph.store import Store
 
-    db, participant = argv
+    db, participant, *parent = argv
+    if parent:  # asked by a process that may be killed: go with it, not hold the file under the next one
+        die_with_parent(int(parent[0]))
     try:
         with Store(db, read_only=True, buffer_pool_bytes=256 << 20) as store:  # a damaged file cannot take the memory
             tables = store.table_counts(participant)

@@ -149,9 +149,13 @@ def test_narration_sources_csv_jsonl_parquet_build(tmp_path):
 # -- durability under kill -9 ------------------------------------------------------------------------
 
 def _child(bank: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "memora_graph.cli", "remember", str(bank), "--participant", "P01",
-                             "--jsonl", "-"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+    # stderr to a file beside the bank (not a pipe nobody reads): a child that fails says why
+    err = open(bank.parent / "remember-stderr.txt", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "memora_graph.cli", "remember", str(bank), "--participant", "P01",
+                             "--jsonl", "-"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err,
                             text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    err.close()
+    return proc
 
 
 def stream_with_kills(bank: Path, todo: list[Moment], kills: int, seed: int) -> dict[str, str]:
@@ -187,7 +191,8 @@ def stream_with_kills(bank: Path, todo: list[Moment], kills: int, seed: int) -> 
         if kill:
             killed += 1
         elif proc.returncode != 0:
-            raise AssertionError(f"remember child failed with {proc.returncode}")
+            said = (bank.parent / "remember-stderr.txt").read_text()[-3000:]
+            raise AssertionError(f"remember child failed with {proc.returncode} after {killed} kills:\n{said}")
     assert killed == kills
     return acked
 
