@@ -466,7 +466,6 @@ class LiveWriter:
                    "action_breakdown": json.dumps([a.model_dump() for a in seg.activity.action_breakdown]),
                    "working_summary": seg.working_summary, "location": seg.environment.location_id,
                    "n_actions": len(seg.activity.action_breakdown), "n_objects": len(seg.objects)}
-        n_actions = v.actions + len(seg.activity.action_breakdown)
         duration = max(v.duration, seg.t_end)
         answer = {"key": key, "participant": p, "segment": sid, "video": seg.video_id, "turn": turn, "ops": ops}
         # Row by row (UNWIND ... CREATE): a COPY writes whole pages straight into the file and costs
@@ -475,7 +474,7 @@ class LiveWriter:
             self._transaction(key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, restated,
                               place_vecs,
                               new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
-                              duration, n_actions)
+                              duration)
             # committed: the key is acknowledged and the vectors written (even if on_commit fails)
             self._keys.add(key)
             self._place_vecs.update(pp.id for pp in new_places + restated)
@@ -491,8 +490,8 @@ class LiveWriter:
 
     def _transaction(self, key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, restated,
                      place_vecs,
-                     new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged, duration,
-                     n_actions) -> None:
+                     new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
+                     duration) -> None:
         p, dim, sid = self.participant, self.embedder.dim, seg.segment_id
         with self.store.transaction():
             if seg.video_id not in self.videos:

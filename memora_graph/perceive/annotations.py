@@ -310,6 +310,16 @@ def _check_row(r: dict, classes: ClassTables, videos: dict, problems: _Problems,
     }
 
 
+# the columns of a checked action row, whatever the source (EPIC annotations or free-text narrations)
+ACTION_SCHEMA = {
+    "narration_id": pl.String, "participant_id": pl.String, "video_id": pl.String,
+    "start_s": pl.Float64, "stop_s": pl.Float64, "narration": pl.String, "verb": pl.String,
+    "verb_class": pl.Int64, "verb_key": pl.String, "noun": pl.String, "noun_class": pl.Int64,
+    "all_nouns": pl.List(pl.String), "all_noun_classes": pl.List(pl.Int64),
+    "text_source": pl.String, "row": pl.Int64,
+}
+
+
 def load_annotations(
     path: str | Path | None = None,
     participants: list[str] | None = None,
@@ -334,13 +344,6 @@ def load_annotations(
     classes = load_class_tables(meta)
     videos = {v: (d, f) for v, d, f in load_video_info(meta).iter_rows()}
     problems = _Problems(path)
-    schema = {
-        "narration_id": pl.String, "participant_id": pl.String, "video_id": pl.String,
-        "start_s": pl.Float64, "stop_s": pl.Float64, "narration": pl.String, "verb": pl.String,
-        "verb_class": pl.Int64, "verb_key": pl.String, "noun": pl.String, "noun_class": pl.Int64,
-        "all_nouns": pl.List(pl.String), "all_noun_classes": pl.List(pl.Int64),
-        "text_source": pl.String, "row": pl.Int64,
-    }
     # checked rows become columns a chunk at a time: a dict per row for the whole file at once
     # was ~2 GB at 1,000 hours of video (1.15 M rows), the build's peak before it edited anything
     chunks: list[pl.DataFrame] = []
@@ -352,12 +355,12 @@ def load_annotations(
         if record is not None:
             records.append(record)
             if len(records) >= _ROWS_PER_CHUNK:
-                chunks.append(pl.DataFrame(records, schema=schema, orient="row"))
+                chunks.append(pl.DataFrame(records, schema=ACTION_SCHEMA, orient="row"))
                 records = []
     problems.check()
     if records:
-        chunks.append(pl.DataFrame(records, schema=schema, orient="row"))
-    df = pl.concat(chunks, rechunk=True) if chunks else pl.DataFrame(schema=schema)
+        chunks.append(pl.DataFrame(records, schema=ACTION_SCHEMA, orient="row"))
+    df = pl.concat(chunks, rechunk=True) if chunks else pl.DataFrame(schema=ACTION_SCHEMA)
     return df.sort(["video_id", "start_s", "stop_s", "narration_id"])
 
 

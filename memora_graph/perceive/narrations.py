@@ -23,7 +23,7 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.errors import DataError
-from memora_graph.perceive.annotations import ClassTables, load_class_tables
+from memora_graph.perceive.annotations import ACTION_SCHEMA, ClassTables, load_class_tables
 from memora_graph.perceive.lexicon import Lexicon, lemma
 
 REQUIRED = ("video_id", "start", "end", "text")
@@ -139,15 +139,6 @@ class NarrationReader:
             "all_nouns": list(reading.nouns), "all_noun_classes": list(reading.noun_classes),
             "text_source": "narration", "row": row,
         }
-
-
-ACTION_SCHEMA = {
-    "narration_id": pl.String, "participant_id": pl.String, "video_id": pl.String,
-    "start_s": pl.Float64, "stop_s": pl.Float64, "narration": pl.String, "verb": pl.String,
-    "verb_class": pl.Int64, "verb_key": pl.String, "noun": pl.String, "noun_class": pl.Int64,
-    "all_nouns": pl.List(pl.String), "all_noun_classes": pl.List(pl.Int64),
-    "text_source": pl.String, "row": pl.Int64,
-}
 
 
 def check_moment(where: str, video_id: object, start: object, end: object, text: object,
