@@ -298,11 +298,6 @@ class Store:
         self._in_tx = False
         self._execute("COMMIT")
 
-    def checkpoint(self) -> None:
-        """Write what was committed into the database file (a bulk store defers it to `close`),
-        so that Kùzu's page cache may evict those pages."""
-        self._execute("CHECKPOINT")
-
     def tables(self) -> dict[str, str]:
         """Table name -> NODE / REL, from the database's catalog."""
         return dict(self.run("_tables").iter_rows())

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -23,8 +22,7 @@ import polars as pl
 from memora_graph import schema
 from memora_graph.bank import Bank
 from memora_graph.embed import CachedEmbedder
-from memora_graph.errors import DiskFullError, StoreError
-from memora_graph.files import side_files
+from memora_graph.errors import DiskFullError
 from memora_graph.form.editor import (
     EditPolicy, EntityEditor, EntityState, editor_policy_names, get_editor_policy, identity_text,
 )
@@ -291,16 +289,7 @@ class ParticipantBuilder:
         }
 
     def finish(self) -> float:
-        """Load every staged video into the graph; returns seconds spent.
-
-        A participant's first load (no database yet: a new participant, a rebuild, or a resume
-        whose database was never written) goes into a side file (`load_path`) in transactions of
-        about LOAD_CHUNK_BYTES of staged rows each, checkpointed one after the other with a
-        bounded page cache (BUILD_BUFFER_POOL_BYTES), and the file becomes the participant's
-        database by a rename once all of it is in: one transaction kept everything it wrote in
-        memory until it committed (6.8 GB at 1,000 h). The database appears whole or not at all,
-        as before; a killed load leaves the side file, which the next build removes and redoes.
-        A load into an existing database is one transaction, as before."""
+        """Load every staged video into the graph in one transaction; returns seconds spent."""
         if not self.staged:
             return 0.0
         t0 = time.perf_counter()
@@ -315,89 +304,53 @@ class ParticipantBuilder:
         changed_places = [pp for loc, pp in sorted(self.places.places.items())
                           if loc in self.db_places and pp.turn_count != self.db_places[loc]]
         place_vecs = self.embedder.encode([pp.text() for pp in new_places + changed_places])
-        fresh = not self.db.exists()
-        path = load_path(self.db) if fresh else self.db
-        if fresh:
-            remove_load(self.db)  # what a killed first load left: redone whole
         self.bank.mark_writing(p, "build")  # until the bank records the database's integrity again
         try:
-            self.store = Store(path, read_only=False, bulk=True, buffer_pool_bytes=BUILD_BUFFER_POOL_BYTES if fresh else 0)
+            self.store = Store(self.db, read_only=False, bulk=True)
         except BaseException:
             if self._resuming:
                 self.bank.abandon_writing(p)  # still the earlier write's unfinished state
             else:
                 self.bank.clear_writing(p)  # nothing was written
             raise
-        s = self.store
-
-        def registry() -> None:  # the participant, new places and entities (their final state)
+        self.store.apply_schema()
+        with self.store.transaction():
+            s = self.store
             if not s.run("_participant_exists", participant=p)["n"][0]:
                 s.copy("Participant", pl.DataFrame({"id": [p], "participant": [p]}))
-            if new_places:
-                s.copy("Place", schema.frame("Place", [place_row(pp) for pp in new_places]).with_columns(
-                    _emb_series(list(place_vecs[: len(new_places)]), dim)))
-            if new_ents:
-                s.copy("Entity", schema.frame("Entity", [entity_row(e) for e in new_ents]).with_columns(
-                    _emb_series([e.emb if e.emb is not None else np.zeros(dim) for e in new_ents], dim)))
-
-        def videos(staged: list[StagedVideo], tables: tuple[str, ...]) -> None:
-            for table in tables:
-                if table not in ("Place", "Entity"):  # staged videos hold no rows of these (their snapshots aside)
-                    self._copy_chunks(table, self._staged_frames(table, staged))
-
-        try:
-            s.apply_schema()
-            if fresh:
-                with s.transaction():
-                    registry()
-                    if located:
-                        s.copy("LOCATED_AT", pl.DataFrame(located))
-                s.checkpoint()
-                for staged in load_chunks(self.staged):
-                    with s.transaction():
-                        videos(staged, NODE_ORDER)
-                        videos(staged, REL_ORDER)
-                    s.checkpoint()  # written to the file: the page cache may evict it now
-            else:
-                with s.transaction():
-                    registry()
-                    videos(self.staged, NODE_ORDER)
-                    if changed:
-                        s.run("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
-                    if changed_places:
-                        s.run("_place_update", participant=p, rows=[
-                            {"id": pp.id, "zones": pp.zones, "features": pp.features, "last_seen": pp.last_seen,
-                             "last_video": pp.last_video, "turn_count": pp.turn_count, "emb": v.tolist()}
-                            for pp, v in zip(changed_places, place_vecs[len(new_places):])])
-                    if relocated:
-                        s.run("_located_at_clear", participant=p, ids=relocated)
-                    if located:
-                        s.copy("LOCATED_AT", pl.DataFrame(located))
-                    videos(self.staged, REL_ORDER)
-            self.store = None
-            s.close()  # checkpoint: the staged videos are in the database file now
-            if fresh:
-                leftover = side_files(path)
-                if leftover:
-                    raise StoreError(f"{leftover[0]}: left next to {path.name} by a clean close; the load is not used")
-                os.replace(path, self.db)  # the database appears whole
-        except BaseException:
-            if fresh:
-                try:
-                    s.close()
-                except BaseException:  # noqa: BLE001 - the load's own error is the one to report
-                    pass
-                self.store = None
-                remove_load(self.db)
-            raise
+            for table in NODE_ORDER:
+                frames = self._staged_frames(table)  # read lazily, a chunk of videos at a time
+                if table == "Place" and new_places:
+                    s.copy("Place", schema.frame("Place", [place_row(pp) for pp in new_places]).with_columns(
+                        _emb_series(list(place_vecs[: len(new_places)]), dim)))
+                elif table == "Entity" and new_ents:
+                    s.copy("Entity", schema.frame("Entity", [entity_row(e) for e in new_ents]).with_columns(
+                        _emb_series([e.emb if e.emb is not None else np.zeros(dim) for e in new_ents], dim)))
+                else:
+                    self._copy_chunks(table, frames)
+            if changed:
+                s.run("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
+            if changed_places:
+                s.run("_place_update", participant=p, rows=[
+                    {"id": pp.id, "zones": pp.zones, "features": pp.features, "last_seen": pp.last_seen,
+                     "last_video": pp.last_video, "turn_count": pp.turn_count, "emb": v.tolist()}
+                    for pp, v in zip(changed_places, place_vecs[len(new_places):])])
+            if relocated:
+                s.run("_located_at_clear", participant=p, ids=relocated)
+            if located:
+                s.copy("LOCATED_AT", pl.DataFrame(located))
+            for table in REL_ORDER:
+                self._copy_chunks(table, self._staged_frames(table))
+        self.store.close()  # checkpoint: the staged videos are in the database file now
+        self.store = None
         self.staging.clear(self.staged)
         self.in_db |= self.done
         self.staged, self.staged_now = [], []
         return time.perf_counter() - t0
 
-    def _staged_frames(self, table: str, staged: list[StagedVideo]) -> Iterator[pl.DataFrame]:
+    def _staged_frames(self, table: str) -> Iterator[pl.DataFrame]:
         """The staged videos' rows of one table, each read from disk when the load reaches it."""
-        return (f for st in staged if (f := st.frame(table)) is not None)
+        return (f for st in self.staged if (f := st.frame(table)) is not None)
 
     def _copy_chunks(self, table: str, frames: Iterable[pl.DataFrame]) -> None:
         """COPY the videos' rows of one table in video order, COPY_CHUNK_ROWS rows at a time: one
@@ -431,40 +384,6 @@ class ParticipantBuilder:
 
 # rows per COPY of the bulk load: bounds what a long build holds (a segment row with its vector is ~2 KB)
 COPY_CHUNK_ROWS = 50_000
-# staged bytes (compressed Arrow of the videos' rows, snapshots aside) per transaction of a first
-# load: ~1.2 MB per hour of video, so one transaction up to ~50 h and ~25 at 1,000 h
-LOAD_CHUNK_BYTES = 64 << 20
-# Kùzu's page cache while a build loads a new database (0 would be Kùzu's default, most of the
-# machine's memory: every page the load wrote stayed resident)
-BUILD_BUFFER_POOL_BYTES = 1 << 30
-
-
-def load_path(db: Path) -> Path:
-    """The side file a participant's first load writes before it becomes `db` (its name starts
-    with the database's, so `Bank.traces` and `memora forget` find it)."""
-    return db.with_name(db.name + ".load")
-
-
-def remove_load(db: Path) -> None:
-    """Remove a first load's side file, with its write-ahead log and shadow file."""
-    side = load_path(db)
-    for f in (side, *side_files(side)):
-        f.unlink(missing_ok=True)
-
-
-def load_chunks(staged: list[StagedVideo], budget: int | None = None) -> Iterator[list[StagedVideo]]:
-    """The staged videos in order, in runs of about `budget` (LOAD_CHUNK_BYTES) staged bytes."""
-    budget = LOAD_CHUNK_BYTES if budget is None else budget
-    chunk, size = [], 0
-    for st in staged:
-        chunk.append(st)
-        size += st.rows_bytes()
-        if size >= budget:
-            yield chunk
-            chunk, size = [], 0
-    if chunk:
-        yield chunk
-
 NODE_ORDER = ("Video", "Segment", "Place", "Entity", "StateEvent", "EditOp", "ModelCall")
 REL_ORDER = ("HAS_VIDEO", "HAS_SEGMENT", "NEXT", "IN_PLACE", "SPATIAL", "HAS_STATE", "OBSERVED_IN", "AT",
              "EDITED", "MERGED_INTO")

@@ -68,11 +68,6 @@ class StagedVideo:
             return None
         return self._frame(f"{table}.arrow")
 
-    def rows_bytes(self) -> int:
-        """Bytes of the video's staged rows (its files but the registry snapshot), from its index."""
-        listed = json.loads((self.path / INDEX).read_text())["files"]
-        return sum(f["bytes"] for n, f in listed.items() if n.endswith(".arrow") and n[:-6] not in SNAPSHOT_TABLES)
-
     def snapshot(self) -> tuple[pl.DataFrame, pl.DataFrame, dict]:
         """(entities, places, counters) of the editor after this video."""
         counters = json.loads(self._bytes(COUNTERS))
