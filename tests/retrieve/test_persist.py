@@ -186,3 +186,18 @@ def test_perf_startup_prints_its_figures(bank):
         assert label in r.output
     assert "heavy modules imported by `memora --help`: none" in r.output
     assert store_dir(bank, P).is_dir()
+
+
+def test_stores_written_part_by_part_are_the_files_a_warm_view_writes(bank, embedder, tmp_path):
+    """`persist_bank` drops each part from the view once written (and lays rows end to end one at
+    a time) so that a long memory's write holds one part at a time; every file is byte for byte
+    the one a view that keeps all it loaded writes (MemoryView.open's first open)."""
+    other = tmp_path / "other"
+    shutil.copytree(bank, other)
+    assert persist_bank(bank, [P]).written == [store_dir(bank, P)]
+    with MemoryView.open(other, P, embedder) as view:
+        assert view.persisted_written == store_dir(other, P)
+        assert "segment" in view.__dict__["_vector_cache"]  # kept for the calls that follow
+    got = json.loads((store_dir(bank, P) / "meta.json").read_text())["files"]
+    want = json.loads((store_dir(other, P) / "meta.json").read_text())["files"]
+    assert len(got) > 40 and got == want
