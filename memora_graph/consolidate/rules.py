@@ -459,9 +459,12 @@ class _SequenceFold:
         key = tuple(a.steps)
         g = self.groups.get(key)
         if g is None:
+            # every field given: a field left to its default_factory costs model_construct an
+            # inspect.signature call (pydantic 2.10+), which was 40% of a batch consolidation
             g = self.groups[key] = _SequenceGroup(ActionSequence.model_construct(
                 title=a.title, steps=a.steps, actions=a.actions, activity_type=a.activity_type,
-                key_objects=a.key_objects))
+                key_objects=a.key_objects, count=0, confidence=0.0, supporting_episodes=[], segments=[], entities=[],
+                videos={}))
         g.count += a.count
         g.videos.update(a.videos)
 
@@ -604,6 +607,27 @@ def _longest_cover_pairwise(videos: dict[tuple[str, ...], int]) -> dict[tuple[st
 _lcs = lcs_length
 
 
+class EpisodeSummary:
+    """One episode as the routine-skill merge reads it: its goal, step tokens, canonical steps
+    (text and action, immediate repeats collapsed), the object kinds and entities it touched."""
+
+    __slots__ = ("video", "goal", "head", "cat", "tokens", "canon", "kinds", "entities", "t_start", "t_end", "segments")
+
+    def __init__(self, video, goal, head, cat, tokens, canon, kinds, entities, t_start, t_end, segments):
+        self.video, self.goal, self.head, self.cat, self.tokens, self.canon = video, goal, head, cat, tokens, canon
+        self.kinds, self.entities, self.t_start, self.t_end, self.segments = kinds, entities, t_start, t_end, segments
+
+
+class ToolUse:
+    """A narrated step done with an instrument: (verb, target kind, tool kind) and its evidence."""
+
+    __slots__ = ("verb", "target", "tool", "video", "segment", "narration", "objects")
+
+    def __init__(self, verb, target, tool, video, segment, narration, objects):
+        self.verb, self.target, self.tool, self.video = verb, target, tool, video
+        self.segment, self.narration, self.objects = segment, narration, objects
+
+
 class RuleEnricher:
     """Inferred-knowledge enrichment: routine skills from episodes, tool preferences from narrations."""
 
@@ -665,65 +689,101 @@ class RuleEnricher:
             return f"get {display(head)}", head, "setup"
         return f"{vocab.phrase(top)} {display(head)}", head, "setup"
 
+    def video_episodes(self, steps: list[MemoryStep]) -> list[EpisodeSummary]:
+        """One video's episodes as much as `routine_skills_from` reads of them (the merge across
+        videos needs no step)."""
+        out = []
+        for ep in self.episodes(steps):
+            goal, head, cat = self.goal(ep)
+            canon, last = [], None
+            for s in ep:
+                if s.token != last:
+                    canon.append((s.text(), s.action()))
+                    last = s.token
+            entities: dict[tuple[str, str], int] = {}
+            for s in ep:
+                for o in s.objects:
+                    entities[(o.kind, o.entity)] = entities.get((o.kind, o.entity), 0) + 1
+            out.append(EpisodeSummary(
+                video=ep[0].video, goal=goal, head=head, cat=cat, tokens=tuple(s.token for s in ep), canon=canon,
+                kinds=sorted({o.kind for s in ep for o in s.objects}), entities=list(entities.items()),
+                t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2), segments=_uniq(s.segment for s in ep)))
+        return out
+
     def routine_skills(self, memory: ParticipantMemory) -> list[RoutineSkill]:
-        groups: dict[str, list[tuple[list[MemoryStep], str, str | None]]] = defaultdict(list)
-        for video, steps in sorted(memory.steps_by_video().items()):
-            for ep in self.episodes(steps):
-                goal, head, cat = self.goal(ep)
-                groups[goal].append((ep, head, cat))
+        return self.routine_skills_from(ep for _, steps in sorted(memory.steps_by_video().items())
+                                        for ep in self.video_episodes(steps))
+
+    def routine_skills_from(self, summaries) -> list[RoutineSkill]:
+        """Routine skills from every video's episodes (`video_episodes`), in video order."""
+        groups: dict[str, list[EpisodeSummary]] = defaultdict(list)
+        for ep in summaries:
+            groups[ep.goal].append(ep)
         out = []
         for goal, eps in groups.items():
-            videos = Counter(ep[0].video for ep, _, _ in eps)
             if len(eps) < self.min_episodes:
                 continue
-            seqs = [[s.token for s in ep] for ep, _, _ in eps]
-            sample = list(range(len(eps)))[:: max(1, len(eps) // 40)][:40]  # bound the O(n^2) medoid search
-            sims = {i: [(2 * _lcs(seqs[i], seqs[j]) / (len(seqs[i]) + len(seqs[j]))) for j in sample if j != i] for i in sample}
-            medoid = max(sample, key=lambda i: (sum(sims[i]) / max(len(sims[i]), 1), -i))
-            cohesion = sum(sims[medoid]) / max(len(sims[medoid]), 1)
-            steps, actions, last = [], [], None
-            for s in eps[medoid][0]:
-                if s.token != last:
-                    steps.append(s.text())
-                    actions.append(s.action())
-                    last = s.token
-            head = eps[0][1]
-            kinds: Counter[str] = Counter()
-            entity_of: dict[str, Counter[str]] = defaultdict(Counter)
-            for ep, _, _ in eps:
-                for k in {o.kind for s in ep for o in s.objects}:
-                    kinds[k] += 1
-                for s in ep:
-                    for o in s.objects:
-                        entity_of[o.kind][o.entity] += 1
-            key_objects = [head] + [k for k, n in sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))
-                                    if k != head and n / len(eps) >= self.key_object_share]
-            key_objects = key_objects[:8]
-            cats = Counter(c for _, _, c in eps)
-            episodes = [Episode(video=ep[0].video, t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2),
-                                segments=_uniq(s.segment for s in ep)) for ep, _, _ in eps]
-            out.append(RoutineSkill(
-                goal=goal, activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0]],
-                canonical_steps=steps[: self.max_canonical_steps], actions=actions[: self.max_canonical_steps],
-                key_objects=[display(k) for k in key_objects],
-                supporting_episodes=[e.segments[0] for e in episodes], segments=_uniq(s for e in episodes for s in e.segments),
-                episodes=episodes, count=len(eps), confidence=_conf(_support(len(videos)) * (0.5 + 0.5 * cohesion)),
-                entities=[entity_of[k].most_common(1)[0][0] for k in key_objects], videos=dict(sorted(videos.items())),
-            ))
-        out.sort(key=lambda r: (-len(r.videos), -r.count, r.goal))  # cross-video routines first
-        return out[: self.caps["routine"]]
+            out.append(self.routine_of(goal, eps))
+        return self.ranked_routines(out)
+
+    def ranked_routines(self, routines) -> list[RoutineSkill]:
+        """The routine skills kept: cross-video routines first, at most `caps['routine']`."""
+        return sorted(routines, key=lambda r: (-len(r.videos), -r.count, r.goal))[: self.caps["routine"]]
+
+    def routine_of(self, goal: str, eps: list[EpisodeSummary]) -> RoutineSkill:
+        """The routine skill of one goal's episodes (in video order)."""
+        videos = Counter(ep.video for ep in eps)
+        seqs = [ep.tokens for ep in eps]
+        sample = list(range(len(eps)))[:: max(1, len(eps) // 40)][:40]  # bound the O(n^2) medoid search
+        sims = {i: [(2 * _lcs(seqs[i], seqs[j]) / (len(seqs[i]) + len(seqs[j]))) for j in sample if j != i] for i in sample}
+        medoid = max(sample, key=lambda i: (sum(sims[i]) / max(len(sims[i]), 1), -i))
+        cohesion = sum(sims[medoid]) / max(len(sims[medoid]), 1)
+        steps = [text for text, _ in eps[medoid].canon]
+        actions = [action for _, action in eps[medoid].canon]
+        head = eps[0].head
+        kinds: Counter[str] = Counter()
+        entity_of: dict[str, Counter[str]] = defaultdict(Counter)
+        for ep in eps:
+            for k in ep.kinds:
+                kinds[k] += 1
+            for (k, e), n in ep.entities:
+                entity_of[k][e] += n
+        key_objects = [head] + [k for k, n in sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))
+                                if k != head and n / len(eps) >= self.key_object_share]
+        key_objects = key_objects[:8]
+        cats = Counter(ep.cat for ep in eps)
+        episodes = [Episode(video=ep.video, t_start=ep.t_start, t_end=ep.t_end, segments=ep.segments) for ep in eps]
+        return RoutineSkill(
+            goal=goal, activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0]],
+            canonical_steps=steps[: self.max_canonical_steps], actions=actions[: self.max_canonical_steps],
+            key_objects=[display(k) for k in key_objects],
+            supporting_episodes=[e.segments[0] for e in episodes], segments=_uniq(s for e in episodes for s in e.segments),
+            episodes=episodes, count=len(eps), confidence=_conf(_support(len(videos)) * (0.5 + 0.5 * cohesion)),
+            entities=[entity_of[k].most_common(1)[0][0] for k in key_objects], videos=dict(sorted(videos.items())),
+        )
 
     # -- generated preferences ---------------------------------------------------------
-    def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
-        uses: dict[tuple[str, str], dict[str, list[MemoryStep]]] = defaultdict(lambda: defaultdict(list))
-        for s in memory.steps:
+    def tool_uses(self, steps: list[MemoryStep]) -> list[ToolUse]:
+        """The steps done with an instrument ("stir egg using spatula"), as `tool_preferences_from` reads them."""
+        out = []
+        for s in steps:
             if s.is_filler or s.main.category in vocab.TOOL_CATEGORIES:
                 continue
             tools = [o for o in s.objects[1:] if o.category in vocab.TOOL_CATEGORIES and not o.is_fixture]
             for tool in tools[:1]:
-                uses[(s.verb, s.main.kind)][tool.kind].append(s)
+                out.append(ToolUse(s.verb, s.main.kind, tool.kind, s.video, s.segment, s.narration, s.objects))
+        return out
+
+    def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
+        return self.tool_preferences_from(self.tool_uses(memory.steps))
+
+    def tool_preferences_from(self, tool_uses) -> list[GeneratedPreference]:
+        """Generated preferences from every video's tool uses (`tool_uses`), in video and time order."""
+        uses: dict[tuple[str, str], dict[str, list[ToolUse]]] = defaultdict(lambda: defaultdict(list))
+        for u in tool_uses:
+            uses[(u.verb, u.target)][u.tool].append(u)
         out = []
-        by_verb: dict[str, dict[str, list[tuple[str, list[MemoryStep]]]]] = defaultdict(lambda: defaultdict(list))
+        by_verb: dict[str, dict[str, list[tuple[str, list[ToolUse]]]]] = defaultdict(lambda: defaultdict(list))
         for (verb, target), tools in uses.items():
             counts = {t: len(ss) for t, ss in tools.items()}
             best = min(counts, key=lambda t: (-counts[t], t))
@@ -741,7 +801,7 @@ class RuleEnricher:
         return out[: self.caps["preference"]]
 
     @staticmethod
-    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[MemoryStep], alternatives: dict[str, int]) -> GeneratedPreference:
+    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[ToolUse], alternatives: dict[str, int]) -> GeneratedPreference:
         names = [display(t) for t in targets]
         what = names[0] if len(names) == 1 else ", ".join(names[:-1][:3]) + f" or {names[-1]}"
         statement = f"Usually uses the {display(tool)} to {vocab.phrase(verb)} the {what}"
