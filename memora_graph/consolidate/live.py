@@ -43,7 +43,7 @@ from pathlib import Path
 
 from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
 from memora_graph.consolidate.records import Enrichment, StepAction, VideoConsolidation
-from memora_graph.consolidate.rules import EpisodeSummary, RuleConsolidator, RuleEnricher, ToolUse
+from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
 
 log = logging.getLogger("memora_graph.consolidate")
@@ -111,6 +111,7 @@ class IncrementalConsolidation:
         self.folds: dict[str, _VideoFold] = {}
         self.ngram_videos: Counter = Counter()  # n-gram -> videos it is seen in
         self.segment_ids: set[str] = set()  # the segments the folds were read from (what a record may cite)
+        self.index = FoldIndex(self.rules)  # the per-video records merged, kept up to date video by video
         self.routines: dict[str, object] = {}  # goal -> RoutineSkill of the goal's current episodes
         self.recomputed = 0  # videos read and recomputed by the last run
         self.reused = 0
@@ -124,6 +125,7 @@ class IncrementalConsolidation:
     def _reset(self) -> None:
         self.stamp, self.merged, self.folds, self.ngram_videos, self.routines = None, {}, {}, Counter(), {}
         self.segment_ids = set()
+        self.index = FoldIndex(self.rules)
 
     def _load(self, data: dict) -> None:
         from memora_graph.consolidate.records import RoutineSkill
@@ -132,9 +134,10 @@ class IncrementalConsolidation:
             return
         self.stamp, self.merged = data["stamp"], dict(data["merged"])
         self.folds = {v: _VideoFold.from_json(f) for v, f in data["videos"].items()}
-        for f in self.folds.values():
+        for v, f in self.folds.items():
             self.ngram_videos.update(f.ngrams)
             self.segment_ids |= f.segments
+            self.index.put(f.records, v)
         self.routines = {g: RoutineSkill.model_validate(r) for g, r in data["routines"].items()}
 
     def save(self) -> None:
@@ -175,6 +178,7 @@ class IncrementalConsolidation:
         flipped: set[tuple] = set()  # n-grams that started or stopped recurring
         for video in [*dirty, *gone]:  # their old n-grams, episodes and segments leave the merge
             old = self.folds.pop(video, None)
+            self.index.put(None, video)
             if old is not None:
                 flipped |= self._count(old.ngrams, -1)
                 touched_goals.update(e.goal for e in old.episodes)
@@ -199,6 +203,7 @@ class IncrementalConsolidation:
             self.folds[video] = _VideoFold(marks[video], reader.raw.get(video, set()), {s.segment for s in steps},
                                            ngrams, records, episodes, enricher.tool_uses(steps))
             self.segment_ids |= self.folds[video].segments
+            self.index.put(records, video)
         # an n-gram that started or stopped recurring changes the action sequences of the unchanged
         # videos that hold it: those are read again and recounted
         resequence = [v for v, f in self.folds.items() if v not in fresh and flipped and not flipped.isdisjoint(f.ngrams)]
@@ -208,15 +213,13 @@ class IncrementalConsolidation:
                 f = self.folds[video]
                 f.records = f.records.model_copy(update={
                     "action_sequences": rules.video_sequences(video, more.get(video, []), recurring)})
+                self.index.put(f.records, video)
         self.merged = merged
         self.recomputed, self.reused, self.resequenced = len(dirty), len(self.folds) - len(dirty), len(resequence)
         t2 = time.perf_counter()
 
         videos = sorted(self.folds)
-        from memora_graph.consolidate.memory import ParticipantMemory
-
-        consolidation = rules.consolidate_participant(ParticipantMemory(participant),
-                                                      [self.folds[v].records for v in videos])
+        consolidation = self.index.consolidation(participant)
         t3 = time.perf_counter()
         groups: dict[str, list[EpisodeSummary]] = {}
         for v in videos:

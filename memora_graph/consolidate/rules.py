@@ -440,6 +440,133 @@ class RuleConsolidator:
         )
 
 
+class FoldIndex:
+    """`RuleConsolidator.consolidate_participant` kept up to date one video at a time.
+
+    Each video's records are indexed by their merge key (key -> video -> records); the folds the
+    merge chooses from (counts and videos per key, the first record in video order) are updated
+    by the difference a video makes, so replacing one video costs its own records, not every
+    video's. The records chosen and their evidence (the union, in video order, of the chosen keys'
+    records) are the batch merge's: tests/consolidate and tests/serve compare them."""
+
+    _KINDS = ("storage", "habit", "sequence")
+
+    def __init__(self, rules: RuleConsolidator):
+        self.rules = rules
+        self.videos: dict[str, VideoConsolidation] = {}
+        self.index: dict[str, dict] = {k: {} for k in self._KINDS}  # kind -> key -> {video: [records]}
+        self.storage, self.habits, self.sequences = _StorageFold(), _HabitFold(), _SequenceFold()
+        self.triggers: dict[str, dict[str, int]] = {}  # habit trigger -> {video: its count there}
+
+    @staticmethod
+    def _parts(v: VideoConsolidation):
+        return (("storage", v.storage_preferences, _StorageFold.key), ("habit", v.organizational_habits, _HabitFold.key),
+                ("sequence", v.action_sequences, lambda a: tuple(a.steps)))
+
+    def _group_of(self, kind: str, key, record, create: bool):
+        if kind == "storage":
+            table = self.storage.groups.setdefault(key[:2], {}) if create else self.storage.groups.get(key[:2], {})
+            sub = key[2]
+        else:
+            table, sub = (self.habits.groups if kind == "habit" else self.sequences.groups), key
+        g = table.get(sub)
+        if g is None and create:
+            first = (self.sequences._first(record) if kind == "sequence" else _Fold._thin(record))
+            g = table[sub] = _SequenceGroup(first)
+        return table, sub, g
+
+    def put(self, v: VideoConsolidation | None, video: str) -> None:
+        """Replace `video`'s records with `v`'s (None: the video is gone)."""
+        old = self.videos.pop(video, None)
+        if old is not None:
+            self._apply(old, -1)
+        if v is not None:
+            self.videos[video] = v
+            self._apply(v, +1)
+
+    def _apply(self, v: VideoConsolidation, sign: int) -> None:
+        video = v.video
+        for kind, records, keyf in self._parts(v):
+            index = self.index[kind]
+            touched = {}
+            for r in records:
+                key = keyf(r)
+                per = index.setdefault(key, {})
+                if sign > 0:
+                    per.setdefault(video, []).append(r)
+                else:
+                    per.pop(video, None)
+                touched[key] = r
+                table, sub, g = self._group_of(kind, key, r, create=sign > 0)
+                g.count += sign * r.count
+                n = g.videos.get(video, 0) + sign * r.videos.get(video, 0)
+                if n:
+                    g.videos[video] = n
+                else:
+                    g.videos.pop(video, None)
+            for key, r in touched.items():
+                per = self.index[kind][key]
+                table, sub, g = self._group_of(kind, key, r, create=False)
+                if not per:
+                    del self.index[kind][key]
+                    del table[sub]
+                    if kind == "storage" and not table:
+                        del self.storage.groups[key[:2]]
+                    continue
+                first_video = min(per)
+                if first_video >= video:  # the first record (in video order) may be this video's or another's now
+                    first = per[first_video][0]
+                    g.first = self.sequences._first(first) if kind == "sequence" else _Fold._thin(first)
+        for h in v.organizational_habits:
+            per = self.triggers.setdefault(h.trigger, {})
+            if sign > 0:
+                per[video] = h.trigger_count
+            else:
+                per.pop(video, None)
+        for trigger in {h.trigger for h in v.organizational_habits}:
+            per = self.triggers[trigger]
+            if per:
+                self.habits.trigger_total[trigger] = sum(per.values())
+            else:
+                del self.triggers[trigger]
+                self.habits.trigger_total.pop(trigger, None)
+
+    def consolidation(self, participant: str) -> Consolidation:
+        rules = self.rules
+        videos = sorted(self.videos)
+        workflows = _WorkflowFold()  # a handful per video, and their ties are broken by first appearance: refolded
+        for video in videos:
+            for w in self.videos[video].workflow_patterns:
+                workflows.add(w)
+        kept_storage, kept_habits = rules._choose_storage(self.storage), rules._choose_habits(self.habits)
+        kept_workflows, chosen = rules._choose_workflows(workflows), rules._choose_sequences(self.sequences)
+        ev_workflows = {key: _Evidence() for key, _ in kept_workflows}
+        _gather(ev_workflows, [w for video in videos for w in self.videos[video].workflow_patterns], _WorkflowFold.key)
+        sequences = []
+        for steps in chosen:
+            ev = _SequenceEvidence()
+            for _, records in sorted(self.index["sequence"][steps].items()):
+                for a in records:
+                    ev.add(a)
+            sequences.append(rules._merged_sequence(steps, self.sequences.groups[steps], ev))
+        return Consolidation(
+            participant=participant, videos=videos,
+            storage_preferences=_with_evidence(StoragePreference, kept_storage, self._evidence("storage", kept_storage)),
+            organizational_habits=_with_evidence(OrganizationalHabit, kept_habits, self._evidence("habit", kept_habits)),
+            workflow_patterns=_with_evidence(WorkflowPattern, kept_workflows, ev_workflows),
+            action_sequences=sequences)
+
+    def _evidence(self, kind: str, kept) -> dict:
+        out = {}
+        for key, _ in kept:
+            ev = out[key] = _Evidence()
+            for _, records in sorted(self.index[kind][key].items()):
+                for r in records:
+                    ev.episodes.update(dict.fromkeys(r.supporting_episodes))
+                    ev.entities.update(dict.fromkeys(r.entities))
+        return out
+
+
 class _SequenceGroup:
     """One step sequence across videos: its first occurrence (title, actions), count and videos."""
 
@@ -459,14 +586,18 @@ class _SequenceFold:
         key = tuple(a.steps)
         g = self.groups.get(key)
         if g is None:
-            # every field given: a field left to its default_factory costs model_construct an
-            # inspect.signature call (pydantic 2.10+), which was 40% of a batch consolidation
-            g = self.groups[key] = _SequenceGroup(ActionSequence.model_construct(
-                title=a.title, steps=a.steps, actions=a.actions, activity_type=a.activity_type,
-                key_objects=a.key_objects, count=0, confidence=0.0, supporting_episodes=[], segments=[], entities=[],
-                videos={}))
+            g = self.groups[key] = _SequenceGroup(self._first(a))
         g.count += a.count
         g.videos.update(a.videos)
+
+    @staticmethod
+    def _first(a: ActionSequence) -> ActionSequence:
+        # every field given: a field left to its default_factory costs model_construct an
+        # inspect.signature call (pydantic 2.10+), which was 40% of a batch consolidation
+        return ActionSequence.model_construct(
+            title=a.title, steps=a.steps, actions=a.actions, activity_type=a.activity_type,
+            key_objects=a.key_objects, count=0, confidence=0.0, supporting_episodes=[], segments=[], entities=[],
+            videos={})
 
 
 class _SequenceEvidence:
