@@ -42,7 +42,9 @@ from collections import Counter
 from pathlib import Path
 
 from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
-from memora_graph.consolidate.records import Enrichment, StepAction, VideoConsolidation
+from memora_graph.consolidate.records import (
+    ActionSequence, Enrichment, OrganizationalHabit, StepAction, StoragePreference, VideoConsolidation, WorkflowPattern,
+)
 from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
 
@@ -76,7 +78,23 @@ class _VideoFold:
         tool_uses = [ToolUse(verb, target, tool, video, segment, narration, [Obj(*o) for o in objects])
                      for verb, target, tool, video, segment, narration, objects in d["tool_uses"]]
         return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {tuple(t) for t in d["ngrams"]},
-                   VideoConsolidation.model_validate(d["records"]), episodes, tool_uses)
+                   _records(d["records"]), episodes, tool_uses)
+
+
+def _records(d: dict) -> VideoConsolidation:
+    """A video's records as `to_json` wrote them, constructed without validation (this process
+    validated them when it made them; tens of thousands per video took seconds to validate again)."""
+    def step(x):
+        return None if x is None else StepAction.model_construct(**x)
+
+    return VideoConsolidation.model_construct(
+        video=d["video"], storage_preferences=[StoragePreference.model_construct(**r) for r in d["storage_preferences"]],
+        organizational_habits=[OrganizationalHabit.model_construct(**{**r, "trigger_step": step(r["trigger_step"]),
+                                                                        "next_step": step(r["next_step"])})
+                               for r in d["organizational_habits"]],
+        workflow_patterns=[WorkflowPattern.model_construct(**r) for r in d["workflow_patterns"]],
+        action_sequences=[ActionSequence.model_construct(**{**r, "actions": [step(x) for x in r["actions"]]})
+                          for r in d["action_sequences"]])
 
 
 class _Recurring:
