@@ -131,16 +131,19 @@ class IncrementalConsolidation:
         self.segment_ids: set[str] = set()  # the segments the folds were read from (what a record may cite)
         self.index = FoldIndex(self.rules)  # the per-video records merged, kept up to date video by video
         self.routines: dict[str, object] = {}  # goal -> RoutineSkill of the goal's current episodes
+        self.unsaved = True  # folds changed since they were read from or written to `cache_path`
         self.recomputed = 0  # videos read and recomputed by the last run
         self.reused = 0
         self.resequenced = 0  # unchanged videos whose action sequences were recounted
         if cache_path is not None and cache_path.exists():
             try:
                 self._load(json.loads(cache_path.read_text()))
+                self.unsaved = False
             except (OSError, ValueError, KeyError, TypeError):
                 self._reset()  # a damaged cache is recomputed, never trusted
 
     def _reset(self) -> None:
+        self.unsaved = True
         self.stamp, self.merged, self.folds, self.ngram_videos, self.routines = None, {}, {}, Counter(), {}
         self.segment_ids = set()
         self.index = FoldIndex(self.rules)
@@ -159,7 +162,7 @@ class IncrementalConsolidation:
         self.routines = {g: RoutineSkill.model_validate(r) for g, r in data["routines"].items()}
 
     def save(self) -> None:
-        if self.cache_path is None:
+        if self.cache_path is None or (not self.unsaved and self.cache_path.exists()):
             return
         self.cache_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.cache_path.with_suffix(".tmp")
@@ -167,6 +170,7 @@ class IncrementalConsolidation:
                                    "videos": {v: f.to_json() for v, f in self.folds.items()},
                                    "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}}))
         tmp.replace(self.cache_path)
+        self.unsaved = False
 
     # -- a run -----------------------------------------------------------------------------
     def changed(self, marks: dict[str, tuple], merged: dict[str, str]) -> list[str]:
@@ -186,6 +190,8 @@ class IncrementalConsolidation:
         rules, enricher = self.rules, self.enricher
         if stamp is not None and self.stamp is not None and stamp != self.stamp:
             self._reset()  # rebuilt since: nothing kept is trusted
+        if stamp and stamp != self.stamp:
+            self.unsaved = True
         self.stamp = stamp or self.stamp
         marks = {r["video"]: (int(r["n"]), float(r["t_min"]), float(r["t_max"]))
                  for r in store.fetch("_consolidate_video_marks", participant=participant)}
@@ -232,6 +238,8 @@ class IncrementalConsolidation:
                 f.records = f.records.model_copy(update={
                     "action_sequences": rules.video_sequences(video, more.get(video, []), recurring)})
                 self.index.put(f.records, video)
+        if dirty or gone or resequence or merged != self.merged:
+            self.unsaved = True
         self.merged = merged
         self.recomputed, self.reused, self.resequenced = len(dirty), len(self.folds) - len(dirty), len(resequence)
         t2 = time.perf_counter()
