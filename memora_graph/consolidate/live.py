@@ -375,8 +375,6 @@ class BackgroundConsolidation:
                                                 save=False)
         finally:
             reader.close()
-        if not self.runs:
-            self.state.save()  # the folds of every video, for a later `memora consolidate --incremental`
         self.runs.append({"new_segments": n_new, **knowledge.seconds})
         return knowledge
 
@@ -389,7 +387,8 @@ class BackgroundConsolidation:
         self._wake.set()
         self._thread.join(timeout=600)
         if self.runs and self.error is None:
-            self.state.save()
+            self.state.save()  # for a later `memora consolidate --incremental` (while serving, writing
+            # every video's folds would hold the interpreter for seconds at 100 h)
 
 
 def consolidation_cache(bank_path, participant: str) -> Path:
