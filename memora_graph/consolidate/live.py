@@ -1,14 +1,28 @@
-"""Consolidation while living: incremental runs over a memory that grows one moment at a time.
+"""Consolidation while living: incremental runs whose cost follows what was added.
 
-The deterministic consolidator's per-video pass (storage preferences, organizational habits and
-workflow patterns of one video) depends on that video's steps only. `IncrementalConsolidation`
-keeps each video's results with a fingerprint of its steps (times, actions, the objects as the
-editor resolves them now) and recomputes only the videos whose steps changed since the last run:
-the videos that received new moments, or whose objects a later merge re-identified. What spans
-videos (the recurring action sequences, the participant-level merge, the routine skills and
-generated preferences of enrichment) is recomputed from the whole memory, as a batch run does,
-so an incremental run writes exactly the records a batch run would (tests/serve/test_live_serve.py
-compares them). The memory itself is still read whole (`load_memory`).
+Every part of the deterministic consolidation is computed per video and then merged:
+the per-video records (storage preferences, organizational habits, workflow patterns, action
+sequences, with their evidence), the video's action n-grams (whether a sequence recurs across
+videos), its episodes as the routine-skill merge reads them (goal, step tokens, canonical steps,
+objects and entities) and its steps done with an instrument (generated preferences).
+`IncrementalConsolidation` keeps these per-video folds between runs (in memory in the server,
+and in `BANK/.cache/consolidate-PXX.json` for the CLI) and, per run:
+
+1. finds the videos that changed, from what the bank records: each video's mark (its narrated
+   observations: how many, first and last time; one aggregate over the state events) and the
+   merged-duplicates map (an entity newly merged, or merged further, re-identifies the steps of
+   every video that names it); a bank rebuilt since (its annotations or mode in the manifest)
+   recomputes everything;
+2. reads the steps of those videos only (`_consolidate_events_of` with `$videos`) and replaces
+   their folds; a video that did not change but holds an n-gram that started or stopped
+   recurring (the threshold is two videos) has its action sequences recounted (its steps read);
+3. merges every video's folds as a batch run does (`RuleConsolidator.consolidate_participant`,
+   `RuleEnricher.routine_skills_from` / `tool_preferences_from`, the same functions a batch run
+   calls), a routine skill being recomputed only for goals whose episodes changed.
+
+So an incremental run writes exactly the records a batch run would (tests/serve/
+test_live_serve.py compares them at several points of a stream with merges) and reads from the
+database only the changed videos' steps; the merge is over the small per-video folds.
 
 `BackgroundConsolidation` runs it inside `memora serve --writable --consolidate-every N`: after N
 new segments a worker thread reads a committed snapshot through a second connection and infers
@@ -24,105 +38,270 @@ import json
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
+from collections import Counter
 from pathlib import Path
 
-from memora_graph.consolidate.memory import ParticipantMemory, MemoryStep, load_memory
-from memora_graph.consolidate.processors import Processors, get_processors
-from memora_graph.consolidate.records import VideoConsolidation
-from memora_graph.consolidate.run import InferredKnowledge, infer, write_inferred
-from memora_graph.errors import ConsolidationError
+from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
+from memora_graph.consolidate.records import (
+    ActionSequence, Enrichment, OrganizationalHabit, StepAction, StoragePreference, VideoConsolidation, WorkflowPattern,
+)
+from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
+from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
 
 log = logging.getLogger("memora_graph.consolidate")
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 
 
-def video_fingerprint(steps: list[MemoryStep]) -> str:
-    """What a video's per-video consolidation reads: every step's time, action, place and objects."""
-    h = hashlib.sha256()
-    for s in steps:
-        h.update(repr((s.segment, s.t, s.verb, s.location, s.zone, s.destination, s.relation, s.narration,
-                       [(o.kind, o.entity, o.category, o.is_fixture) for o in s.objects])).encode())
-    return h.hexdigest()[:24]
+class _VideoFold:
+    """What one video contributes to the participant's inferred knowledge (see the module)."""
+
+    __slots__ = ("mark", "raw", "segments", "ngrams", "records", "episodes", "tool_uses")
+
+    def __init__(self, mark, raw, segments, ngrams, records, episodes, tool_uses):
+        self.mark, self.raw, self.segments, self.ngrams = mark, raw, segments, ngrams
+        self.records, self.episodes, self.tool_uses = records, episodes, tool_uses
+
+    def to_json(self) -> dict:
+        return {"mark": list(self.mark), "raw": sorted(self.raw), "segments": sorted(self.segments),
+                "ngrams": [list(t) for t in self.ngrams], "records": self.records.model_dump(mode="json"),
+                "episodes": [[e.video, e.goal, e.head, e.cat, list(e.tokens), [[t, a.model_dump()] for t, a in e.canon],
+                              e.kinds, [[k, x, n] for (k, x), n in e.entities], e.t_start, e.t_end, e.segments]
+                             for e in self.episodes],
+                "tool_uses": [[u.verb, u.target, u.tool, u.video, u.segment, u.narration,
+                               [[o.kind, o.entity, o.category, o.is_fixture] for o in u.objects]] for u in self.tool_uses]}
+
+    @classmethod
+    def from_json(cls, d: dict) -> _VideoFold:
+        episodes = [EpisodeSummary(video, goal, head, cat, tuple(tokens), [(t, StepAction(**a)) for t, a in canon],
+                                   kinds, [((k, x), n) for k, x, n in entities], t0, t1, segments)
+                    for video, goal, head, cat, tokens, canon, kinds, entities, t0, t1, segments in d["episodes"]]
+        tool_uses = [ToolUse(verb, target, tool, video, segment, narration, [Obj(*o) for o in objects])
+                     for verb, target, tool, video, segment, narration, objects in d["tool_uses"]]
+        return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {tuple(t) for t in d["ngrams"]},
+                   _records(d["records"]), episodes, tool_uses)
 
 
-@dataclass
+def _records(d: dict) -> VideoConsolidation:
+    """A video's records as `to_json` wrote them, constructed without validation (this process
+    validated them when it made them; tens of thousands per video took seconds to validate again)."""
+    def step(x):
+        return None if x is None else StepAction.model_construct(**x)
+
+    return VideoConsolidation.model_construct(
+        video=d["video"], storage_preferences=[StoragePreference.model_construct(**r) for r in d["storage_preferences"]],
+        organizational_habits=[OrganizationalHabit.model_construct(**{**r, "trigger_step": step(r["trigger_step"]),
+                                                                        "next_step": step(r["next_step"])})
+                               for r in d["organizational_habits"]],
+        workflow_patterns=[WorkflowPattern.model_construct(**r) for r in d["workflow_patterns"]],
+        action_sequences=[ActionSequence.model_construct(**{**r, "actions": [step(x) for x in r["actions"]]})
+                          for r in d["action_sequences"]])
+
+
+class _Recurring:
+    """`RuleConsolidator.recurring` as a view of the kept n-gram counts (videos per n-gram)."""
+
+    __slots__ = ("counts", "min_videos")
+
+    def __init__(self, counts: Counter, min_videos: int):
+        self.counts, self.min_videos = counts, min_videos
+
+    def __contains__(self, tokens) -> bool:
+        return self.counts.get(tokens, 0) >= self.min_videos
+
+
+def bank_stamp(bank, participant: str) -> str:
+    """What a rebuild of the participant changes in the manifest (its annotations, the bank's mode):
+    kept folds are trusted only under the same stamp."""
+    data = bank.manifest()
+    entry = data.get("participants", {}).get(participant, {})
+    return hashlib.sha256(json.dumps([data.get("mode"), entry.get("annotations")], sort_keys=True).encode()).hexdigest()[:16]
+
+
 class IncrementalConsolidation:
-    """Per-video results of the deterministic consolidator, kept between runs (in memory, and
-    in `cache_path` when given), so that a run recomputes only the videos that changed."""
+    """Per-video folds of the deterministic consolidation, kept between runs (in memory, and in
+    `cache_path` when given), so that a run reads and recomputes only the videos that changed."""
 
-    cache_path: Path | None = None
-    videos: dict[str, tuple[str, dict]] = field(default_factory=dict)  # video -> (fingerprint, per-video records)
-    recomputed: int = 0  # videos recomputed by the last run
-    reused: int = 0
-
-    def __post_init__(self) -> None:
-        if self.cache_path is not None and self.cache_path.exists():
+    def __init__(self, cache_path: Path | None = None):
+        self.cache_path = cache_path
+        self.rules, self.enricher = RuleConsolidator(), RuleEnricher()
+        self.stamp: str | None = None
+        self.merged: dict[str, str] = {}
+        self.folds: dict[str, _VideoFold] = {}
+        self.ngram_videos: Counter = Counter()  # n-gram -> videos it is seen in
+        self.segment_ids: set[str] = set()  # the segments the folds were read from (what a record may cite)
+        self.index = FoldIndex(self.rules)  # the per-video records merged, kept up to date video by video
+        self.routines: dict[str, object] = {}  # goal -> RoutineSkill of the goal's current episodes
+        self.unsaved = True  # folds changed since they were read from or written to `cache_path`
+        self.recomputed = 0  # videos read and recomputed by the last run
+        self.reused = 0
+        self.resequenced = 0  # unchanged videos whose action sequences were recounted
+        if cache_path is not None and cache_path.exists():
             try:
-                data = json.loads(self.cache_path.read_text())
-                if data.get("format") == CACHE_FORMAT:
-                    self.videos = {v: (fp, rec) for v, (fp, rec) in data["videos"].items()}
+                self._load(json.loads(cache_path.read_text()))
+                self.unsaved = False
             except (OSError, ValueError, KeyError, TypeError):
-                self.videos = {}  # a damaged cache is recomputed, never trusted
+                self._reset()  # a damaged cache is recomputed, never trusted
+
+    def _reset(self) -> None:
+        self.unsaved = True
+        self.stamp, self.merged, self.folds, self.ngram_videos, self.routines = None, {}, {}, Counter(), {}
+        self.segment_ids = set()
+        self.index = FoldIndex(self.rules)
+
+    def _load(self, data: dict) -> None:
+        from memora_graph.consolidate.records import RoutineSkill
+
+        if data.get("format") != CACHE_FORMAT:
+            return
+        self.stamp, self.merged = data["stamp"], dict(data["merged"])
+        self.folds = {v: _VideoFold.from_json(f) for v, f in data["videos"].items()}
+        for v, f in self.folds.items():
+            self.ngram_videos.update(f.ngrams)
+            self.segment_ids |= f.segments
+            self.index.put(f.records, v)
+        self.routines = {g: RoutineSkill.model_validate(r) for g, r in data["routines"].items()}
 
     def save(self) -> None:
-        if self.cache_path is None:
+        if self.cache_path is None or (not self.unsaved and self.cache_path.exists()):
             return
         self.cache_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.cache_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"format": CACHE_FORMAT, "videos": self.videos}))
+        tmp.write_text(json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
+                                   "videos": {v: f.to_json() for v, f in self.folds.items()},
+                                   "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}}))
         tmp.replace(self.cache_path)
+        self.unsaved = False
 
-    def infer(self, memory: ParticipantMemory, entity_ids: set[str], procs: Processors) -> InferredKnowledge:
-        """`consolidate.run.infer`, with each unchanged video's per-video pass taken from the cache."""
-        rules = procs.consolidation
-        if procs.name != "deterministic" or not hasattr(rules, "video_storage"):
-            raise ConsolidationError(f"incremental consolidation runs the deterministic processors, not {procs.name!r}")
-        by_video = memory.steps_by_video()
-        recurring = rules.recurring(memory)
-        fresh: dict[str, tuple[str, dict]] = {}
-        self.recomputed = self.reused = 0
-        for video in memory.videos:
+    # -- a run -----------------------------------------------------------------------------
+    def changed(self, marks: dict[str, tuple], merged: dict[str, str]) -> list[str]:
+        """The videos whose steps may differ from their folds: new, or a moved mark, or naming an
+        entity whose resolution through the merges changed."""
+        moved = {e for e in self.merged.keys() | merged.keys() if resolve(self.merged, e) != resolve(merged, e)}
+        out = []
+        for video, mark in marks.items():
+            f = self.folds.get(video)
+            if f is None or f.mark != mark or (moved and not moved.isdisjoint(f.raw)):
+                out.append(video)
+        return out
+
+    def infer(self, store, participant: str, entity_ids: set[str], stamp: str | None = None) -> InferredKnowledge:
+        """Bring the folds up to date from `store` and merge them into the participant's records."""
+        t0 = time.perf_counter()
+        rules, enricher = self.rules, self.enricher
+        if stamp is not None and self.stamp is not None and stamp != self.stamp:
+            self._reset()  # rebuilt since: nothing kept is trusted
+        if stamp and stamp != self.stamp:
+            self.unsaved = True
+        self.stamp = stamp or self.stamp
+        marks = {r["video"]: (int(r["n"]), float(r["t_min"]), float(r["t_max"]))
+                 for r in store.fetch("_consolidate_video_marks", participant=participant)}
+        merged = merged_map(store, participant)
+        dirty = self.changed(marks, merged)
+        gone = [v for v in self.folds if v not in marks]
+        touched_goals: set[str] = set()
+        flipped: set[tuple] = set()  # n-grams that started or stopped recurring
+        for video in [*dirty, *gone]:  # their old n-grams, episodes and segments leave the merge
+            old = self.folds.pop(video, None)
+            self.index.put(None, video)
+            if old is not None:
+                flipped |= self._count(old.ngrams, -1)
+                touched_goals.update(e.goal for e in old.episodes)
+                self.segment_ids -= old.segments
+        reader = StepReader(merged)
+        by_video = _by_video(reader.read(store, participant, {v: marks[v][0] for v in dirty}))
+        t1 = time.perf_counter()
+        fresh = {}
+        for video in dirty:
             steps = by_video.get(video, [])
-            fp = video_fingerprint(steps)
-            hit = self.videos.get(video)
-            if hit is not None and hit[0] == fp:
-                self.reused += 1
-                fresh[video] = hit
+            ngrams = {tokens for tokens, _ in rules._windows(steps)}
+            flipped |= self._count(ngrams, +1)
+            fresh[video] = (steps, ngrams)
+        recurring = _Recurring(self.ngram_videos, rules.min_videos)
+        for video, (steps, ngrams) in fresh.items():
+            records = VideoConsolidation(video=video, storage_preferences=rules.video_storage(video, steps),
+                                         organizational_habits=rules.video_habits(video, steps),
+                                         workflow_patterns=rules.video_workflows(video, steps),
+                                         action_sequences=rules.video_sequences(video, steps, recurring))
+            episodes = enricher.video_episodes(steps)
+            touched_goals.update(e.goal for e in episodes)
+            self.folds[video] = _VideoFold(marks[video], reader.raw.get(video, set()), {s.segment for s in steps},
+                                           ngrams, records, episodes, enricher.tool_uses(steps))
+            self.segment_ids |= self.folds[video].segments
+            self.index.put(records, video)
+        # an n-gram that started or stopped recurring changes the action sequences of the unchanged
+        # videos that hold it: those are read again and recounted
+        resequence = [v for v, f in self.folds.items() if v not in fresh and flipped and not flipped.isdisjoint(f.ngrams)]
+        if resequence:
+            more = _by_video(StepReader(merged).read(store, participant, {v: marks[v][0] for v in resequence}))
+            for video in resequence:
+                f = self.folds[video]
+                f.records = f.records.model_copy(update={
+                    "action_sequences": rules.video_sequences(video, more.get(video, []), recurring)})
+                self.index.put(f.records, video)
+        if dirty or gone or resequence or merged != self.merged:
+            self.unsaved = True
+        self.merged = merged
+        self.recomputed, self.reused, self.resequenced = len(dirty), len(self.folds) - len(dirty), len(resequence)
+        t2 = time.perf_counter()
+
+        videos = sorted(self.folds)
+        consolidation = self.index.consolidation(participant)
+        t3 = time.perf_counter()
+        groups: dict[str, list[EpisodeSummary]] = {}
+        for v in videos:
+            for e in self.folds[v].episodes:
+                groups.setdefault(e.goal, []).append(e)
+        routines = {}
+        for goal, eps in groups.items():  # a goal none of whose episodes changed keeps its routine skill
+            if len(eps) < enricher.min_episodes:
+                continue
+            hit = self.routines.get(goal)
+            routines[goal] = hit if hit is not None and goal not in touched_goals else enricher.routine_of(goal, eps)
+        self.routines = routines
+        skills = enricher.ranked_routines(routines.values())
+        prefs = enricher.tool_preferences_from(u for v in videos for u in self.folds[v].tool_uses)
+        enrichment = Enrichment(participant=participant, routine_skills=skills, generated_preferences=prefs)
+        t4 = time.perf_counter()
+        out = collect(participant, self.segment_ids, entity_ids, consolidation, enrichment, rules.name)
+        out.seconds = {"read": round(t1 - t0, 3), "folds": round(t2 - t1, 3), "consolidation": round(t3 - t2, 3),
+                       "enrichment": round(t4 - t3, 3), "collect": round(time.perf_counter() - t4, 3)}
+        return out
+
+    def _count(self, ngrams, step: int) -> set[tuple]:
+        """Add (+1) or remove (-1) one video's n-grams; returns those that crossed the threshold."""
+        counts, k, flipped = self.ngram_videos, self.rules.min_videos, set()
+        for t in ngrams:
+            before = counts.get(t, 0)
+            after = before + step
+            if after:
+                counts[t] = after
             else:
-                self.recomputed += 1
-                part = VideoConsolidation(video=video, storage_preferences=rules.video_storage(video, steps),
-                                          organizational_habits=rules.video_habits(video, steps),
-                                          workflow_patterns=rules.video_workflows(video, steps))
-                fresh[video] = (fp, part.model_dump(mode="json"))
-        self.videos = fresh
-        per_video = {v: VideoConsolidation.model_validate(rec).model_copy(update={
-            "action_sequences": rules.video_sequences(v, by_video.get(v, []), recurring)}) for v, (_, rec) in fresh.items()}
+                del counts[t]
+            if (before >= k) != (after >= k):
+                flipped.add(t)
+        return flipped
 
-        class _Cached:  # the per-video pass as `infer` calls it, answered from the results above
-            name = rules.name
 
-            def consolidate_video(self, memory, video):
-                return per_video[video]
-
-            def consolidate_participant(self, memory, parts):
-                return rules.consolidate_participant(memory, parts)
-
-        cached = Processors(name=procs.name, consolidation=_Cached(), enrichment=procs.enrichment)
-        return infer(memory, entity_ids, cached)
+def _by_video(steps) -> dict[str, list]:
+    out: dict[str, list] = {}
+    for s in steps:
+        out.setdefault(s.video, []).append(s)
+    return out
 
 
 def consolidate_incremental(read_store, write_store, participant: str, embedder, state: IncrementalConsolidation,
-                            lock=None, on_written=None) -> InferredKnowledge:
-    """Load the memory through `read_store`, infer (reusing `state`'s unchanged videos), and
-    replace the inferred records through `write_store` in one transaction, holding `lock` (if
-    given) for the write only; `on_written()` runs inside it."""
-    procs = get_processors("deterministic")
+                            lock=None, on_written=None, stamp: str | None = None, save: bool = True) -> InferredKnowledge:
+    """Bring `state`'s folds up to date through `read_store`, merge them, and replace the inferred
+    records through `write_store` in one transaction, holding `lock` (if given) for the write
+    only; `on_written()` runs inside it. `stamp` (`bank_stamp`) names the build the folds belong
+    to (None: the caller vouches for it); `save` keeps the folds in the state's cache file."""
     t0 = time.perf_counter()
-    memory = load_memory(read_store, participant)
     entity_ids = {r["id"] for r in read_store.fetch("_consolidate_entity_ids", participant=participant)}
-    t1 = time.perf_counter()
-    knowledge = state.infer(memory, entity_ids, procs)
+    try:
+        knowledge = state.infer(read_store, participant, entity_ids, stamp)
+    except BaseException:
+        state._reset()  # folds half brought up to date are not trusted: the next run starts afresh
+        raise
     t2 = time.perf_counter()
     if lock is not None:
         with lock:
@@ -133,10 +312,12 @@ def consolidate_incremental(read_store, write_store, participant: str, embedder,
         write_inferred(write_store, knowledge, embedder)
         if on_written is not None:
             on_written()
-    knowledge.seconds.update({"load": round(t1 - t0, 3), "infer": round(t2 - t1, 3),
-                              "write": round(time.perf_counter() - t2, 3), "total": round(time.perf_counter() - t0, 3),
-                              "videos_recomputed": state.recomputed, "videos_reused": state.reused})
-    state.save()
+    knowledge.seconds.update({"infer": round(t2 - t0, 3), "write": round(time.perf_counter() - t2, 3),
+                              "total": round(time.perf_counter() - t0, 3),
+                              "videos_recomputed": state.recomputed, "videos_reused": state.reused,
+                              "videos_resequenced": state.resequenced})
+    if save:
+        state.save()
     return knowledge
 
 
@@ -189,8 +370,9 @@ class BackgroundConsolidation:
 
             embedder = get_embedder(self.writer.embedder.name)
             knowledge = consolidate_incremental(reader, self.writer.store, self.writer.participant,
-                                                embedder, self.state, lock=self.lock,
-                                                on_written=self.on_done)
+                                                embedder, self.state, lock=self.lock, on_written=self.on_done,
+                                                stamp=bank_stamp(self.writer.bank, self.writer.participant),
+                                                save=False)
         finally:
             reader.close()
         self.runs.append({"new_segments": n_new, **knowledge.seconds})
@@ -204,6 +386,9 @@ class BackgroundConsolidation:
         self._stop = True
         self._wake.set()
         self._thread.join(timeout=600)
+        if self.runs and self.error is None:
+            self.state.save()  # for a later `memora consolidate --incremental` (while serving, writing
+            # every video's folds would hold the interpreter for seconds at 100 h)
 
 
 def consolidation_cache(bank_path, participant: str) -> Path:
@@ -225,7 +410,7 @@ def consolidate_bank_incremental(bank, participants: list[str], embedder=None, o
         try:
             store.apply_schema()
             state = IncrementalConsolidation(consolidation_cache(bank.path, p))
-            knowledge = consolidate_incremental(store, store, p, embedder, state)
+            knowledge = consolidate_incremental(store, store, p, embedder, state, stamp=bank_stamp(bank, p))
             counts = store.fetch("_inferred_counts", participant=p)[0]
         finally:
             store.close()  # records the integrity again
@@ -241,7 +426,7 @@ def consolidate_bank_incremental(bank, participants: list[str], embedder=None, o
         bank.update_manifest(change)
         rows.append({"participant": p, "status": "consolidated", "routines": int(counts["routines"]),
                      "preferences": int(counts["preferences"]), "videos_recomputed": state.recomputed,
-                     "videos_reused": state.reused, "seconds": knowledge.seconds["total"]})
+                     "videos_reused": state.reused, "videos_resequenced": state.resequenced, "seconds": knowledge.seconds["total"]})
         if on_done is not None:
             on_done(p)
     return rows

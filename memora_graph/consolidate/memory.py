@@ -110,56 +110,85 @@ EVENT_BATCH_SEGMENTS = 40_000
 def load_memory(store: Store, participant: str) -> ParticipantMemory:
     segments = store.run("_consolidate_segments", participant=participant).to_dicts()
     # who each merged duplicate was merged into (the entities a step names resolve through it)
-    merged = dict(store.run("_consolidate_merged", participant=participant).iter_rows())
+    merged = merged_map(store, participant)
+    per_video: dict[str, int] = {}
+    for g in segments:
+        per_video[g["video"]] = per_video.get(g["video"], 0) + 1
+    steps = StepReader(merged).read(store, participant, per_video)
+    return ParticipantMemory(participant, segments, steps)
 
-    objs: dict[tuple, Obj] = {}  # one Obj per distinct (kind, entity, category, fixture), shared by its steps
-    text: dict[str, str] = {}  # one str per distinct value of the short columns (videos, places, verbs)
 
-    def resolve(entity: str) -> str:
-        seen = set()
-        while entity in merged and entity not in seen:
-            seen.add(entity)
-            entity = merged[entity]
-        return entity
+def merged_map(store: Store, participant: str) -> dict[str, str]:
+    """Who each merged duplicate (with narrated steps) was merged into."""
+    return dict(store.run("_consolidate_merged", participant=participant).iter_rows())
 
-    def one(value: str | None) -> str:
+
+def resolve(merged: dict[str, str], entity: str) -> str:
+    """What an entity is now: followed through the merges (a cycle stops where it closes)."""
+    seen = set()
+    while entity in merged and entity not in seen:
+        seen.add(entity)
+        entity = merged[entity]
+    return entity
+
+
+class StepReader:
+    """Reads narrated steps from the state history, some videos at a time, sharing one `Obj` per
+    distinct object and one str per distinct short value; `raw[video]` collects the entity ids
+    each video's events name before resolution (what a later merge can re-identify)."""
+
+    def __init__(self, merged: dict[str, str]):
+        self.merged = merged
+        self.objs: dict[tuple, Obj] = {}
+        self.text: dict[str, str] = {}
+        self.raw: dict[str, set[str]] = {}
+
+    def one(self, value: str | None) -> str:
         value = value or ""
-        return text.setdefault(value, value)
+        return self.text.setdefault(value, value)
 
-    steps: list[MemoryStep] = []
-    for videos in _batches(segments):
-        events = store.run("_consolidate_events_of", participant=participant, videos=videos)
-        # ordered here, not by Kùzu: its ORDER BY was seen to return one row of 11,757 out of place (a
-        # 10 h synthetic participant; where depends on how the rows lie on disk), which moved a
-        # narration's entries apart and changed a routine; (video, t, ord) is unique. The batches
-        # are runs of sorted videos, so the steps come in the participant's (video, t, ord) order.
-        events = events.sort("video", "t", "ord", maintain_order=True)
+    def read(self, store: Store, participant: str, sizes: dict[str, int]) -> list[MemoryStep]:
+        """The steps of the videos in `sizes` (video -> rows, to batch the reads by), in
+        (video, t, ord) order."""
+        steps: list[MemoryStep] = []
+        for videos in _batches(sizes):
+            events = store.run("_consolidate_events_of", participant=participant, videos=videos)
+            # ordered here, not by Kùzu: its ORDER BY was seen to return one row of 11,757 out of place (a
+            # 10 h synthetic participant; where depends on how the rows lie on disk), which moved a
+            # narration's entries apart and changed a routine; (video, t, ord) is unique. The batches
+            # are runs of sorted videos, so the steps come in the participant's (video, t, ord) order.
+            events = events.sort("video", "t", "ord", maintain_order=True)
+            self._steps(events, steps)
+            del events
+        return steps
+
+    def _steps(self, events, steps: list[MemoryStep]) -> None:
+        objs, one, merged = self.objs, self.one, self.merged
         current: MemoryStep | None = None
         key = None
+        raw = None
         for e in events.iter_rows(named=True):  # one narration's entries are adjacent
             k = (e["video"], e["t"], e["narration"])
-            okey = (e["kind"] or "object", resolve(e["entity"]), e["category"] or "", bool(e["is_fixture"]))
+            if raw is None or e["video"] != current.video:
+                raw = self.raw.setdefault(e["video"], set())
+            raw.add(e["entity"])
+            okey = (e["kind"] or "object", resolve(merged, e["entity"]), e["category"] or "", bool(e["is_fixture"]))
             obj = objs.get(okey)
             if obj is None:
                 obj = objs[okey] = Obj(*okey)
             if k != key:
                 current = MemoryStep(video=one(e["video"]), segment=e["segment"], t=float(e["t"]), verb=one(e["action"]),
-                               objects=[obj], location=one(e["location"]), zone=one(e["zone"]),
-                               destination=one(e["relative_to"]), relation=one(e["relation"]),
-                               narration=e["narration"] or "")
+                                     objects=[obj], location=one(e["location"]), zone=one(e["zone"]),
+                                     destination=one(e["relative_to"]), relation=one(e["relation"]),
+                                     narration=e["narration"] or "")
                 steps.append(current)
                 key = k
             elif obj.kind not in {o.kind for o in current.objects}:
                 current.objects.append(obj)
-        del events
-    return ParticipantMemory(participant, segments, steps)
 
 
-def _batches(segments: list[dict]) -> list[list[str]]:
-    """The participant's videos in order, in runs of about EVENT_BATCH_SEGMENTS segments."""
-    per_video: dict[str, int] = {}
-    for g in segments:
-        per_video[g["video"]] = per_video.get(g["video"], 0) + 1
+def _batches(per_video: dict[str, int]) -> list[list[str]]:
+    """The videos in order, in runs of about EVENT_BATCH_SEGMENTS segments (or rows)."""
     out: list[list[str]] = []
     size = 0
     for video in sorted(per_video):

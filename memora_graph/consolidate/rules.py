@@ -440,6 +440,133 @@ class RuleConsolidator:
         )
 
 
+class FoldIndex:
+    """`RuleConsolidator.consolidate_participant` kept up to date one video at a time.
+
+    Each video's records are indexed by their merge key (key -> video -> records); the folds the
+    merge chooses from (counts and videos per key, the first record in video order) are updated
+    by the difference a video makes, so replacing one video costs its own records, not every
+    video's. The records chosen and their evidence (the union, in video order, of the chosen keys'
+    records) are the batch merge's: tests/consolidate and tests/serve compare them."""
+
+    _KINDS = ("storage", "habit", "sequence")
+
+    def __init__(self, rules: RuleConsolidator):
+        self.rules = rules
+        self.videos: dict[str, VideoConsolidation] = {}
+        self.index: dict[str, dict] = {k: {} for k in self._KINDS}  # kind -> key -> {video: [records]}
+        self.storage, self.habits, self.sequences = _StorageFold(), _HabitFold(), _SequenceFold()
+        self.triggers: dict[str, dict[str, int]] = {}  # habit trigger -> {video: its count there}
+
+    @staticmethod
+    def _parts(v: VideoConsolidation):
+        return (("storage", v.storage_preferences, _StorageFold.key), ("habit", v.organizational_habits, _HabitFold.key),
+                ("sequence", v.action_sequences, lambda a: tuple(a.steps)))
+
+    def _group_of(self, kind: str, key, record, create: bool):
+        if kind == "storage":
+            table = self.storage.groups.setdefault(key[:2], {}) if create else self.storage.groups.get(key[:2], {})
+            sub = key[2]
+        else:
+            table, sub = (self.habits.groups if kind == "habit" else self.sequences.groups), key
+        g = table.get(sub)
+        if g is None and create:
+            first = (self.sequences._first(record) if kind == "sequence" else _Fold._thin(record))
+            g = table[sub] = _SequenceGroup(first)
+        return table, sub, g
+
+    def put(self, v: VideoConsolidation | None, video: str) -> None:
+        """Replace `video`'s records with `v`'s (None: the video is gone)."""
+        old = self.videos.pop(video, None)
+        if old is not None:
+            self._apply(old, -1)
+        if v is not None:
+            self.videos[video] = v
+            self._apply(v, +1)
+
+    def _apply(self, v: VideoConsolidation, sign: int) -> None:
+        video = v.video
+        for kind, records, keyf in self._parts(v):
+            index = self.index[kind]
+            touched = {}
+            for r in records:
+                key = keyf(r)
+                per = index.setdefault(key, {})
+                if sign > 0:
+                    per.setdefault(video, []).append(r)
+                else:
+                    per.pop(video, None)
+                touched[key] = r
+                table, sub, g = self._group_of(kind, key, r, create=sign > 0)
+                g.count += sign * r.count
+                n = g.videos.get(video, 0) + sign * r.videos.get(video, 0)
+                if n:
+                    g.videos[video] = n
+                else:
+                    g.videos.pop(video, None)
+            for key, r in touched.items():
+                per = self.index[kind][key]
+                table, sub, g = self._group_of(kind, key, r, create=False)
+                if not per:
+                    del self.index[kind][key]
+                    del table[sub]
+                    if kind == "storage" and not table:
+                        del self.storage.groups[key[:2]]
+                    continue
+                first_video = min(per)
+                if first_video >= video:  # the first record (in video order) may be this video's or another's now
+                    first = per[first_video][0]
+                    g.first = self.sequences._first(first) if kind == "sequence" else _Fold._thin(first)
+        for h in v.organizational_habits:
+            per = self.triggers.setdefault(h.trigger, {})
+            if sign > 0:
+                per[video] = h.trigger_count
+            else:
+                per.pop(video, None)
+        for trigger in {h.trigger for h in v.organizational_habits}:
+            per = self.triggers[trigger]
+            if per:
+                self.habits.trigger_total[trigger] = sum(per.values())
+            else:
+                del self.triggers[trigger]
+                self.habits.trigger_total.pop(trigger, None)
+
+    def consolidation(self, participant: str) -> Consolidation:
+        rules = self.rules
+        videos = sorted(self.videos)
+        workflows = _WorkflowFold()  # a handful per video, and their ties are broken by first appearance: refolded
+        for video in videos:
+            for w in self.videos[video].workflow_patterns:
+                workflows.add(w)
+        kept_storage, kept_habits = rules._choose_storage(self.storage), rules._choose_habits(self.habits)
+        kept_workflows, chosen = rules._choose_workflows(workflows), rules._choose_sequences(self.sequences)
+        ev_workflows = {key: _Evidence() for key, _ in kept_workflows}
+        _gather(ev_workflows, [w for video in videos for w in self.videos[video].workflow_patterns], _WorkflowFold.key)
+        sequences = []
+        for steps in chosen:
+            ev = _SequenceEvidence()
+            for _, records in sorted(self.index["sequence"][steps].items()):
+                for a in records:
+                    ev.add(a)
+            sequences.append(rules._merged_sequence(steps, self.sequences.groups[steps], ev))
+        return Consolidation(
+            participant=participant, videos=videos,
+            storage_preferences=_with_evidence(StoragePreference, kept_storage, self._evidence("storage", kept_storage)),
+            organizational_habits=_with_evidence(OrganizationalHabit, kept_habits, self._evidence("habit", kept_habits)),
+            workflow_patterns=_with_evidence(WorkflowPattern, kept_workflows, ev_workflows),
+            action_sequences=sequences)
+
+    def _evidence(self, kind: str, kept) -> dict:
+        out = {}
+        for key, _ in kept:
+            ev = out[key] = _Evidence()
+            for _, records in sorted(self.index[kind][key].items()):
+                for r in records:
+                    ev.episodes.update(dict.fromkeys(r.supporting_episodes))
+                    ev.entities.update(dict.fromkeys(r.entities))
+        return out
+
+
 class _SequenceGroup:
     """One step sequence across videos: its first occurrence (title, actions), count and videos."""
 
@@ -459,11 +586,18 @@ class _SequenceFold:
         key = tuple(a.steps)
         g = self.groups.get(key)
         if g is None:
-            g = self.groups[key] = _SequenceGroup(ActionSequence.model_construct(
-                title=a.title, steps=a.steps, actions=a.actions, activity_type=a.activity_type,
-                key_objects=a.key_objects))
+            g = self.groups[key] = _SequenceGroup(self._first(a))
         g.count += a.count
         g.videos.update(a.videos)
+
+    @staticmethod
+    def _first(a: ActionSequence) -> ActionSequence:
+        # every field given: a field left to its default_factory costs model_construct an
+        # inspect.signature call (pydantic 2.10+), which was 40% of a batch consolidation
+        return ActionSequence.model_construct(
+            title=a.title, steps=a.steps, actions=a.actions, activity_type=a.activity_type,
+            key_objects=a.key_objects, count=0, confidence=0.0, supporting_episodes=[], segments=[], entities=[],
+            videos={})
 
 
 class _SequenceEvidence:
@@ -604,6 +738,27 @@ def _longest_cover_pairwise(videos: dict[tuple[str, ...], int]) -> dict[tuple[st
 _lcs = lcs_length
 
 
+class EpisodeSummary:
+    """One episode as the routine-skill merge reads it: its goal, step tokens, canonical steps
+    (text and action, immediate repeats collapsed), the object kinds and entities it touched."""
+
+    __slots__ = ("video", "goal", "head", "cat", "tokens", "canon", "kinds", "entities", "t_start", "t_end", "segments")
+
+    def __init__(self, video, goal, head, cat, tokens, canon, kinds, entities, t_start, t_end, segments):
+        self.video, self.goal, self.head, self.cat, self.tokens, self.canon = video, goal, head, cat, tokens, canon
+        self.kinds, self.entities, self.t_start, self.t_end, self.segments = kinds, entities, t_start, t_end, segments
+
+
+class ToolUse:
+    """A narrated step done with an instrument: (verb, target kind, tool kind) and its evidence."""
+
+    __slots__ = ("verb", "target", "tool", "video", "segment", "narration", "objects")
+
+    def __init__(self, verb, target, tool, video, segment, narration, objects):
+        self.verb, self.target, self.tool, self.video = verb, target, tool, video
+        self.segment, self.narration, self.objects = segment, narration, objects
+
+
 class RuleEnricher:
     """Inferred-knowledge enrichment: routine skills from episodes, tool preferences from narrations."""
 
@@ -665,65 +820,101 @@ class RuleEnricher:
             return f"get {display(head)}", head, "setup"
         return f"{vocab.phrase(top)} {display(head)}", head, "setup"
 
+    def video_episodes(self, steps: list[MemoryStep]) -> list[EpisodeSummary]:
+        """One video's episodes as much as `routine_skills_from` reads of them (the merge across
+        videos needs no step)."""
+        out = []
+        for ep in self.episodes(steps):
+            goal, head, cat = self.goal(ep)
+            canon, last = [], None
+            for s in ep:
+                if s.token != last:
+                    canon.append((s.text(), s.action()))
+                    last = s.token
+            entities: dict[tuple[str, str], int] = {}
+            for s in ep:
+                for o in s.objects:
+                    entities[(o.kind, o.entity)] = entities.get((o.kind, o.entity), 0) + 1
+            out.append(EpisodeSummary(
+                video=ep[0].video, goal=goal, head=head, cat=cat, tokens=tuple(s.token for s in ep), canon=canon,
+                kinds=sorted({o.kind for s in ep for o in s.objects}), entities=list(entities.items()),
+                t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2), segments=_uniq(s.segment for s in ep)))
+        return out
+
     def routine_skills(self, memory: ParticipantMemory) -> list[RoutineSkill]:
-        groups: dict[str, list[tuple[list[MemoryStep], str, str | None]]] = defaultdict(list)
-        for video, steps in sorted(memory.steps_by_video().items()):
-            for ep in self.episodes(steps):
-                goal, head, cat = self.goal(ep)
-                groups[goal].append((ep, head, cat))
+        return self.routine_skills_from(ep for _, steps in sorted(memory.steps_by_video().items())
+                                        for ep in self.video_episodes(steps))
+
+    def routine_skills_from(self, summaries) -> list[RoutineSkill]:
+        """Routine skills from every video's episodes (`video_episodes`), in video order."""
+        groups: dict[str, list[EpisodeSummary]] = defaultdict(list)
+        for ep in summaries:
+            groups[ep.goal].append(ep)
         out = []
         for goal, eps in groups.items():
-            videos = Counter(ep[0].video for ep, _, _ in eps)
             if len(eps) < self.min_episodes:
                 continue
-            seqs = [[s.token for s in ep] for ep, _, _ in eps]
-            sample = list(range(len(eps)))[:: max(1, len(eps) // 40)][:40]  # bound the O(n^2) medoid search
-            sims = {i: [(2 * _lcs(seqs[i], seqs[j]) / (len(seqs[i]) + len(seqs[j]))) for j in sample if j != i] for i in sample}
-            medoid = max(sample, key=lambda i: (sum(sims[i]) / max(len(sims[i]), 1), -i))
-            cohesion = sum(sims[medoid]) / max(len(sims[medoid]), 1)
-            steps, actions, last = [], [], None
-            for s in eps[medoid][0]:
-                if s.token != last:
-                    steps.append(s.text())
-                    actions.append(s.action())
-                    last = s.token
-            head = eps[0][1]
-            kinds: Counter[str] = Counter()
-            entity_of: dict[str, Counter[str]] = defaultdict(Counter)
-            for ep, _, _ in eps:
-                for k in {o.kind for s in ep for o in s.objects}:
-                    kinds[k] += 1
-                for s in ep:
-                    for o in s.objects:
-                        entity_of[o.kind][o.entity] += 1
-            key_objects = [head] + [k for k, n in sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))
-                                    if k != head and n / len(eps) >= self.key_object_share]
-            key_objects = key_objects[:8]
-            cats = Counter(c for _, _, c in eps)
-            episodes = [Episode(video=ep[0].video, t_start=round(ep[0].t, 2), t_end=round(ep[-1].t, 2),
-                                segments=_uniq(s.segment for s in ep)) for ep, _, _ in eps]
-            out.append(RoutineSkill(
-                goal=goal, activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0]],
-                canonical_steps=steps[: self.max_canonical_steps], actions=actions[: self.max_canonical_steps],
-                key_objects=[display(k) for k in key_objects],
-                supporting_episodes=[e.segments[0] for e in episodes], segments=_uniq(s for e in episodes for s in e.segments),
-                episodes=episodes, count=len(eps), confidence=_conf(_support(len(videos)) * (0.5 + 0.5 * cohesion)),
-                entities=[entity_of[k].most_common(1)[0][0] for k in key_objects], videos=dict(sorted(videos.items())),
-            ))
-        out.sort(key=lambda r: (-len(r.videos), -r.count, r.goal))  # cross-video routines first
-        return out[: self.caps["routine"]]
+            out.append(self.routine_of(goal, eps))
+        return self.ranked_routines(out)
+
+    def ranked_routines(self, routines) -> list[RoutineSkill]:
+        """The routine skills kept: cross-video routines first, at most `caps['routine']`."""
+        return sorted(routines, key=lambda r: (-len(r.videos), -r.count, r.goal))[: self.caps["routine"]]
+
+    def routine_of(self, goal: str, eps: list[EpisodeSummary]) -> RoutineSkill:
+        """The routine skill of one goal's episodes (in video order)."""
+        videos = Counter(ep.video for ep in eps)
+        seqs = [ep.tokens for ep in eps]
+        sample = list(range(len(eps)))[:: max(1, len(eps) // 40)][:40]  # bound the O(n^2) medoid search
+        sims = {i: [(2 * _lcs(seqs[i], seqs[j]) / (len(seqs[i]) + len(seqs[j]))) for j in sample if j != i] for i in sample}
+        medoid = max(sample, key=lambda i: (sum(sims[i]) / max(len(sims[i]), 1), -i))
+        cohesion = sum(sims[medoid]) / max(len(sims[medoid]), 1)
+        steps = [text for text, _ in eps[medoid].canon]
+        actions = [action for _, action in eps[medoid].canon]
+        head = eps[0].head
+        kinds: Counter[str] = Counter()
+        entity_of: dict[str, Counter[str]] = defaultdict(Counter)
+        for ep in eps:
+            for k in ep.kinds:
+                kinds[k] += 1
+            for (k, e), n in ep.entities:
+                entity_of[k][e] += n
+        key_objects = [head] + [k for k, n in sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))
+                                if k != head and n / len(eps) >= self.key_object_share]
+        key_objects = key_objects[:8]
+        cats = Counter(ep.cat for ep in eps)
+        episodes = [Episode(video=ep.video, t_start=ep.t_start, t_end=ep.t_end, segments=ep.segments) for ep in eps]
+        return RoutineSkill(
+            goal=goal, activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0]],
+            canonical_steps=steps[: self.max_canonical_steps], actions=actions[: self.max_canonical_steps],
+            key_objects=[display(k) for k in key_objects],
+            supporting_episodes=[e.segments[0] for e in episodes], segments=_uniq(s for e in episodes for s in e.segments),
+            episodes=episodes, count=len(eps), confidence=_conf(_support(len(videos)) * (0.5 + 0.5 * cohesion)),
+            entities=[entity_of[k].most_common(1)[0][0] for k in key_objects], videos=dict(sorted(videos.items())),
+        )
 
     # -- generated preferences ---------------------------------------------------------
-    def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
-        uses: dict[tuple[str, str], dict[str, list[MemoryStep]]] = defaultdict(lambda: defaultdict(list))
-        for s in memory.steps:
+    def tool_uses(self, steps: list[MemoryStep]) -> list[ToolUse]:
+        """The steps done with an instrument ("stir egg using spatula"), as `tool_preferences_from` reads them."""
+        out = []
+        for s in steps:
             if s.is_filler or s.main.category in vocab.TOOL_CATEGORIES:
                 continue
             tools = [o for o in s.objects[1:] if o.category in vocab.TOOL_CATEGORIES and not o.is_fixture]
             for tool in tools[:1]:
-                uses[(s.verb, s.main.kind)][tool.kind].append(s)
+                out.append(ToolUse(s.verb, s.main.kind, tool.kind, s.video, s.segment, s.narration, s.objects))
+        return out
+
+    def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
+        return self.tool_preferences_from(self.tool_uses(memory.steps))
+
+    def tool_preferences_from(self, tool_uses) -> list[GeneratedPreference]:
+        """Generated preferences from every video's tool uses (`tool_uses`), in video and time order."""
+        uses: dict[tuple[str, str], dict[str, list[ToolUse]]] = defaultdict(lambda: defaultdict(list))
+        for u in tool_uses:
+            uses[(u.verb, u.target)][u.tool].append(u)
         out = []
-        by_verb: dict[str, dict[str, list[tuple[str, list[MemoryStep]]]]] = defaultdict(lambda: defaultdict(list))
+        by_verb: dict[str, dict[str, list[tuple[str, list[ToolUse]]]]] = defaultdict(lambda: defaultdict(list))
         for (verb, target), tools in uses.items():
             counts = {t: len(ss) for t, ss in tools.items()}
             best = min(counts, key=lambda t: (-counts[t], t))
@@ -741,7 +932,7 @@ class RuleEnricher:
         return out[: self.caps["preference"]]
 
     @staticmethod
-    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[MemoryStep], alternatives: dict[str, int]) -> GeneratedPreference:
+    def _tool_pref(verb: str, targets: list[str], tool: str, steps: list[ToolUse], alternatives: dict[str, int]) -> GeneratedPreference:
         names = [display(t) for t in targets]
         what = names[0] if len(names) == 1 else ", ".join(names[:-1][:3]) + f" or {names[-1]}"
         statement = f"Usually uses the {display(tool)} to {vocab.phrase(verb)} the {what}"

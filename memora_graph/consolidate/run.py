@@ -78,13 +78,13 @@ def _words(*parts) -> str:
 class _Collector:
     """Turns processor records into rows, keeping only evidence that exists in the bank."""
 
-    def __init__(self, memory: ParticipantMemory, entity_ids: set[str], processor: str):
-        self.p = memory.participant
-        self.segments = memory.segment_ids
+    def __init__(self, participant: str, segment_ids, entity_ids: set[str], processor: str):
+        self.p = participant
+        self.segments = segment_ids
         self.entities = entity_ids
         self.processor = processor
-        self.out = InferredKnowledge(memory.participant, Consolidation(participant=memory.participant),
-                                     Enrichment(participant=memory.participant))
+        self.out = InferredKnowledge(participant, Consolidation(participant=participant),
+                                     Enrichment(participant=participant))
         self._ids: set[str] = set()
 
     def _valid(self, ids, known: set[str]) -> list[str]:
@@ -185,7 +185,19 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
     t1 = time.perf_counter()
     enrichment = processors.enrichment.enrich(memory, consolidation)
     t2 = time.perf_counter()
-    c = _Collector(memory, entity_ids, processors.name)
+    out = collect(memory.participant, memory.segment_ids, entity_ids, consolidation, enrichment, processors.name)
+    out.calls = _calls_since(processors, call_mark, memory.participant)
+    out.steps = [r for r in (processors.reports or [])[report_mark:] if r.participant == memory.participant]
+    out.seconds = {"consolidation": round(t1 - t0, 3), "enrichment": round(t2 - t1, 3),
+                   "collect": round(time.perf_counter() - t2, 3)}
+    return out
+
+
+def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: Consolidation, enrichment: Enrichment,
+            processor: str) -> InferredKnowledge:
+    """The records of both processors as Routine / Preference rows, keeping only the evidence
+    ids that exist (`segment_ids`, `entity_ids`: anything with `in`)."""
+    c = _Collector(participant, segment_ids, entity_ids, processor)
     c.out.consolidation, c.out.enrichment = consolidation, enrichment
     for s in consolidation.storage_preferences:
         c.preference("pref", ("storage", s.object, s.context), subtype="storage", statement=s.statement,
@@ -229,10 +241,6 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
                      evidence_summary=g.evidence_summary,
                      detail={"alternatives": g.alternatives,
                              **({"actions": [x.model_dump() for x in g.actions]} if g.actions else {})})
-    c.out.calls = _calls_since(processors, call_mark, memory.participant)
-    c.out.steps = [r for r in (processors.reports or [])[report_mark:] if r.participant == memory.participant]
-    c.out.seconds = {"consolidation": round(t1 - t0, 3), "enrichment": round(t2 - t1, 3),
-                     "collect": round(time.perf_counter() - t2, 3)}
     return c.out
 
 

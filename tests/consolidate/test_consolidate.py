@@ -214,3 +214,45 @@ def test_streaming_merge_gives_the_records_of_the_whole_list_merge(small_bank):
         streamed = RuleConsolidator().consolidate_streaming(memory)
         assert streamed.model_dump() == whole.model_dump()
     assert any(_as_list_path(m).action_sequences for m in memories[1:])  # the comparison covers sequences
+
+
+def test_the_fold_index_kept_video_by_video_gives_the_whole_list_merge(small_bank):
+    """The incremental merge (`FoldIndex`): videos put in any order, replaced by a changed version
+    of themselves and removed, give after each change the records, evidence and order of merging
+    the current videos at once."""
+    import random
+
+    from memora_graph.consolidate.records import VideoConsolidation
+    from memora_graph.consolidate.rules import FoldIndex, RuleConsolidator
+
+    memories = [_memory()]
+    for p in SMALL:
+        with Bank(small_bank[0]).open(p, read_only=True) as store:
+            memories.append(load_memory(store, p))
+    rules = RuleConsolidator()
+    for memory in memories:
+        parts = {v: rules.consolidate_video(memory, v) for v in memory.videos}
+        index, current = FoldIndex(rules), {}
+        order = list(parts)
+        random.Random(7).shuffle(order)
+
+        def check():
+            want = rules.consolidate_participant(memory, [current[v] for v in sorted(current)])
+            assert index.consolidation(memory.participant).model_dump() == want.model_dump()
+
+        for v in order:
+            index.put(parts[v], v)
+            current[v] = parts[v]
+            check()
+        for v in order[: max(1, len(order) // 2)]:  # a video changed: half its records
+            half = VideoConsolidation(video=v, storage_preferences=parts[v].storage_preferences[::2],
+                                      organizational_habits=parts[v].organizational_habits[1::2],
+                                      workflow_patterns=parts[v].workflow_patterns[::2],
+                                      action_sequences=parts[v].action_sequences[1::2])
+            index.put(half, v)
+            current[v] = half
+            check()
+        gone = order[-1]
+        index.put(None, gone)
+        del current[gone]
+        check()

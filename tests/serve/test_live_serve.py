@@ -140,6 +140,56 @@ def test_incremental_consolidation_equals_a_batch_run(tmp_path):
     assert verify_bank(bank).ok
 
 
+def _rows(k) -> dict:
+    return {"routines": k.routines, "preferences": k.preferences, "supported_by": sorted(set(k.supported_by)),
+            "uses": sorted(set(k.uses)), "about": sorted(set(k.about))}
+
+
+def _batch(store: Store, p: str) -> dict:
+    from memora_graph.consolidate.memory import load_memory
+    from memora_graph.consolidate.run import deterministic_processors, infer
+
+    ids = {r["id"] for r in store.fetch("_consolidate_entity_ids", participant=p)}
+    return _rows(infer(load_memory(store, p), ids, deterministic_processors()))
+
+
+def test_incremental_consolidation_equals_batch_at_every_point_with_merges(tmp_path):
+    """Four videos written in turns (an old video continued later), an entity merged into another
+    between two runs (re-identifying the steps of videos already folded), n-grams that start
+    recurring in videos folded before: after each incremental run, the records (ids, statements,
+    counts, evidence edges) equal a batch consolidation of the same memory; a state read back from
+    its cache file goes on to the same records; only the changed videos are read again."""
+    bank = tmp_path / "bank"
+    state = IncrementalConsolidation(consolidation_cache(bank, "P01"))
+    extra = ["take the cup", "put the cup on the counter", "wash the plate", "put the plate in the sink"]
+    plan = [("day-0", moments(30, video="day-0")), ("day-1", moments(25, video="day-1")),
+            ("day-0", [Moment("day-0", 200.0 + 4 * i, 203.0 + 4 * i, t) for i, t in enumerate(extra * 2)]),
+            ("day-2", moments(30, video="day-2")), ("day-3", [Moment("day-3", 4.0 * i, 4.0 * i + 3, t)
+                                                             for i, t in enumerate(reversed(extra * 3))])]
+    with LiveWriter(bank, "P01") as memory:
+        for step, (video, stream) in enumerate(plan):
+            for m in stream:
+                memory.remember(m)
+            if step == 3:  # an editor's merge, written as the writer writes one (here the knife of every
+                # earlier video is folded into the bread: what counts is that folded steps are re-identified)
+                n = memory.store.query("MATCH (e:Entity {id: 'P01:knife'}), (k:Entity {id: 'P01:bread'}) "
+                                       "SET e.status = 'merged', e.merged_into = k.id RETURN count(*) AS n").item()
+                assert n == 1
+            got = consolidate_incremental(memory.store, memory.store, "P01", memory.embedder, state)
+            assert _rows(got) == _batch(memory.store, "P01"), f"after run {step}"
+            assert state.recomputed == (1 if step != 3 else 3), (step, state.recomputed)  # 3: day-0, day-1 re-identified
+            if step == 1:
+                assert state.resequenced == 1  # day-0's n-grams now recur in day-1
+            if step == 3:
+                cited = {e for _, e in got.uses + got.about}
+                assert "P01:bread" in cited and "P01:knife" not in cited
+            state.save()
+            again = IncrementalConsolidation(consolidation_cache(bank, "P01"))  # the CLI's next run
+            assert _rows(again.infer(memory.store, "P01", {r["id"] for r in memory.store.fetch(
+                "_consolidate_entity_ids", participant="P01")})) == _rows(got)
+            assert again.recomputed == 0 and again.reused == len(state.folds)
+
+
 def test_background_consolidation_in_the_writable_server(tmp_path):
     bank = tmp_path / "bank"
     service = MemoryService(bank, "P01", writable=True, consolidate_every=25)

@@ -165,7 +165,8 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
                 per100.append((time.perf_counter() - t0, time.process_time() - c0))
             out.update(consolidate_per_100_s=round(statistics.median(w for w, _ in per100), 2),
                        consolidate_per_100_cpu_s=round(statistics.median(c for _, c in per100), 2),
-                       consolidate_videos_reused=cons.state.reused, consolidate_videos_recomputed=cons.state.recomputed)
+                       consolidate_videos_reused=cons.state.reused, consolidate_videos_recomputed=cons.state.recomputed,
+                       consolidate_last_run={k: v for k, v in cons.runs[-1].items() if k != "new_segments"})
         finally:
             cons.stop()
     finally:
