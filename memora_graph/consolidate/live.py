@@ -50,6 +50,11 @@ from memora_graph.consolidate.run import InferredKnowledge, collect, write_infer
 
 log = logging.getLogger("memora_graph.consolidate")
 CACHE_FORMAT = 2
+# The folds are kept on disk (JSON) only up to this size: reading a larger file back costs more
+# time and memory than recomputing every video (231 MB at 100 h took ~70 CPU-s and ~2 GB to read).
+# Above it a later `memora consolidate --incremental` recomputes every video, as a batch run; a
+# server keeps its folds in memory whatever their size.
+CACHE_MAX_BYTES = 64 << 20
 
 
 class _VideoFold:
@@ -132,6 +137,8 @@ class IncrementalConsolidation:
         self.index = FoldIndex(self.rules)  # the per-video records merged, kept up to date video by video
         self.routines: dict[str, object] = {}  # goal -> RoutineSkill of the goal's current episodes
         self.unsaved = True  # folds changed since they were read from or written to `cache_path`
+        self.saved: bool | None = None  # whether the last save() kept the folds on disk
+        self.kept_bytes = 0  # their size as JSON at the last save()
         self.recomputed = 0  # videos read and recomputed by the last run
         self.reused = 0
         self.resequenced = 0  # unchanged videos whose action sequences were recounted
@@ -164,13 +171,20 @@ class IncrementalConsolidation:
     def save(self) -> None:
         if self.cache_path is None or (not self.unsaved and self.cache_path.exists()):
             return
+        text = json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
+                           "videos": {v: f.to_json() for v, f in self.folds.items()},
+                           "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}})
+        self.kept_bytes = len(text)
+        if len(text) > CACHE_MAX_BYTES:  # not worth reading back (see CACHE_MAX_BYTES): none kept
+            self.cache_path.unlink(missing_ok=True)
+            self.saved = False
+            return
         self.cache_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.cache_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
-                                   "videos": {v: f.to_json() for v, f in self.folds.items()},
-                                   "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}}))
+        tmp.write_text(text)
         tmp.replace(self.cache_path)
         self.unsaved = False
+        self.saved = True
 
     # -- a run -----------------------------------------------------------------------------
     def changed(self, marks: dict[str, tuple], merged: dict[str, str]) -> list[str]:
@@ -426,7 +440,8 @@ def consolidate_bank_incremental(bank, participants: list[str], embedder=None, o
         bank.update_manifest(change)
         rows.append({"participant": p, "status": "consolidated", "routines": int(counts["routines"]),
                      "preferences": int(counts["preferences"]), "videos_recomputed": state.recomputed,
-                     "videos_reused": state.reused, "videos_resequenced": state.resequenced, "seconds": knowledge.seconds["total"]})
+                     "videos_reused": state.reused, "videos_resequenced": state.resequenced,
+                     "folds_kept": state.saved is not False, "seconds": knowledge.seconds["total"]})
         if on_done is not None:
             on_done(p)
     return rows

@@ -140,6 +140,35 @@ def test_incremental_consolidation_equals_a_batch_run(tmp_path):
     assert verify_bank(bank).ok
 
 
+def test_folds_too_large_to_be_worth_reading_back_are_not_kept(tmp_path, monkeypatch):
+    """Reading the folds back from JSON costs more than recomputing when they are large (231 MB at
+    100 h), so above CACHE_MAX_BYTES none are kept: the CLI says so, removes an older file, and its
+    next run recomputes every video to the same records."""
+    import memora_graph.consolidate.live as live
+
+    bank = tmp_path / "bank"
+    with LiveWriter(bank, "P01") as memory:
+        for d in range(2):
+            for m in moments(30, video=f"day-{d}", offset=0.0):
+                memory.remember(m)
+    run = lambda: json.loads(CliRunner().invoke(main, ["consolidate", str(bank), "--incremental", "--json"]).output)[0]
+    first = run()
+    cache = consolidation_cache(bank, "P01")
+    assert first["folds_kept"] and cache.exists() and first["videos_recomputed"] == 2
+    monkeypatch.setattr(live, "CACHE_MAX_BYTES", cache.stat().st_size - 1)
+    with LiveWriter(bank, "P01") as memory:  # something new, so the folds change and are saved again
+        memory.remember(Moment("day-1", 500.0, 503.0, "open the fridge"))
+    second = run()
+    assert second["folds_kept"] is False and not cache.exists()
+    with LiveWriter(bank, "P01") as memory:
+        incremental = _inferred(memory.store, "P01")
+    third = run()
+    assert third["videos_recomputed"] == 2 and third["videos_reused"] == 0
+    with LiveWriter(bank, "P01") as memory:
+        assert _inferred(memory.store, "P01") == incremental and incremental["preferences"]
+    assert verify_bank(bank).ok
+
+
 def _rows(k) -> dict:
     return {"routines": k.routines, "preferences": k.preferences, "supported_by": sorted(set(k.supported_by)),
             "uses": sorted(set(k.uses)), "about": sorted(set(k.about))}
