@@ -255,6 +255,9 @@ class LiveWriter:
             self.bank.init(mode="edited", embed_model=self.embedder.name, consolidated=False)
         if p not in self.bank.manifest()["participants"]:
             self._create()
+        # the database as this writer finds it, checked against its integrity record (None under
+        # --no-verify): what the persisted tool stores a server reads must have been computed from
+        opened = self.bank.checked_sha256(p)
         try:
             self.store = self.bank.open(p, read_only=False, op=OP)
         except StoreError as exc:
@@ -262,7 +265,10 @@ class LiveWriter:
                 raise WriterBusy(self._busy_message(str(exc))) from None
             raise
         self._stack.callback(self._close_store)
-        self.store.apply_schema()  # a bank from before live memory gets the Remembered table
+        if self.store.apply_schema():  # a bank from before live memory gets the Remembered table
+            opened = None  # the database changed now: nothing computed before describes it
+        self.opened_sha256: str | None = opened
+        self.commits = 0  # moments committed by this writer (a reader opened after one must not use stores)
         self._load()
         self.reader = reader or NarrationReader()
         self.since_consolidation = 0  # segments written since the last (incremental) consolidation
@@ -477,6 +483,7 @@ class LiveWriter:
                               duration)
             # committed: the key is acknowledged and the vectors written (even if on_commit fails)
             self._keys.add(key)
+            self.commits += 1
             self._place_vecs.update(pp.id for pp in new_places + restated)
             delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
                      "segment_row": {"id": sid, "emb": seg_vec, "summary": seg_row["summary"],

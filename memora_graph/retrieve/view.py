@@ -173,6 +173,50 @@ class MemoryView:
                 log.warning(f"{bank}: could not persist {participant}'s tool stores ({exc})")
         return view
 
+    @classmethod
+    def live(cls, store: Store, bank: str | Path, participant: str, db_sha256: str | None, embedder=None,
+             config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
+        """A view for the readers of a live writer (`memora serve --writable`), on the writer's own
+        `store` (read-write, not closed by the view). `db_sha256`: the database's sha256 as the
+        writer opened it, checked against its integrity record (form/live.py `opened_sha256`),
+        given only while nothing was written since. With an in-process recipe the persisted tool
+        stores are read when they were computed from exactly that database, and written first
+        from the store when they are missing or stale (as `open` does); remembered moments then
+        reach the view through `absorb`, which reads what they touched from the store until the
+        stores are written again. A later open never trusts these stores once the writer wrote:
+        the writer's close (or the recovery of a killed writer) records the database's new
+        sha256, which the stores do not carry. None, --no-verify or MEMORA_TOOL_STORES=0: the
+        store only."""
+        cfg = _config(config)
+        persist = os.environ.get(TOOL_STORES_ENV, "1") != "0"
+        if not (db_sha256 and persist and cfg.vector == "numpy" and cfg.keyword in ("bm25", "none")):
+            return cls(store, participant, embedder, config)
+        from memora_graph.retrieve.persist import PersistedStores, StaleStores, write
+
+        embed_model = Bank(bank).manifest().get("embed_model")
+        try:
+            stores = PersistedStores.open(bank, participant, db_sha256, embed_model)
+        except StaleStores as why:
+            if why.damaged:
+                log.warning(f"{why}; reading the database instead (and writing them again)")
+            if not _writable(Path(bank)):
+                return cls(store, participant, embedder, config)
+            view = cls(store, participant, embedder, config)
+            try:
+                written = write(view, bank, db_sha256, embed_model)
+                stores = PersistedStores.open(bank, participant, db_sha256, embed_model)
+            except (OSError, StaleStores) as exc:  # a full disk: the view works on the store
+                log.warning(f"{bank}: could not persist {participant}'s tool stores ({exc})")
+                return view
+            view.close()
+            out = cls(None, participant, embedder, config, persisted=stores, open_store=lambda: store)
+            out.persisted_written = written
+            out._store = store  # open already; the view does not own it
+            return out
+        out = cls(None, participant, embedder, config, persisted=stores, open_store=lambda: store)
+        out._store = store
+        return out
+
     @property
     def store(self) -> Store:
         if self._store is None:
@@ -191,7 +235,8 @@ class MemoryView:
 
     # -- queries and embeddings ---------------------------------------------------------
     def fetch(self, name: str, **params) -> list[dict]:
-        if not params and self._persisted is not None and self._persisted.has_rows(name):
+        if not params and self._persisted is not None and self._persisted.has_rows(name) \
+                and name not in self.__dict__.get("_rows_changed", ()):
             got = self._from_persisted(lambda p: p.rows(name))
             if got is not None:
                 return got
@@ -263,7 +308,7 @@ class MemoryView:
     def vectors(self, table: str) -> VectorTable:
         cache = self.__dict__.setdefault("_vector_cache", {})
         if table not in cache:
-            got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted is not None else None
+            got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted_for(table) else None
             cache[table] = got if got is not None else self._vectors_from_store(table)
         return cache[table]
 
@@ -354,7 +399,7 @@ class MemoryView:
 
     def _bm25(self, table: str) -> Bm25:
         cache = self.__dict__.setdefault("_bm25_cache", {})
-        if table not in cache and self._persisted is not None:
+        if table not in cache and self._persisted_for(table):
             got = self._from_persisted(lambda p: p.bm25(table))
             if got is not None:
                 cache[table] = got
@@ -375,6 +420,39 @@ class MemoryView:
 
     # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
     _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words")
+    # what a remember or a consolidation changes, by table: the participant-wide rows read again from
+    # the store from then on (the persisted ones describe the database before it)
+    _ROWS_OF = {"entity": "_tool_entities", "place": "_tool_places", "routine": "_tool_routines",
+                "preference": "_tool_preferences"}
+
+    def _persisted_for(self, table: str) -> bool:
+        """Whether the persisted stores still describe `table`'s vectors and keywords."""
+        return self._persisted is not None and table not in self.__dict__.get("_tables_changed", ())
+
+    def _changed(self, *tables: str, rows: tuple[str, ...] = ()) -> None:
+        """Tables (and participant-wide row queries) the database changed since the persisted
+        stores were computed: read from the store from now on, not from the stores."""
+        loaded = self.__dict__
+        loaded.setdefault("_tables_changed", set()).update(tables)
+        loaded.setdefault("_rows_changed", set()).update((*(self._ROWS_OF[t] for t in tables), *rows))
+
+    def _grown(self, kind: str, table: str | None = None):
+        """The loaded vectors / keywords of `table` or the graph, to which a remembered moment is
+        added; loaded from the persisted stores now if not yet (those lack the moment), None where
+        there is nothing to add to (a later load from the store reads the moment)."""
+        loaded = self.__dict__
+        if kind == "graph":
+            if "graph" not in loaded and self._persisted is not None and self._persisted.has_graph():
+                got = self._from_persisted(lambda p: p.graph())
+                if got is not None:
+                    loaded["graph"] = got
+            return loaded.get("graph")
+        cache = loaded.setdefault("_vector_cache" if kind == "vectors" else "_bm25_cache", {})
+        if table not in cache and self._persisted_for(table):
+            got = self._from_persisted(lambda p: p.vectors(table) if kind == "vectors" else p.bm25(table))
+            if got is not None:
+                cache[table] = got
+        return cache.get(table)
 
     def absorb(self, delta: dict) -> None:
         """Bring what this view loaded up to date with one remembered moment (form/live.py's
@@ -384,30 +462,37 @@ class MemoryView:
         their next use. Called by the one thread that writes, under the lock the readers take."""
         loaded = self.__dict__
         sid = delta["segment"]
-        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
-        if "segment" in vectors or "segment" in bm25:
+        vectors, bm25 = self._grown("vectors", "segment"), self._grown("bm25", "segment")
+        if vectors is not None or bm25 is not None:
             row = delta.get("segment_row") or self.store.fetch("_live_segment_row", participant=self.participant,
                                                                id=sid)[0]  # the writer hands it over: no read
-            if "segment" in vectors:
-                vectors["segment"] = vectors["segment"].appended(sid, np.asarray(row["emb"], dtype=np.float32))
-            if "segment" in bm25:
-                bm25["segment"] = bm25["segment"].added(sid, f"{row['summary']} {row['narrative']}")
+            if vectors is not None:
+                loaded["_vector_cache"]["segment"] = vectors.appended(sid, np.asarray(row["emb"], dtype=np.float32))
+            if bm25 is not None:
+                loaded["_bm25_cache"]["segment"] = bm25.added(sid, f"{row['summary']} {row['narrative']}")
+        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
         if delta.get("entities"):
             for name in self._ENTITY_DERIVED:
                 loaded.pop(name, None)
             vectors.pop("entity", None)
             bm25.pop("entity", None)
+            self._changed("entity")
         if delta.get("places"):
             loaded.pop("places", None)
             vectors.pop("place", None)
             bm25.pop("place", None)
+            self._changed("place")
         loaded.pop("videos", None)
+        loaded.pop("_open_action_log", None)  # the typed reader's action log (agent/open_answer.py): read again
+        self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
         # entities whose history grew: their history is read from Kùzu until the stores are written again
         loaded.setdefault("_history_added", set()).update(delta.get("history", delta.get("entities", [])))
         loaded["_history_added"].update(e for e, _ in delta.get("observations", []))
-        if "graph" in loaded:
-            loaded["graph"].add(sid, delta.get("observations", []))
+        loaded["_history_added"].update(delta.get("entities", []))  # an entity merged or re-identified
+        graph = self._grown("graph")
+        if graph is not None:
+            graph.add(sid, delta.get("observations", []))
 
     def reload_inferred(self) -> None:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
@@ -418,6 +503,7 @@ class MemoryView:
         for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
             cache.pop("routine", None)
             cache.pop("preference", None)
+        self._changed("routine", "preference", rows=("_tool_inferred_links",))
 
     def warm(self) -> None:
         """Load everything the tools read once (what the first call would otherwise pay)."""

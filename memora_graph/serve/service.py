@@ -292,7 +292,11 @@ class MemoryService:
         """The participant's memory, opened read-only (integrity checked) on first use and kept."""
         view = self._views.get(participant)
         if view is None and self.writer is not None:
-            view = self._views[participant] = MemoryView(self.writer.store, participant, config=self.recipe)
+            # the persisted tool stores, if computed from the database as the writer opened it (and
+            # nothing was written since: the view could not absorb it), else the writer's store
+            sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
+            view = self._views[participant] = MemoryView.live(self.writer.store, self.bank.path, participant, sha,
+                                                              config=self.recipe)
         elif view is None:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view
