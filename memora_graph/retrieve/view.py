@@ -472,11 +472,14 @@ class MemoryView:
                 loaded["_bm25_cache"]["segment"] = bm25.added(sid, f"{row['summary']} {row['narrative']}")
         vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
         if delta.get("entities"):
-            for name in self._ENTITY_DERIVED:
-                loaded.pop(name, None)
-            vectors.pop("entity", None)
-            bm25.pop("entity", None)
             self._changed("entity")
+            kept = self._entities_absorbed(delta["entities"])
+            for name in self._ENTITY_DERIVED:
+                if name != "entities" or not kept:
+                    loaded.pop(name, None)
+            if not kept:
+                vectors.pop("entity", None)
+            bm25.pop("entity", None)
         if delta.get("places"):
             loaded.pop("places", None)
             vectors.pop("place", None)
@@ -493,6 +496,45 @@ class MemoryView:
         graph = self._grown("graph")
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
+
+    def _entities_absorbed(self, ids: list[str]) -> bool:
+        """Bring the loaded entity registry and entity vectors up to date with the entities a
+        remembered moment added or changed (read by id: primary-key lookups), rather than reading
+        every entity again (23,299 at 1,000 h, each call after a remember). Both stay ordered by
+        id, as `_tool_entities` and `_tool_vectors_entity` return them; an entity's vector is
+        written when it is added, never changed. False where nothing was loaded (or a row is
+        missing): the next use reads them whole."""
+        loaded = self.__dict__
+        if "entities" not in loaded:
+            return False
+        rows = [self.store.fetch("_tool_entity_row", participant=self.participant, id=i) for i in sorted(set(ids))]
+        if not all(rows):
+            return False
+        entities, grew, embs = loaded["entities"], False, {}
+        for (row,) in rows:
+            emb = row.pop("emb")
+            if row["id"] not in entities:
+                grew = True
+            entities[row["id"]] = row
+            if row["status"] == "active" and emb is not None:
+                embs[row["id"]] = emb
+        if grew:  # new ids: in their place among the others
+            loaded["entities"] = dict(sorted(entities.items()))
+        table = loaded.get("_vector_cache", {}).get("entity")
+        if table is not None:
+            gone = {r[0]["id"] for r in rows} - set(embs)
+            new = [i for i in embs if i not in table.index]
+            if new or any(i in table.index for i in gone):
+                keep = [i for i in table.ids if i not in gone]
+                mats = [np.asarray(table.mat)[np.fromiter((table.index[i] for i in keep), np.int64, len(keep))]] \
+                    if keep else []
+                if new:  # normalised as a table read whole normalises each row
+                    mats.append(VectorTable(new, np.asarray([embs[i] for i in new], dtype=np.float32)).mat)
+                every = keep + new
+                order = sorted(range(len(every)), key=every.__getitem__)
+                mat = np.concatenate(mats)[np.asarray(order, dtype=np.int64)] if every else table.mat[:0]
+                loaded["_vector_cache"]["entity"] = VectorTable.normalized([every[k] for k in order], mat)
+        return True
 
     def reload_inferred(self) -> None:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and

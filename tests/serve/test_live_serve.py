@@ -218,6 +218,7 @@ def test_a_writable_server_reads_the_stores_and_answers_as_a_fresh_open(stored_b
             got = service.call("remember", {"text": m.text, "video": m.video, "start": m.start, "end": m.end})
             touched |= {op["entity"] for op in got["ops"]}
         assert view._persisted is not None, "still reading the stores (nothing found damaged)"
+        assert "entities" in view.__dict__ and "entity" in view._vector_cache, "entities taken in, not read whole"
         old = [e for e in touched if e in view.history._row]
         assert old, "the moments extended histories the persisted index holds"
         live = _reads(service)
