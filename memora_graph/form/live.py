@@ -504,7 +504,9 @@ class LiveWriter:
                                      "narrative": seg_row["narrative"]},
                      "places": [pp.location_id for pp in new_places + changed_places],
                      "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]],
-                     "history": sorted({ev["entity"] for ev in result.events})}  # whose state history grew
+                     "history": sorted({ev["entity"] for ev in result.events}),  # whose state history grew
+                     "entries": [{k: ev[k] for k in _EVENT} for ev in result.events],  # the new history entries
+                     "merged": [(m["from"], m["to"]) for m in merged]}
             if self._on_commit is not None:
                 self._on_commit(delta)
         return ops, delta

@@ -26,7 +26,7 @@ from memora_graph.embed import single_thread_blas
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
 from memora_graph.retrieve.graph import ObservationGraph
-from memora_graph.retrieve.history import HistoryIndex, HistoryParts, outline_parts
+from memora_graph.retrieve.history import HistoryIndex, HistoryParts, appended_parts, outline_parts
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
     VectorTable
 
@@ -372,8 +372,42 @@ class MemoryView:
         (a bounded read), or from the entity's outline in Kùzu when there is no index or a
         remembered moment added to the entity's history since the index was written."""
         if self.history is not None and entity not in self.__dict__.get("_history_added", ()):
+            added = self.__dict__.get("_history_appended", {}).get(entity)
+            if added:  # entries remembered after the index's last: appended to its parts
+                return appended_parts(self.history.parts(entity, max_entries), self.history.last(entity), added,
+                                      max_entries)
             return self.history.parts(entity, max_entries)
         return outline_parts(self.frame("_tool_history_outline", entity=entity), max_entries)
+
+    def _history_absorbed(self, delta: dict) -> None:
+        """Note whose history a remembered moment changed. With the history index, an entity whose
+        new entries (handed over by the writer: `delta["entries"]`) all come after its last one in
+        history order (video, time) has them appended to the index's parts; any other (an entry
+        within its history, a merge, no entries handed over) is read from Kùzu until the stores are
+        written again."""
+        loaded = self.__dict__
+        kuzu = loaded.setdefault("_history_added", set())
+        appended = loaded.setdefault("_history_appended", {})
+        grown = set(delta.get("history", delta.get("entities", [])))
+        grown.update(e for e, _ in delta.get("observations", []))
+        entries: dict[str, list[dict]] = {}
+        for e in sorted(delta.get("entries") or [], key=lambda e: (e["entity"], e["video"], e["t"], e["ord"])):
+            entries.setdefault(e["entity"], []).append(e)
+        merged = {x for pair in delta.get("merged", []) for x in pair}
+        index = self.history if "entries" in delta else None
+        for entity in grown | set(entries) | merged:
+            new = entries.get(entity)
+            if entity in kuzu or index is None or entity in merged or not new:
+                kuzu.add(entity)
+                appended.pop(entity, None)
+                continue
+            before = appended.get(entity)
+            last = (before[-1]["video"], before[-1]["t"]) if before else (index.last(entity) or (None,))[:2]
+            if last[0] is not None and (new[0]["video"], new[0]["t"]) <= last:
+                kuzu.add(entity)  # within its history: the outline from Kùzu
+                appended.pop(entity, None)
+            else:
+                appended.setdefault(entity, []).extend(new)
 
     # -- signals ---------------------------------------------------------------------------
     def knn(self, table: str, q: np.ndarray, k: int) -> list[tuple[str, float]]:
@@ -489,10 +523,7 @@ class MemoryView:
         loaded.pop("_open_action_log", None)  # the typed reader's action log (agent/open_answer.py): read again
         self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
-        # entities whose history grew: their history is read from Kùzu until the stores are written again
-        loaded.setdefault("_history_added", set()).update(delta.get("history", delta.get("entities", [])))
-        loaded["_history_added"].update(e for e, _ in delta.get("observations", []))
-        loaded["_history_added"].update(delta.get("entities", []))  # an entity merged or re-identified
+        self._history_absorbed(delta)  # entities whose history grew
         graph = self._grown("graph")
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
