@@ -507,20 +507,22 @@ class MemoryView:
         vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
         if delta.get("entities"):
             self._changed("entity")
-            kept = self._entities_absorbed(delta["entities"])
+            kept = self._entities_absorbed(delta["entities"])  # None, or whether their words changed
             for name in self._ENTITY_DERIVED:
-                if name != "entities" or not kept:
+                if kept is None or name in ("active_entities", "max_observations") or (kept and name == "_entity_words"):
                     loaded.pop(name, None)
-            if not kept:
+            if kept is None:
                 vectors.pop("entity", None)
-            bm25.pop("entity", None)
+            if kept is not False:  # an entity added, renamed, merged or revived: the keyword index is rebuilt
+                bm25.pop("entity", None)
         if delta.get("places"):
             loaded.pop("places", None)
             vectors.pop("place", None)
             bm25.pop("place", None)
             self._changed("place")
         loaded.pop("videos", None)
-        loaded.pop("_open_action_log", None)  # the typed reader's action log (agent/open_answer.py): read again
+        if "_open_action_log" in loaded:  # the typed reader's action log (agent/open_answer.py) takes it in
+            loaded.setdefault("_open_log_pending", []).append(sid)
         self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
         self._history_absorbed(delta)  # entities whose history grew
@@ -528,24 +530,28 @@ class MemoryView:
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
 
-    def _entities_absorbed(self, ids: list[str]) -> bool:
+    def _entities_absorbed(self, ids: list[str]) -> bool | None:
         """Bring the loaded entity registry and entity vectors up to date with the entities a
         remembered moment added or changed (read by id: primary-key lookups), rather than reading
         every entity again (23,299 at 1,000 h, each call after a remember). Both stay ordered by
         id, as `_tool_entities` and `_tool_vectors_entity` return them; an entity's vector is
-        written when it is added, never changed. False where nothing was loaded (or a row is
-        missing): the next use reads them whole."""
+        written when it is added, never changed. Returns whether the words the keyword indexes
+        read changed (an entity added, or its name, kind, category or status changed); None where
+        nothing was loaded (or a row is missing): the next use reads them whole."""
         loaded = self.__dict__
         if "entities" not in loaded:
-            return False
+            return None
         rows = [self.store.fetch("_tool_entity_row", participant=self.participant, id=i) for i in sorted(set(ids))]
         if not all(rows):
-            return False
-        entities, grew, embs = loaded["entities"], False, {}
+            return None
+        entities, grew, words, embs = loaded["entities"], False, False, {}
         for (row,) in rows:
             emb = row.pop("emb")
-            if row["id"] not in entities:
+            old = entities.get(row["id"])
+            if old is None:
                 grew = True
+            if old is None or any(old[k] != row[k] for k in ("name", "kind", "category", "status")):
+                words = True
             entities[row["id"]] = row
             if row["status"] == "active" and emb is not None:
                 embs[row["id"]] = emb
@@ -565,7 +571,7 @@ class MemoryView:
                 order = sorted(range(len(every)), key=every.__getitem__)
                 mat = np.concatenate(mats)[np.asarray(order, dtype=np.int64)] if every else table.mat[:0]
                 loaded["_vector_cache"]["entity"] = VectorTable.normalized([every[k] for k in order], mat)
-        return True
+        return words
 
     def reload_inferred(self) -> None:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
