@@ -506,7 +506,13 @@ class LiveWriter:
                      "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]],
                      "history": sorted({ev["entity"] for ev in result.events}),  # whose state history grew
                      "entries": [{k: ev[k] for k in _EVENT} for ev in result.events],  # the new history entries
-                     "merged": [(m["from"], m["to"]) for m in merged]}
+                     "merged": [(m["from"], m["to"]) for m in merged],
+                     # the Entity columns as written (a reader takes them in without reading them back)
+                     "entity_rows": {**{e.id: ({k: getattr(e, k) for k in _ENTITY_UPDATE} if len(changed) <= _SCALAR_ROWS
+                                               else entity_row(e)) for e in changed},
+                                     **{e.id: {**entity_row(e), "emb": _floats(e.emb if e.emb is not None else
+                                                                             np.zeros(dim, np.float32))}
+                                        for e in new_ents}}}
             if self._on_commit is not None:
                 self._on_commit(delta)
         return ops, delta

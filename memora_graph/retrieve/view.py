@@ -507,7 +507,7 @@ class MemoryView:
         vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
         if delta.get("entities"):
             self._changed("entity")
-            kept = self._entities_absorbed(delta["entities"])  # None, or whether their words changed
+            kept = self._entities_absorbed(delta["entities"], delta.get("entity_rows") or {})
             for name in self._ENTITY_DERIVED:
                 if kept is None or name in ("active_entities", "max_observations") or (kept and name == "_entity_words"):
                     loaded.pop(name, None)
@@ -530,9 +530,10 @@ class MemoryView:
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
 
-    def _entities_absorbed(self, ids: list[str]) -> bool | None:
+    def _entities_absorbed(self, ids: list[str], written: dict[str, dict]) -> bool | None:
         """Bring the loaded entity registry and entity vectors up to date with the entities a
-        remembered moment added or changed (read by id: primary-key lookups), rather than reading
+        remembered moment added or changed (the columns the writer wrote, `written`, over the row
+        loaded; else read by id: primary-key lookups), rather than reading
         every entity again (23,299 at 1,000 h, each call after a remember). Both stay ordered by
         id, as `_tool_entities` and `_tool_vectors_entity` return them; an entity's vector is
         written when it is added, never changed. Returns whether the words the keyword indexes
@@ -541,10 +542,27 @@ class MemoryView:
         loaded = self.__dict__
         if "entities" not in loaded:
             return None
-        rows = [self.store.fetch("_tool_entity_row", participant=self.participant, id=i) for i in sorted(set(ids))]
+        entities = loaded["entities"]
+        columns = next(iter(entities.values()), None)
+        rows = []
+        for i in sorted(set(ids)):
+            w, old = written.get(i), entities.get(i)
+            if w is not None and old is not None and "emb" not in w:  # changed: the columns set over the row
+                rows.append([{**old, **{k: v for k, v in w.items() if k in old}, "emb": None}])
+            elif w is not None and old is None and columns is not None and set(columns) <= set(w):  # added
+                rows.append([{**{k: w[k] for k in columns}, "emb": w["emb"]}])
+            else:
+                rows.append(self.store.fetch("_tool_entity_row", participant=self.participant, id=i))
         if not all(rows):
             return None
-        entities, grew, words, embs = loaded["entities"], False, False, {}
+        table = loaded.get("_vector_cache", {}).get("entity")
+        for n, (row,) in enumerate(rows):  # an entity active again whose vector is not loaded: read it
+            if row["emb"] is None and row["status"] == "active" and table is not None and row["id"] not in table.index:
+                got = self.store.fetch("_tool_entity_row", participant=self.participant, id=row["id"])
+                if not got:
+                    return None
+                rows[n] = got
+        grew, words, embs, gone = False, False, {}, set()
         for (row,) in rows:
             emb = row.pop("emb")
             old = entities.get(row["id"])
@@ -555,11 +573,11 @@ class MemoryView:
             entities[row["id"]] = row
             if row["status"] == "active" and emb is not None:
                 embs[row["id"]] = emb
+            elif row["status"] != "active":
+                gone.add(row["id"])
         if grew:  # new ids: in their place among the others
             loaded["entities"] = dict(sorted(entities.items()))
-        table = loaded.get("_vector_cache", {}).get("entity")
         if table is not None:
-            gone = {r[0]["id"] for r in rows} - set(embs)
             new = [i for i in embs if i not in table.index]
             if new or any(i in table.index for i in gone):
                 keep = [i for i in table.ids if i not in gone]
