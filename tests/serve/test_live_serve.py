@@ -256,3 +256,17 @@ def test_a_restarted_writer_never_reads_stores_older_than_its_database(stored_ba
         service.close()
     with MemoryService(bank, P, recipe="inprocess") as reader:
         assert got == _reads(reader)
+
+
+def test_perf_live_without_consolidation(stored_bank, tmp_path):
+    """`memora perf live --no-consolidation` measures remember and the tools only, on a copy of the
+    bank given (its stores read), and records the start, the stores read and the peak memory."""
+    before = sorted(p.name for p in stored_bank.rglob("*"))
+    got = CliRunner().invoke(main, ["perf", "live", "--participant", P, "--sizes", "1", "--bank", f"1={stored_bank}",
+                                    "--work", str(tmp_path / "w"), "--remembers", "10", "--tool-rounds", "1",
+                                    "--rate", "20", "--no-consolidation", "--json"])
+    assert got.exit_code == 0, got.output
+    row = json.loads(got.stdout)[0]
+    assert row["tool_stores"] == "read" and row["remember_cpu_p50_ms"] > 0 and row["peak_rss_mb"] > 0
+    assert "consolidate_per_100_s" not in row and "search_objects" in row["tool_idle_p95_by_tool_ms"]
+    assert sorted(p.name for p in stored_bank.rglob("*")) == before, "the given bank is never written"
