@@ -24,6 +24,7 @@ absent from this person's memory.
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 from collections import Counter
@@ -152,39 +153,54 @@ def _place_of(objects: list[str], nouns: list[str], lex: Lexicon, said: list[str
     return None
 
 
+def _segment_steps(seg: dict, lex: Lexicon) -> list[LogStep]:
+    """The narrated steps of one activity record (id, video, t_start, action_breakdown) as classes."""
+    out: list[LogStep] = []
+    try:
+        steps = json.loads(seg["action_breakdown"] or "[]")
+    except (TypeError, ValueError):
+        steps = []
+    t0 = float(seg["t_start"] or 0.0)
+    for s in steps:
+        narration = str(s.get("narration") or "")
+        obj = str(s.get("object") or "")
+        objects = noun_classes(lex, obj.replace("_", " ").replace(":", " ")) if obj else []
+        clauses = lex.parse(narration) if narration else []
+        nouns = list(objects)
+        said = []
+        for c in clauses:
+            nouns += [n for n in fix_keys(lex, narration, c.nouns) if n not in nouns]
+            if c.place:
+                said += fix_keys(lex, narration, [c.place])
+        if not objects and nouns:
+            objects = nouns[:1]
+        verb = lex.verb(str(s.get("action") or "")) or next((c.verb for c in clauses if c.verb), None)
+        try:
+            t = t0 + float(s.get("timestamp") or 0.0)
+        except (TypeError, ValueError):
+            t = t0
+        out.append(LogStep(seg["video"], t, seg["id"], verb, tuple(dict.fromkeys(objects)), tuple(nouns),
+                           _place_of(objects, nouns, lex, said), narration or f"{s.get('action', '')} {obj}".strip()))
+    return out
+
+
 def action_log(view, lex: Lexicon) -> list[LogStep]:
     """Every narrated step in the person's memory as classes, in (video, time) order; read once
-    per open view."""
+    per open view. A server's reader notes the segments remembered since
+    (`view._open_log_pending`, MemoryView.absorb): their steps are put in their place (after
+    the steps of equal video and time, as the stable sort of a whole read puts a later turn's)."""
     cached = view.__dict__.get("_open_action_log")
     if cached is not None:
+        pending = view.__dict__.pop("_open_log_pending", None)
+        if pending:
+            for seg in view.by_id("_tool_segment", pending):
+                for step in _segment_steps(seg, lex):
+                    bisect.insort_right(cached, step, key=lambda s: (s.video, s.t))
         return cached
+    view.__dict__.pop("_open_log_pending", None)
     out: list[LogStep] = []
     for seg in view.fetch("_open_action_log"):
-        try:
-            steps = json.loads(seg["action_breakdown"] or "[]")
-        except (TypeError, ValueError):
-            steps = []
-        t0 = float(seg["t_start"] or 0.0)
-        for s in steps:
-            narration = str(s.get("narration") or "")
-            obj = str(s.get("object") or "")
-            objects = noun_classes(lex, obj.replace("_", " ").replace(":", " ")) if obj else []
-            clauses = lex.parse(narration) if narration else []
-            nouns = list(objects)
-            said = []
-            for c in clauses:
-                nouns += [n for n in fix_keys(lex, narration, c.nouns) if n not in nouns]
-                if c.place:
-                    said += fix_keys(lex, narration, [c.place])
-            if not objects and nouns:
-                objects = nouns[:1]
-            verb = lex.verb(str(s.get("action") or "")) or next((c.verb for c in clauses if c.verb), None)
-            try:
-                t = t0 + float(s.get("timestamp") or 0.0)
-            except (TypeError, ValueError):
-                t = t0
-            out.append(LogStep(seg["video"], t, seg["id"], verb, tuple(dict.fromkeys(objects)), tuple(nouns),
-                               _place_of(objects, nouns, lex, said), narration or f"{s.get('action', '')} {obj}".strip()))
+        out += _segment_steps(seg, lex)
     out.sort(key=lambda s: (s.video, s.t))
     view.__dict__["_open_action_log"] = out
     return out

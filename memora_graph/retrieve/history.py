@@ -189,6 +189,62 @@ class HistoryIndex:
                             segments=doc["segments"], transitions=transitions, tail_ids=tail_ids, tail=tail)
 
 
+    def last(self, entity: str) -> tuple[str, float, str | None] | None:
+        """(video, time, place) of the entity's last entry in history order, or None."""
+        i = self._row.get(entity)
+        if i is None or int(self._a["offsets"][i + 1]) == int(self._a["offsets"][i]):
+            return None
+        j = int(self._a["offsets"][i + 1]) - 1
+        return self.videos[int(self._a["video"][j])], float(self._a["t"][j]), self.locations[int(self._a["loc"][j])]
+
+
+def _named_value(x) -> bool:
+    return x is not None and x != ""
+
+
+def appended_parts(base: HistoryParts, last: tuple[str, float, str | None] | None, added: list[dict],
+                   max_entries: int) -> HistoryParts:
+    """The parts of a history that is `base`'s (computed with the same `max_entries`; `last`: its
+    last entry's video, time and place) followed by the entries in `added` (ENTRY_FIELDS, in history
+    order, all after `base`'s last entry): what `outline_parts` gives on the whole outline."""
+    total = base.total + len(added)
+    videos = [dict(v) for v in base.videos]
+    transitions = list(base.transitions)
+    prev_video, prev_loc, first = (last[0], last[2], False) if last is not None else (None, None, True)
+    for e in added:
+        v = videos[-1] if videos and videos[-1]["video"] == e["video"] else None
+        if v is None:
+            v = {"video": e["video"], "observations": 0, "first_t": e["t"], "last_t": e["t"], "states": [],
+                 "locations": [], "final_state": None, "final_location": None}
+            videos.append(v)
+        else:
+            v["states"], v["locations"] = list(v["states"]), list(v["locations"])
+        v["observations"] += 1
+        v["last_t"], v["final_state"], v["final_location"] = e["t"], e["state"], e["location"]
+        if _named_value(e["state"]) and e["state"] not in v["states"]:
+            v["states"].append(e["state"])
+        if _named_value(e["location"]) and e["location"] not in v["locations"]:
+            v["locations"].append(e["location"])
+        if not first and e["location"] != prev_loc and _named_value(e["location"]):
+            transitions.append({"video": e["video"], "t": e["t"], "from": prev_loc, "to": e["location"],
+                                "across_videos": e["video"] != prev_video,
+                                "segment_id": segment_id(e["video"], int(e["turn"])), "event_id": e["id"]})
+        prev_video, prev_loc, first = e["video"], e["location"], False
+    if max_entries and len(transitions) > max_entries:
+        transitions = transitions[-max_entries:]
+    keep = max_entries if max_entries and total > max_entries else total
+    ids = base.tail_ids + [e["id"] for e in added]
+    kept = base.tail if base.tail is not None or base.total else []  # an entity new to the index has none
+    tail = None if kept is None else kept + [{k: e[k] for k in ENTRY_FIELDS} for e in added]
+    return HistoryParts(
+        total=total, videos=videos,
+        states=sorted(set(base.states) | {e["state"] for e in added if _named_value(e["state"])}),
+        locations=sorted(set(base.locations) | {e["location"] for e in added if _named_value(e["location"])}),
+        segments=sorted(set(base.segments) | {segment_id(e["video"], int(e["turn"])) for e in added})[:EVIDENCE_SEGMENTS],
+        transitions=transitions, tail_ids=ids[len(ids) - keep:] if keep else [],
+        tail=None if tail is None else (tail[len(tail) - keep:] if keep else []))
+
+
 def _entries(blob: np.ndarray, offsets: np.ndarray) -> list[dict]:
     """The entries between consecutive `offsets` of the JSON-lists byte array, as dicts."""
     if len(offsets) < 2:

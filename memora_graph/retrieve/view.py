@@ -26,7 +26,7 @@ from memora_graph.embed import single_thread_blas
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.retrieve.embedding import QueryEncoder
 from memora_graph.retrieve.graph import ObservationGraph
-from memora_graph.retrieve.history import HistoryIndex, HistoryParts, outline_parts
+from memora_graph.retrieve.history import HistoryIndex, HistoryParts, appended_parts, outline_parts
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
     VectorTable
 
@@ -175,6 +175,50 @@ class MemoryView:
                 log.warning(f"{bank}: could not persist {participant}'s tool stores ({exc})")
         return view
 
+    @classmethod
+    def live(cls, store: Store, bank: str | Path, participant: str, db_sha256: str | None, embedder=None,
+             config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
+        """A view for the readers of a live writer (`memora serve --writable`), on the writer's own
+        `store` (read-write, not closed by the view). `db_sha256`: the database's sha256 as the
+        writer opened it, checked against its integrity record (form/live.py `opened_sha256`),
+        given only while nothing was written since. With an in-process recipe the persisted tool
+        stores are read when they were computed from exactly that database, and written first
+        from the store when they are missing or stale (as `open` does); remembered moments then
+        reach the view through `absorb`, which reads what they touched from the store until the
+        stores are written again. A later open never trusts these stores once the writer wrote:
+        the writer's close (or the recovery of a killed writer) records the database's new
+        sha256, which the stores do not carry. None, --no-verify or MEMORA_TOOL_STORES=0: the
+        store only."""
+        cfg = _config(config)
+        persist = os.environ.get(TOOL_STORES_ENV, "1") != "0"
+        if not (db_sha256 and persist and cfg.vector == "numpy" and cfg.keyword in ("bm25", "none")):
+            return cls(store, participant, embedder, config)
+        from memora_graph.retrieve.persist import PersistedStores, StaleStores, write
+
+        embed_model = Bank(bank).manifest().get("embed_model")
+        try:
+            stores = PersistedStores.open(bank, participant, db_sha256, embed_model)
+        except StaleStores as why:
+            if why.damaged:
+                log.warning(f"{why}; reading the database instead (and writing them again)")
+            if not _writable(Path(bank)):
+                return cls(store, participant, embedder, config)
+            view = cls(store, participant, embedder, config)
+            try:
+                written = write(view, bank, db_sha256, embed_model)
+                stores = PersistedStores.open(bank, participant, db_sha256, embed_model)
+            except (OSError, StaleStores) as exc:  # a full disk: the view works on the store
+                log.warning(f"{bank}: could not persist {participant}'s tool stores ({exc})")
+                return view
+            view.close()
+            out = cls(None, participant, embedder, config, persisted=stores, open_store=lambda: store)
+            out.persisted_written = written
+            out._store = store  # open already; the view does not own it
+            return out
+        out = cls(None, participant, embedder, config, persisted=stores, open_store=lambda: store)
+        out._store = store
+        return out
+
     @property
     def store(self) -> Store:
         if self._store is None:
@@ -193,7 +237,8 @@ class MemoryView:
 
     # -- queries and embeddings ---------------------------------------------------------
     def fetch(self, name: str, **params) -> list[dict]:
-        if not params and self._persisted is not None and self._persisted.has_rows(name):
+        if not params and self._persisted is not None and self._persisted.has_rows(name) \
+                and name not in self.__dict__.get("_rows_changed", ()):
             got = self._from_persisted(lambda p: p.rows(name))
             if got is not None:
                 return got
@@ -274,7 +319,7 @@ class MemoryView:
     def vectors(self, table: str) -> VectorTable:
         cache = self.__dict__.setdefault("_vector_cache", {})
         if table not in cache:
-            got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted is not None else None
+            got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted_for(table) else None
             cache[table] = got if got is not None else self._vectors_from_store(table)
         return cache[table]
 
@@ -338,8 +383,42 @@ class MemoryView:
         (a bounded read), or from the entity's outline in Kùzu when there is no index or a
         remembered moment added to the entity's history since the index was written."""
         if self.history is not None and entity not in self.__dict__.get("_history_added", ()):
+            added = self.__dict__.get("_history_appended", {}).get(entity)
+            if added:  # entries remembered after the index's last: appended to its parts
+                return appended_parts(self.history.parts(entity, max_entries), self.history.last(entity), added,
+                                      max_entries)
             return self.history.parts(entity, max_entries)
         return outline_parts(self.frame("_tool_history_outline", entity=entity), max_entries)
+
+    def _history_absorbed(self, delta: dict) -> None:
+        """Note whose history a remembered moment changed. With the history index, an entity whose
+        new entries (handed over by the writer: `delta["entries"]`) all come after its last one in
+        history order (video, time) has them appended to the index's parts; any other (an entry
+        within its history, a merge, no entries handed over) is read from Kùzu until the stores are
+        written again."""
+        loaded = self.__dict__
+        kuzu = loaded.setdefault("_history_added", set())
+        appended = loaded.setdefault("_history_appended", {})
+        grown = set(delta.get("history", delta.get("entities", [])))
+        grown.update(e for e, _ in delta.get("observations", []))
+        entries: dict[str, list[dict]] = {}
+        for e in sorted(delta.get("entries") or [], key=lambda e: (e["entity"], e["video"], e["t"], e["ord"])):
+            entries.setdefault(e["entity"], []).append(e)
+        merged = {x for pair in delta.get("merged", []) for x in pair}
+        index = self.history if "entries" in delta else None
+        for entity in grown | set(entries) | merged:
+            new = entries.get(entity)
+            if entity in kuzu or index is None or entity in merged or not new:
+                kuzu.add(entity)
+                appended.pop(entity, None)
+                continue
+            before = appended.get(entity)
+            last = (before[-1]["video"], before[-1]["t"]) if before else (index.last(entity) or (None,))[:2]
+            if last[0] is not None and (new[0]["video"], new[0]["t"]) <= last:
+                kuzu.add(entity)  # within its history: the outline from Kùzu
+                appended.pop(entity, None)
+            else:
+                appended.setdefault(entity, []).extend(new)
 
     # -- signals ---------------------------------------------------------------------------
     def knn(self, table: str, q: np.ndarray, k: int) -> list[tuple[str, float]]:
@@ -365,7 +444,7 @@ class MemoryView:
 
     def _bm25(self, table: str) -> Bm25:
         cache = self.__dict__.setdefault("_bm25_cache", {})
-        if table not in cache and self._persisted is not None:
+        if table not in cache and self._persisted_for(table):
             got = self._from_persisted(lambda p: p.bm25(table))
             if got is not None:
                 cache[table] = got
@@ -386,6 +465,39 @@ class MemoryView:
 
     # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
     _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words")
+    # what a remember or a consolidation changes, by table: the participant-wide rows read again from
+    # the store from then on (the persisted ones describe the database before it)
+    _ROWS_OF = {"entity": "_tool_entities", "place": "_tool_places", "routine": "_tool_routines",
+                "preference": "_tool_preferences"}
+
+    def _persisted_for(self, table: str) -> bool:
+        """Whether the persisted stores still describe `table`'s vectors and keywords."""
+        return self._persisted is not None and table not in self.__dict__.get("_tables_changed", ())
+
+    def _changed(self, *tables: str, rows: tuple[str, ...] = ()) -> None:
+        """Tables (and participant-wide row queries) the database changed since the persisted
+        stores were computed: read from the store from now on, not from the stores."""
+        loaded = self.__dict__
+        loaded.setdefault("_tables_changed", set()).update(tables)
+        loaded.setdefault("_rows_changed", set()).update((*(self._ROWS_OF[t] for t in tables), *rows))
+
+    def _grown(self, kind: str, table: str | None = None):
+        """The loaded vectors / keywords of `table` or the graph, to which a remembered moment is
+        added; loaded from the persisted stores now if not yet (those lack the moment), None where
+        there is nothing to add to (a later load from the store reads the moment)."""
+        loaded = self.__dict__
+        if kind == "graph":
+            if "graph" not in loaded and self._persisted is not None and self._persisted.has_graph():
+                got = self._from_persisted(lambda p: p.graph())
+                if got is not None:
+                    loaded["graph"] = got
+            return loaded.get("graph")
+        cache = loaded.setdefault("_vector_cache" if kind == "vectors" else "_bm25_cache", {})
+        if table not in cache and self._persisted_for(table):
+            got = self._from_persisted(lambda p: p.vectors(table) if kind == "vectors" else p.bm25(table))
+            if got is not None:
+                cache[table] = got
+        return cache.get(table)
 
     def absorb(self, delta: dict) -> None:
         """Bring what this view loaded up to date with one remembered moment (form/live.py's
@@ -395,30 +507,100 @@ class MemoryView:
         their next use. Called by the one thread that writes, under the lock the readers take."""
         loaded = self.__dict__
         sid = delta["segment"]
-        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
-        if "segment" in vectors or "segment" in bm25:
+        vectors, bm25 = self._grown("vectors", "segment"), self._grown("bm25", "segment")
+        if vectors is not None or bm25 is not None:
             row = delta.get("segment_row") or self.store.fetch("_live_segment_row", participant=self.participant,
                                                                id=sid)[0]  # the writer hands it over: no read
-            if "segment" in vectors:
-                vectors["segment"] = vectors["segment"].appended(sid, np.asarray(row["emb"], dtype=np.float32))
-            if "segment" in bm25:
-                bm25["segment"] = bm25["segment"].added(sid, f"{row['summary']} {row['narrative']}")
+            if vectors is not None:
+                loaded["_vector_cache"]["segment"] = vectors.appended(sid, np.asarray(row["emb"], dtype=np.float32))
+            if bm25 is not None:
+                loaded["_bm25_cache"]["segment"] = bm25.added(sid, f"{row['summary']} {row['narrative']}")
+        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
         if delta.get("entities"):
+            self._changed("entity")
+            kept = self._entities_absorbed(delta["entities"], delta.get("entity_rows") or {})
             for name in self._ENTITY_DERIVED:
-                loaded.pop(name, None)
-            vectors.pop("entity", None)
-            bm25.pop("entity", None)
+                if kept is None or name in ("active_entities", "max_observations") or (kept and name == "_entity_words"):
+                    loaded.pop(name, None)
+            if kept is None:
+                vectors.pop("entity", None)
+            if kept is not False:  # an entity added, renamed, merged or revived: the keyword index is rebuilt
+                bm25.pop("entity", None)
         if delta.get("places"):
             loaded.pop("places", None)
             vectors.pop("place", None)
             bm25.pop("place", None)
+            self._changed("place")
         loaded.pop("videos", None)
+        if "_open_action_log" in loaded:  # the typed reader's action log (agent/open_answer.py) takes it in
+            loaded.setdefault("_open_log_pending", []).append(sid)
+        self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
-        # entities whose history grew: their history is read from Kùzu until the stores are written again
-        loaded.setdefault("_history_added", set()).update(delta.get("history", delta.get("entities", [])))
-        loaded["_history_added"].update(e for e, _ in delta.get("observations", []))
-        if "graph" in loaded:
-            loaded["graph"].add(sid, delta.get("observations", []))
+        self._history_absorbed(delta)  # entities whose history grew
+        graph = self._grown("graph")
+        if graph is not None:
+            graph.add(sid, delta.get("observations", []))
+
+    def _entities_absorbed(self, ids: list[str], written: dict[str, dict]) -> bool | None:
+        """Bring the loaded entity registry and entity vectors up to date with the entities a
+        remembered moment added or changed (the columns the writer wrote, `written`, over the row
+        loaded; else read by id: primary-key lookups), rather than reading
+        every entity again (23,299 at 1,000 h, each call after a remember). Both stay ordered by
+        id, as `_tool_entities` and `_tool_vectors_entity` return them; an entity's vector is
+        written when it is added, never changed. Returns whether the words the keyword indexes
+        read changed (an entity added, or its name, kind, category or status changed); None where
+        nothing was loaded (or a row is missing): the next use reads them whole."""
+        loaded = self.__dict__
+        if "entities" not in loaded:
+            return None
+        entities = loaded["entities"]
+        columns = next(iter(entities.values()), None)
+        rows = []
+        for i in sorted(set(ids)):
+            w, old = written.get(i), entities.get(i)
+            if w is not None and old is not None and "emb" not in w:  # changed: the columns set over the row
+                rows.append([{**old, **{k: v for k, v in w.items() if k in old}, "emb": None}])
+            elif w is not None and old is None and columns is not None and set(columns) <= set(w):  # added
+                rows.append([{**{k: w[k] for k in columns}, "emb": w["emb"]}])
+            else:
+                rows.append(self.store.fetch("_tool_entity_row", participant=self.participant, id=i))
+        if not all(rows):
+            return None
+        table = loaded.get("_vector_cache", {}).get("entity")
+        for n, (row,) in enumerate(rows):  # an entity active again whose vector is not loaded: read it
+            if row["emb"] is None and row["status"] == "active" and table is not None and row["id"] not in table.index:
+                got = self.store.fetch("_tool_entity_row", participant=self.participant, id=row["id"])
+                if not got:
+                    return None
+                rows[n] = got
+        grew, words, embs, gone = False, False, {}, set()
+        for (row,) in rows:
+            emb = row.pop("emb")
+            old = entities.get(row["id"])
+            if old is None:
+                grew = True
+            if old is None or any(old[k] != row[k] for k in ("name", "kind", "category", "status")):
+                words = True
+            entities[row["id"]] = row
+            if row["status"] == "active" and emb is not None:
+                embs[row["id"]] = emb
+            elif row["status"] != "active":
+                gone.add(row["id"])
+        if grew:  # new ids: in their place among the others
+            loaded["entities"] = dict(sorted(entities.items()))
+        if table is not None:
+            new = [i for i in embs if i not in table.index]
+            if new or any(i in table.index for i in gone):
+                keep = [i for i in table.ids if i not in gone]
+                mats = [np.asarray(table.mat)[np.fromiter((table.index[i] for i in keep), np.int64, len(keep))]] \
+                    if keep else []
+                if new:  # normalised as a table read whole normalises each row
+                    mats.append(VectorTable(new, np.asarray([embs[i] for i in new], dtype=np.float32)).mat)
+                every = keep + new
+                order = sorted(range(len(every)), key=every.__getitem__)
+                mat = np.concatenate(mats)[np.asarray(order, dtype=np.int64)] if every else table.mat[:0]
+                loaded["_vector_cache"]["entity"] = VectorTable.normalized([every[k] for k in order], mat)
+        return words
 
     def reload_inferred(self) -> None:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
@@ -429,6 +611,7 @@ class MemoryView:
         for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
             cache.pop("routine", None)
             cache.pop("preference", None)
+        self._changed("routine", "preference", rows=("_tool_inferred_links",))
 
     def warm(self) -> None:
         """Load everything the tools read once (what the first call would otherwise pay)."""

@@ -234,8 +234,10 @@ class MemoryService:
         """`unconfined_cypher`: offer the cypher tool even where the kernel cannot confine its
         child process (memora_graph/confine.py); by default it is offered only where it can.
         `writable` (one participant only) also serves the `remember` tool: this process then
-        holds the participant's live writer (form/live.py) and every read goes through the
-        writer's own store, so the next call sees what was just remembered (no other process can
+        holds the participant's live writer (form/live.py); reads go to the persisted tool stores
+        computed from the database as the writer opened it (written first if stale) and, for what
+        a remember or a consolidation changed since, to the writer's own store (`MemoryView.live`,
+        `absorb`), so the next call sees what was just remembered (no other process can
         open the database meanwhile: Kùzu locks it, so no confined child can either, and the cypher
         tool is then offered only with `unconfined_cypher`). `consolidate_every`: after that many
         new segments, incremental consolidation runs in a background thread (consolidate/live.py)."""
@@ -292,7 +294,11 @@ class MemoryService:
         """The participant's memory, opened read-only (integrity checked) on first use and kept."""
         view = self._views.get(participant)
         if view is None and self.writer is not None:
-            view = self._views[participant] = MemoryView(self.writer.store, participant, config=self.recipe)
+            # the persisted tool stores, if computed from the database as the writer opened it (and
+            # nothing was written since: the view could not absorb it), else the writer's store
+            sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
+            view = self._views[participant] = MemoryView.live(self.writer.store, self.bank.path, participant, sha,
+                                                              config=self.recipe)
         elif view is None:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view

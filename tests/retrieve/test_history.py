@@ -70,8 +70,9 @@ def _parts(view: MemoryView, entity: str, n: int):
 
 def test_remembered_moments_join_the_histories(bank, embedder):
     """A view reading the persisted index that takes in remembered moments (`absorb`, as a
-    server's readers do) answers for the objects they touched from Kùzu, the others from the
-    index: the same parts as a view opened afterwards on the database."""
+    server's readers do) answers for the objects they touched with the index's parts and the
+    new entries appended, the others from the index: the same parts as a view opened afterwards
+    on the database."""
     persist_bank(bank, [P])
     view = MemoryView.open(bank, P, embedder)
     try:
@@ -86,6 +87,8 @@ def test_remembered_moments_join_the_histories(bank, embedder):
         grown = sorted({e for d in deltas for e in d["history"]})
         old = [e for e in grown if e in view.history._row]
         assert old, "the moments added to objects the index holds"
+        # entries after an object's last (a video sorting after its others) are appended to the index's parts
+        assert set(old) <= set(view._history_appended) and not set(old) & view._history_added
         untouched = sorted(set(view.history.entities) - set(grown))[:5]
         got = {(e, n): _parts(view, e, n) for e in grown + untouched for n in LENGTHS}
         segments = sorted({d["segment"] for d in deltas})

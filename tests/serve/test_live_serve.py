@@ -19,7 +19,7 @@ from memora_graph.bank import Bank
 from memora_graph.cli import main
 from memora_graph.consolidate.live import IncrementalConsolidation, consolidate_incremental, consolidation_cache
 from memora_graph.consolidate.run import consolidate_participant
-from memora_graph.errors import BankError
+from memora_graph.errors import BankError, MemoraError
 from memora_graph.form.live import LiveWriter, Moment
 from memora_graph.integrity.verify import verify_bank
 from memora_graph.serve import MemoryService
@@ -234,3 +234,118 @@ def test_background_consolidation_in_the_writable_server(tmp_path):
     finally:
         service.close()
     assert verify_bank(bank).ok
+
+
+# -- a writable server reads the persisted tool stores ----------------------------------------------
+P = "P37"
+READS = [("search", {"query": "wash the pan"}), ("search", {"query": "milk fridge"}),
+         ("search_objects", {"query": "knife", "top_k": 10}), ("search_objects", {"query": "milk"}),
+         ("search_activities", {"query": "cut vegetables"}), ("search_activities", {"query": "pour milk into the cup"}),
+         ("search_patterns", {"query": "after washing"}), ("get_routine_skill", {"goal_query": "wash pan"}),
+         ("get_preferences", {"query": "knife"}), ("get_object_history", {"object_query": "knife"}),
+         ("get_object_history", {"object_query": "fridge", "max_entries": 5}),
+         ("get_object_history", {"object_query": "milk"}), ("get_object_history", {"object_query": "pan"}),
+         ("search_environment", {"query": "sink"}), ("search_environment", {"query": "fridge"}),
+         ("get_state_at_time", {"time_seconds": 30, "video": "P37_live"}),
+         ("get_state_at_time", {"time_seconds": 1690, "video": "P37_101"}),
+         ("get_state_at_time", {"time_seconds": 120, "video": "P37_102"}),
+         ("get_video_activities", {"video": "P37_live"}), ("get_video_activities", {"video": "P37_101", "top_k": 50}),
+         ("ask", {"question": "Where is the knife?"}), ("ask", {"question": "What did P37 do after opening the fridge?"})]
+# a new video; an old one extended past its end (its objects' histories grow); places seen again
+LIVE = moments(20, video="P37_live") + moments(6, video="P37_101", offset=1700.0)
+
+
+def _reads(service: MemoryService) -> list[str]:
+    out = []
+    for name, args in READS:
+        try:
+            out.append(json.dumps(service.call(name, args), sort_keys=True))
+        except MemoraError as exc:  # a video not remembered yet
+            out.append(f"{type(exc).__name__}: {exc}")
+    return out
+
+
+@pytest.fixture()
+def stored_bank(small_bank, tmp_path):
+    import shutil
+
+    from memora_graph.retrieve.view import persist_bank
+
+    path = tmp_path / "bank"
+    shutil.copytree(small_bank[0], path, ignore=shutil.ignore_patterns("tools-*"))
+    persist_bank(path, [P])
+    return path
+
+
+def test_a_writable_server_reads_the_stores_and_answers_as_a_fresh_open(stored_bank):
+    """The readers of `memora serve --writable` read the persisted tool stores written for the
+    database as the writer opened it, and take remembered moments in through the overlay: after
+    moments in a new video and in an old one (old objects' histories, places seen again), every
+    tool answers as a read-only server opened afterwards on stores written again."""
+    from memora_graph.retrieve.persist import store_dir
+
+    bank = stored_bank
+    meta = json.loads((store_dir(bank, P) / "meta.json").read_text())
+    service = MemoryService(bank, P, writable=True)
+    try:
+        view = service._views[P]
+        assert view._persisted is not None and view.persisted_written is None, "fresh stores, read as they are"
+        assert meta["db_sha256"] == service.writer.opened_sha256
+        before = _reads(service)
+        touched = set()
+        for m in LIVE:
+            got = service.call("remember", {"text": m.text, "video": m.video, "start": m.start, "end": m.end})
+            touched |= {op["entity"] for op in got["ops"]}
+        assert view._persisted is not None, "still reading the stores (nothing found damaged)"
+        assert "entities" in view.__dict__ and "entity" in view._vector_cache, "entities taken in, not read whole"
+        old = [e for e in touched if e in view.history._row]
+        assert old, "the moments extended histories the persisted index holds"
+        live = _reads(service)
+    finally:
+        service.close()
+    assert live != before
+    assert verify_bank(bank).ok
+    # the writer's close recorded the database's new sha256: the stores are stale, written again on open
+    with pytest.raises(Exception, match="stale"):
+        from memora_graph.retrieve.persist import PersistedStores
+
+        PersistedStores.open(bank, P, Bank(bank).checked_sha256(P), meta["embed_model"])
+    reader = MemoryService(bank, P)
+    try:
+        assert reader._views[P].persisted_written is not None
+        fresh = _reads(reader)
+    finally:
+        reader.close()
+    assert live == fresh
+
+
+def test_a_restarted_writer_never_reads_stores_older_than_its_database(stored_bank):
+    """A writable server after another wrote (closed, so its sha256 was recorded) writes the
+    stores again from the database before reading them, and answers as a fresh open does."""
+    bank = stored_bank
+    with LiveWriter(bank, P) as memory:
+        for m in moments(5, video="P37_live"):
+            memory.remember(m)
+    service = MemoryService(bank, P, writable=True)
+    try:
+        view = service._views[P]
+        assert view._persisted is not None and view.persisted_written is not None, "stale: written again"
+        got = _reads(service)
+    finally:
+        service.close()
+    with MemoryService(bank, P, recipe="inprocess") as reader:
+        assert got == _reads(reader)
+
+
+def test_perf_live_without_consolidation(stored_bank, tmp_path):
+    """`memora perf live --no-consolidation` measures remember and the tools only, on a copy of the
+    bank given (its stores read), and records the start, the stores read and the peak memory."""
+    before = sorted(p.name for p in stored_bank.rglob("*"))
+    got = CliRunner().invoke(main, ["perf", "live", "--participant", P, "--sizes", "1", "--bank", f"1={stored_bank}",
+                                    "--work", str(tmp_path / "w"), "--remembers", "10", "--tool-rounds", "1",
+                                    "--rate", "20", "--no-consolidation", "--json"])
+    assert got.exit_code == 0, got.output
+    row = json.loads(got.stdout)[0]
+    assert row["tool_stores"] == "read" and row["remember_cpu_p50_ms"] > 0 and row["peak_rss_mb"] > 0
+    assert "consolidate_per_100_s" not in row and "search_objects" in row["tool_idle_p95_by_tool_ms"]
+    assert sorted(p.name for p in stored_bank.rglob("*")) == before, "the given bank is never written"

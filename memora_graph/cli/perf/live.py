@@ -10,7 +10,9 @@ what `memora serve --writable` runs) and measured:
   edit, commit, readers' caches updated);
 - tool latency (every retrieval tool but `cypher`, in process) idle, then while a thread
   remembers at `--rate` per second; the ratio of the p95s (target <= 2);
-- incremental consolidation: a first run (every video), then the time per 100 new segments.
+- incremental consolidation: a first run (every video), then the time per 100 new segments
+  (`--no-consolidation` skips it: while it recomputes the whole memory it takes most of the
+  run at 1,000 h).
 
 On a shared machine wall times include waiting for a core; CPU time (this process, all threads)
 does not; each row records the load average at its start and end. Each size's result is saved as JSON in the work folder and reused by a later run.
@@ -78,16 +80,28 @@ def prepare_bank(participant: str, hours: float, work: Path, given: str | None, 
     return base
 
 
-def measure(bank: Path, participant: str, remembers: int, rate: float, tool_rounds: int, echo) -> dict:
+def _peak_rss_mb() -> float:
+    """This process's peak resident memory so far (MB)."""
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+
+
+def measure(bank: Path, participant: str, remembers: int, rate: float, tool_rounds: int, echo,
+            consolidation: bool = True) -> dict:
     from memora_graph.form.live import Moment
     from memora_graph.serve import MemoryService
     from memora_graph.cli.perf.serve import call_set
 
     texts = _narrations(participant, 2000)
-    service = MemoryService(bank, participant, writable=True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    service = MemoryService(bank, participant, writable=True)  # the readers' stores written first if stale
+    opened = {"open_s": round(time.perf_counter() - t0, 2), "open_cpu_s": round(time.process_time() - c0, 2),
+              "tool_stores": "written" if service._views[participant].persisted_written else
+              ("read" if service._views[participant]._persisted is not None else "none (Kùzu)")}
     counts = service.bank.manifest()["participants"][participant]["counts"]
     out = {"segments_before": counts.get("segments"), "state_events_before": counts.get("state_events"),
-           "load_start": _load()}
+           "load_start": _load(), **opened}
     step = [0]
 
     def remember() -> tuple[float, float]:
@@ -111,17 +125,20 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         out.update(remember_p50_ms=_pct(wall, .5), remember_p95_ms=_pct(wall, .95), remember_cpu_p50_ms=_pct(cpu, .5),
                    remember_cpu_p95_ms=_pct(cpu, .95))
 
-        def tool_times(rounds: int) -> list[float]:
+        def tool_times(rounds: int, by_tool: dict | None = None) -> list[float]:
             got = []
             for _ in range(rounds):
                 for name, args in calls:
                     t0 = time.perf_counter()
                     service.call(name, args)
                     got.append((time.perf_counter() - t0) * 1e3)
+                    if by_tool is not None:
+                        by_tool.setdefault(name, []).append(got[-1])
             return got
 
         echo("  tools idle")
-        idle = tool_times(tool_rounds)
+        idle_by, busy_by = {}, {}
+        idle = tool_times(tool_rounds, idle_by)
         stop = threading.Event()
         streamed = []
 
@@ -137,7 +154,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         t = threading.Thread(target=stream, daemon=True)
         t0 = time.perf_counter()
         t.start()
-        busy = tool_times(tool_rounds)
+        busy = tool_times(tool_rounds, busy_by)
         stop.set()
         t.join()
         achieved = len(streamed) / (time.perf_counter() - t0)
@@ -145,7 +162,11 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
                    tool_stream_p95_ms=_pct(busy, .95), stream_rate_achieved=round(achieved, 2),
                    stream_remember_p95_ms=_pct(streamed, .95), tool_calls=len(idle))
         out["tool_p95_ratio"] = round(out["tool_stream_p95_ms"] / out["tool_idle_p95_ms"], 2)
+        out["tool_idle_p95_by_tool_ms"] = {n: _pct(v, .95) for n, v in sorted(idle_by.items())}
+        out["tool_stream_p95_by_tool_ms"] = {n: _pct(v, .95) for n, v in sorted(busy_by.items())}
         echo("  " + json.dumps(out))
+        if not consolidation:
+            return out
 
         echo("  incremental consolidation")
         from memora_graph.consolidate.live import BackgroundConsolidation
@@ -171,12 +192,13 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
             cons.stop()
     finally:
         service.close()
-    out["load_end"] = _load()
+        out["load_end"] = _load()
+        out["peak_rss_mb"] = _peak_rss_mb()
     return out
 
 
 def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float, str], remembers: int, rate: float,
-             tool_rounds: int, echo=print) -> list[dict]:
+             tool_rounds: int, echo=print, consolidation: bool = True) -> list[dict]:
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     for hours in sizes:
@@ -191,7 +213,7 @@ def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float
             shutil.rmtree(run)
         shutil.copytree(base, run)  # the measured writes never touch the base (or a given) bank
         echo(f"{tag}: measuring on {run}")
-        row = {"hours": hours, **measure(run, participant, remembers, rate, tool_rounds, echo)}
+        row = {"hours": hours, **measure(run, participant, remembers, rate, tool_rounds, echo, consolidation)}
         saved.write_text(json.dumps(row))
         rows.append(row)
         shutil.rmtree(run, ignore_errors=True)
@@ -210,8 +232,12 @@ def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float
 @click.option("--rate", type=float, default=10.0, show_default=True, help="Remembers per second during the tool test.")
 @click.option("--tool-rounds", type=click.IntRange(min=1), default=3, show_default=True,
               help="Rounds of every tool call, idle and while remembering.")
+@click.option("--consolidation/--no-consolidation", default=True, show_default=True,
+              help="Measure incremental consolidation (a first run, then two of 100 new segments each). It "
+                   "recomputes the whole memory per run, so at 1,000 h it is most of the run's time: "
+                   "--no-consolidation measures remember and the tools only.")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as JSON.")
-def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds, as_json):
+def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds, consolidation, as_json):
     """Live memory: remember latency, tool latency while remembering, incremental consolidation.
 
     \b
@@ -219,6 +245,7 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
     Examples:
       memora perf live --sizes 10 --work /tmp/perf-live
       memora perf live --sizes 10,100 --bank 10=/path/to/bank-10h --remembers 300 --json
+      memora perf live --sizes 1000 --bank 1000=/path/to/bank-1000h --no-consolidation
     """
     given: dict[float, str] = {}
     for b in banks:
@@ -232,16 +259,17 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
     except ValueError:
         raise click.UsageError(f"--sizes {sizes}: expected hours like 10,100") from None
     rows = run_live(participant, hours, Path(work), given, remembers, rate, tool_rounds,
-                    echo=lambda s: click.echo(s, err=True))
+                    echo=lambda s: click.echo(s, err=True), consolidation=consolidation)
     if as_json:
         click.echo(json.dumps(rows, indent=2))
         return
-    click.echo(render(pl.DataFrame(rows)))
+    click.echo(render(pl.DataFrame([{k: v for k, v in r.items() if not isinstance(v, dict)} for r in rows])))
     for r in rows:
+        cons = (f"incremental consolidation {r['consolidate_per_100_s']} s per 100 new segments (first run "
+                f"{r['consolidate_first_s']} s)" if "consolidate_per_100_s" in r else "consolidation not measured")
         ok = r["remember_p50_ms"] <= TARGET_P50_MS and r["remember_p95_ms"] <= TARGET_P95_MS
         click.echo(f"{r['hours']:g} h: remember p50 {r['remember_p50_ms']} ms / p95 {r['remember_p95_ms']} ms "
                    f"(CPU {r['remember_cpu_p50_ms']} / {r['remember_cpu_p95_ms']}) {'meets' if ok else 'misses'} "
                    f"<= {TARGET_P50_MS:g} / {TARGET_P95_MS:g}; tool p95 while remembering {r['tool_p95_ratio']}x idle "
-                   f"(target <= {TARGET_RATIO:g}); incremental consolidation {r['consolidate_per_100_s']} s per 100 "
-                   f"new segments (first run {r['consolidate_first_s']} s); load average {r.get('load_start')} "
+                   f"(target <= {TARGET_RATIO:g}); {cons}; load average {r.get('load_start')} "
                    f"-> {r.get('load_end')}")
