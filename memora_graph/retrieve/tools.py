@@ -318,8 +318,7 @@ def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[
         p = by_id.get(c.id)
         if p is None:
             continue
-        here = sorted((e for e in view.entities.values() if e["status"] == "active" and e["location"] == p["location_id"]),
-                      key=lambda e: (-(e["n_observations"] or 0), e["id"]))
+        here = _objects_at(view).get(p["location_id"], ())
         out.append(PlaceRecord(
             place_id=p["location_id"], name=p["name"], zones=p["zones"] or [], features=p["features"] or [],
             turns=p["turn_count"], first_seen={"video": p["first_video"], "t": p["first_seen"]},
@@ -328,6 +327,22 @@ def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[
             similarity=round(c.similarity, 4), score=_score(c), evidence=[p["id"]], duplicates=c.duplicates or None,
         ))
     return out
+
+
+def _objects_at(view: MemoryView) -> dict[str, list[dict]]:
+    """location -> the active entities there, most observed first (ties by id): computed once per
+    view (the entities change only with a remembered moment, which drops it: view.absorb), not a
+    scan of every entity per place answered."""
+    at = view.__dict__.get("_objects_at")
+    if at is None:
+        at = {}
+        for e in view.entities.values():
+            if e["status"] == "active":
+                at.setdefault(e["location"], []).append(e)
+        for group in at.values():
+            group.sort(key=lambda e: (-(e["n_observations"] or 0), e["id"]))
+        view.__dict__["_objects_at"] = at
+    return at
 
 
 # -- inferred knowledge ------------------------------------------------------------------------------
@@ -347,10 +362,22 @@ def _inferred_graph(view: MemoryView, cands: dict[str, Candidate], query: str) -
     if not grounded:
         return
     kinds = {view.entities[e]["kind"] for e in grounded}
-    links = _links(view)
+    used = _link_kinds(view)
     for c in cands.values():
-        used = {view.entities[e]["kind"] for e in links.get(c.id, ()) if e in view.entities}
-        c.graph = len(used & kinds) / len(kinds)
+        c.graph = len(used.get(c.id, frozenset()) & kinds) / len(kinds)
+
+
+def _link_kinds(view: MemoryView) -> dict[str, frozenset[str]]:
+    """routine / preference id -> the kinds of the entities it uses or is about, computed once per
+    view (a preference links up to thousands of entity records at 1,000 h: reading their kinds per
+    candidate cost ~35 ms a search). Dropped with the links (`reload_inferred`) and with the
+    entities (`absorb`)."""
+    kinds = view.__dict__.get("_link_kinds")
+    if kinds is None:
+        ents = view.entities
+        kinds = {rid: frozenset(ents[e]["kind"] for e in linked if e in ents) for rid, linked in _links(view).items()}
+        view.__dict__["_link_kinds"] = kinds
+    return kinds
 
 
 def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> RoutineRecord:

@@ -374,7 +374,7 @@ class MemoryView:
         return cache[table]
 
     # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
-    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words")
+    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words", "_objects_at", "_link_kinds")
 
     def absorb(self, delta: dict) -> None:
         """Bring what this view loaded up to date with one remembered moment (form/live.py's
@@ -413,7 +413,7 @@ class MemoryView:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
         links), after a consolidation replaced it: the next call reads the new records."""
         loaded = self.__dict__
-        for name in ("routines", "preferences", "_links"):
+        for name in ("routines", "preferences", "_links", "_link_kinds"):
             loaded.pop(name, None)
         for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
             cache.pop("routine", None)
