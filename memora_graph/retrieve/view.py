@@ -374,7 +374,8 @@ class MemoryView:
         return cache[table]
 
     # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
-    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words", "_objects_at", "_link_kinds")
+    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words", "_objects_at", "_link_kinds",
+                       "_object_names")
 
     def absorb(self, delta: dict) -> None:
         """Bring what this view loaded up to date with one remembered moment (form/live.py's
