@@ -526,14 +526,17 @@ class _ObjectNames:
     entity's (id, object id, name in lower case) for the substring match."""
 
     def __init__(self, ents: dict[str, dict]):
-        self.exact: dict[str, set[str]] = {}
-        self.exact_slug: dict[str, set[str]] = {}
+        exact: dict[str, list[str]] = {}
+        exact_slug: dict[str, list[str]] = {}
         self.rows = [(i, e["object_id"], e["name"].lower()) for i, e in ents.items()]
         for i, e in ents.items():
-            for key in (i.lower(), e["object_id"], e["kind"], e["name"].lower()):
-                self.exact.setdefault(key, set()).add(i)
-            for key in (e["object_id"], e["kind"]):
-                self.exact_slug.setdefault(key, set()).add(i)
+            for key in {i.lower(), e["object_id"], e["kind"], e["name"].lower()}:
+                exact.setdefault(key, []).append(i)
+            for key in {e["object_id"], e["kind"]}:
+                exact_slug.setdefault(key, []).append(i)
+        # tuples of strings: the cyclic collector stops walking them (a view lives long)
+        self.exact = {k: tuple(v) for k, v in exact.items()}
+        self.exact_slug = {k: tuple(v) for k, v in exact_slug.items()}
 
 
 def _object_names(view: MemoryView) -> _ObjectNames:
@@ -554,7 +557,7 @@ def resolve_object(view: MemoryView, text: str) -> tuple[list[str], str]:
         return sorted(ids, key=lambda i: (ents[i]["status"] != "active", -(ents[i]["n_observations"] or 0), i))
 
     names = _object_names(view)
-    exact = names.exact.get(t, set()) | names.exact_slug.get(slug, set())
+    exact = {*names.exact.get(t, ()), *names.exact_slug.get(slug, ())}
     if exact:
         return order(exact), "exact"
     sub = [i for i, object_id, name in names.rows if slug in object_id or t in name]
