@@ -230,7 +230,7 @@ def _in_child(request: dict, csv_fd: int | None = None) -> QueryResult:
     timeout, grace, write = request["timeout"], request["grace"], request["write"]
     # the CSV target under a number of its own: the child's 0-2 are its pipes
     passed = os.dup(csv_fd) if csv_fd is not None else None
-    request = {**request, "csv_fd": passed}
+    request = {**request, "csv_fd": passed, "parent": os.getpid()}
     try:
         child = subprocess.Popen([sys.executable, "-m", "memora_graph.adhoc"], stdin=subprocess.PIPE,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
@@ -342,6 +342,13 @@ def _child_main() -> None:
     os.dup2(2, 1)  # anything printed (by Kùzu or a library) goes to stderr, not into the reply
     try:
         request = json.loads(sys.stdin.buffer.read())
+        if not request["write"] and request.get("parent"):
+            # a read goes with the process that asked for it (a killed server must not leave a query
+            # holding the database open read-only, which the next writer would find "busy"); a
+            # write runs to its commit or its time limit, as before
+            from memora_graph.files import die_with_parent
+
+            die_with_parent(int(request["parent"]))
         # everything the query needs is loaded and opened before the child confines itself
         from memora_graph.confine import confine
         from memora_graph.queries import load_queries

@@ -29,6 +29,7 @@ import numpy as np
 import polars as pl
 
 from memora_graph.records import segment_id
+from memora_graph.retrieve.rows import pack
 
 ARRAYS = ("offsets", "ids", "video", "turn", "t", "loc", "move_offsets", "moves", "doc_offsets", "docs",
           "entry_offsets", "entries")
@@ -145,22 +146,17 @@ class HistoryIndex:
         docs: dict[str, dict] = {e: {"videos": []} for e in entities}
         for v in per_video.iter_rows(named=True):
             docs[v["entity"]]["videos"].append(_video_record(v))
-        chunks, doc_offsets = [], np.zeros(len(entities) + 1, dtype=np.int64)
-        for i, e in enumerate(entities):
-            d = docs[e]
+
+        def doc(e: str) -> bytes:
+            d = docs.pop(e)
             d["states"] = sorted({s for v in d["videos"] for s in v["states"]})
             d["locations"] = sorted({x for v in d["videos"] for x in v["locations"]})
-            d["segments"] = heapq.nsmallest(EVIDENCE_SEGMENTS, set(seg_ids.get(e, ())))
-            b = json.dumps(d, ensure_ascii=False).encode("utf-8")
-            chunks.append(b)
-            doc_offsets[i + 1] = doc_offsets[i] + len(b)
-        blob = np.frombuffer(b"".join(chunks), dtype=np.uint8).copy()
-        entry_chunks = [json.dumps(list(r), ensure_ascii=False).encode("utf-8")
-                        for r in frame.select(ENTRY_FIELDS).iter_rows()]
-        entry_offsets = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum([len(b) for b in entry_chunks], out=entry_offsets[1:])
-        entries = np.frombuffer(b"".join(entry_chunks), dtype=np.uint8).copy()
-        del entry_chunks
+            d["segments"] = heapq.nsmallest(EVIDENCE_SEGMENTS, set(seg_ids.pop(e, ())))
+            return json.dumps(d, ensure_ascii=False).encode("utf-8")
+
+        doc_offsets, blob = pack(doc(e) for e in entities)
+        entry_offsets, entries = pack(json.dumps(list(r), ensure_ascii=False).encode("utf-8")
+                                      for r in frame.select(ENTRY_FIELDS).iter_rows())
         arrays = {"offsets": offsets, "ids": ids, "video": video, "turn": frame["turn"].to_numpy().astype(np.int64),
                   "t": frame["t"].to_numpy().astype(np.float64), "loc": loc, "move_offsets": move_offsets,
                   "moves": moves, "doc_offsets": doc_offsets, "docs": blob,

@@ -254,9 +254,11 @@ def _stamp_written(root: Path, files: dict[str, str], db_sha256: str) -> None:
         (root / "verified.json").write_text(json.dumps({"db_sha256": db_sha256, "at_ns": at, "files": stamps}))
 
 
-def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) -> Path:
+def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, release: bool = False) -> Path:
     """Warm `view` (open on the database) and persist what it loaded. The directory is replaced
-    whole (written aside, then renamed), so a reader sees the old files or the new ones."""
+    whole (written aside, then renamed), so a reader sees the old files or the new ones.
+    `release`: drop each part from the view once it is written (the caller only wants the
+    files), so that the write holds one part at a time."""
     root = store_dir(bank_path, view.participant)
     tmp = root.with_name(f".{root.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -287,12 +289,19 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None) 
             unique = vt.unique_rows()
             if unique is not None:  # the table's distinct rows: scanned instead of all (search.py, VectorTable.sims)
                 put_arrays(f"unique-{table}", {"head": unique[2]}, {"rows": unique[0], "inverse": unique[1]})
+            del vt, unique
+            if release:
+                view.release(table)
         put_arrays("graph", *view.graph.arrays())
+        if release:
+            view.release()
         put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
         for query, (every, group, order) in KEYED_QUERIES.items():
             frame = view.frame(every)
             rows = KeyedRows.build(frame) if group is None else KeyedRows.build_grouped(frame, group, order)
+            del frame
             put_arrays(f"keyed{query}", *rows.arrays())
+            del rows
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))

@@ -131,13 +131,15 @@ class MemoryView:
 
     @classmethod
     def open(cls, bank: str | Path, participant: str, embedder=None, config: SearchConfig | str | None = None,
-             persist: bool | None = None) -> MemoryView:
+             persist: bool | None = None, keep_loaded: bool = True) -> MemoryView:
         """Open a participant's memory read-only. With `persist` and an in-process recipe, the
         stores persisted next to the bank (memora_graph/retrieve/persist.py) are read when they
         match the database's recorded sha256, and Kùzu is opened only if a tool needs more; when
         they are missing, stale or damaged they are computed from the database and written.
         `persist` defaults to on unless MEMORA_TOOL_STORES=0. With no `config`, the recipe is
-        picked as `auto_recipe` does, from the manifest's record (indexes, segments)."""
+        picked as `auto_recipe` does, from the manifest's record (indexes, segments).
+        `keep_loaded=False` (writing the stores is all the caller wants): each part is dropped
+        once written, so that what the write holds does not add up part after part."""
         if persist is None:
             persist = os.environ.get(TOOL_STORES_ENV, "1") != "0"
         b = Bank(bank)
@@ -169,7 +171,7 @@ class MemoryView:
             from memora_graph.retrieve.persist import write
 
             try:
-                view.persisted_written = write(view, bank, sha, b.manifest().get("embed_model"))
+                view.persisted_written = write(view, bank, sha, b.manifest().get("embed_model"), release=not keep_loaded)
             except OSError as exc:  # a full or read-only disk: the view works without them
                 log.warning(f"{bank}: could not persist {participant}'s tool stores ({exc})")
         return view
@@ -263,6 +265,15 @@ class MemoryView:
         self.encoder.prefetch(texts)
 
     # -- loaded once ----------------------------------------------------------------------
+    def release(self, table: str | None = None) -> None:
+        """Drop what the view loaded of `table` (its vectors and BM25 index), or with no table
+        the observation graph; read again when next used."""
+        if table is None:
+            self.__dict__.pop("graph", None)
+        else:
+            self.__dict__.get("_vector_cache", {}).pop(table, None)
+            self.__dict__.get("_bm25_cache", {}).pop(table, None)
+
     def vectors(self, table: str) -> VectorTable:
         cache = self.__dict__.setdefault("_vector_cache", {})
         if table not in cache:
@@ -457,7 +468,7 @@ def persist_bank(bank_path: str | Path, participants: list[str] | None = None) -
     bank = Bank(bank_path)
     out = Persisted()
     for p in bank.participants() if participants is None else participants:
-        with MemoryView.open(bank_path, p, persist=True) as view:
+        with MemoryView.open(bank_path, p, persist=True, keep_loaded=False) as view:
             if view.persisted_written is not None:
                 out.written.append(view.persisted_written)
     out.seconds = time.perf_counter() - t0

@@ -234,3 +234,18 @@ def test_a_writer_stamps_no_file_younger_than_racy_s(bank, monkeypatch):
     stores = PersistedStores.open(bank, P, Bank(bank).manifest()["participants"][P]["integrity"]["sha256"],
                                   json.loads((store_dir(bank, P) / "meta.json").read_text())["embed_model"])
     assert stores._checked == set(stores.meta["files"]), "every file hashed at the first open"
+
+
+def test_stores_written_part_by_part_are_the_files_a_warm_view_writes(bank, embedder, tmp_path):
+    """`persist_bank` drops each part from the view once written (and lays rows end to end one at
+    a time) so that a long memory's write holds one part at a time; every file is byte for byte
+    the one a view that keeps all it loaded writes (MemoryView.open's first open)."""
+    other = tmp_path / "other"
+    shutil.copytree(bank, other)
+    assert persist_bank(bank, [P]).written == [store_dir(bank, P)]
+    with MemoryView.open(other, P, embedder) as view:
+        assert view.persisted_written == store_dir(other, P)
+        assert "segment" in view.__dict__["_vector_cache"]  # kept for the calls that follow
+    got = json.loads((store_dir(bank, P) / "meta.json").read_text())["files"]
+    want = json.loads((store_dir(other, P) / "meta.json").read_text())["files"]
+    assert len(got) > 40 and got == want

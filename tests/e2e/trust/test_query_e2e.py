@@ -171,3 +171,65 @@ def test_damaged_text_in_a_database_is_an_error(bank):
     assert clean_error(r) and "not valid UTF-8" in r.output
     r = invoke("run", path, "videos", "-p", "participant", "P09", "--no-verify")
     assert clean_error(r) and "not valid UTF-8" in r.output
+
+
+PARENT_RUNS_A_LONG_READ = r"""
+import sys
+from memora_graph.adhoc import run_query
+heavy = "UNWIND range(1, 100000) AS x UNWIND range(1, 100000) AS y WITH x, y WHERE (x * y) % 7 = 3 RETURN count(*) AS n"
+run_query(sys.argv[1], heavy, participant="P09", timeout=120)
+"""
+
+
+def _children(pid: int) -> list[int]:
+    """The ad-hoc query processes `pid` started (not the integrity probes it may also start)."""
+    import os
+
+    kids = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    ppid = int(fh.read().split(") ")[-1].split()[1])
+                with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                    if ppid == pid and b"memora_graph.adhoc" in fh.read():
+                        kids.append(int(entry))
+            except (OSError, ValueError, IndexError):
+                pass
+    return kids
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_read_query_goes_with_a_killed_caller(bank):
+    """A server killed with kill -9 while an ad-hoc read ran must not leave the query process
+    holding the database open (the next writer would find the participant busy)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    path, _ = bank
+    root = Path(__file__).resolve().parents[3]
+    caller = subprocess.Popen([sys.executable, "-c", PARENT_RUNS_A_LONG_READ, str(path)],
+                              env={**os.environ, "PYTHONPATH": str(root)})
+    deadline = time.monotonic() + 60
+    kids: list[int] = []
+    while not kids and time.monotonic() < deadline and caller.poll() is None:
+        kids = _children(caller.pid)
+        time.sleep(0.1)
+    assert kids, "the caller never started its query process"
+    time.sleep(3.0)  # the child is past its start-up (and its request to die with its parent)
+    os.kill(caller.pid, signal.SIGKILL)
+    caller.wait()
+    alive = lambda pid: os.path.exists(f"/proc/{pid}") and open(f"/proc/{pid}/stat").read().split(") ")[-1][0] != "Z"
+    deadline = time.monotonic() + 15
+    while any(alive(k) for k in kids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [k for k in kids if alive(k)]
+    for k in left:
+        os.kill(k, signal.SIGKILL)
+    assert not left, "the query process outlived its killed caller"
+    # and the participant answers again
+    assert run_query(path, "MATCH (e:Entity) RETURN count(e) AS n", participant="P09", write=False).frame["n"][0] > 0
