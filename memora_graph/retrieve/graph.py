@@ -47,6 +47,9 @@ class ObservationGraph:
 
     def _set(self, entities, locations, segments, seg_offsets, seg_entities, place_offsets, place_loc, place_n,
              pairs, counts) -> None:
+        # plain arrays over the mappings (slicing a np.memmap makes a memmap object: ~10 us each)
+        segments, seg_offsets, seg_entities, place_offsets, place_loc, place_n, pairs, counts = (np.asarray(a) for a in (
+            segments, seg_offsets, seg_entities, place_offsets, place_loc, place_n, pairs, counts))
         self.entities, self.locations = entities, locations
         self._row = {e: i for i, e in enumerate(entities)}
         self._segments, self._seg_offsets, self._seg_entities = segments, seg_offsets, seg_entities
@@ -75,14 +78,23 @@ class ObservationGraph:
 
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""
-        counts: Counter[str] = Counter()
         i = self._row.get(entity)
+        added = self.__dict__.get("_added")
+        if i is not None and (added is None or entity not in added.pairs):
+            # the pairs name each other entity once, in row order, which is id order (`entities` is
+            # sorted): the k largest counts, ties by id, without a Counter of every co-occurring entity
+            n = len(self.entities)
+            lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
+            others = np.asarray(self._pairs[lo:hi]) - i * n
+            counts = np.asarray(self._counts[lo:hi])
+            order = np.lexsort((others, -counts))[:k]
+            return [(self.entities[j], int(c)) for j, c in zip(others[order].tolist(), counts[order].tolist())]
+        counts: Counter[str] = Counter()
         if i is not None:
             n = len(self.entities)
             lo, hi = np.searchsorted(self._pairs, [i * n, (i + 1) * n])
             for j, c in zip((self._pairs[lo:hi] - i * n).tolist(), self._counts[lo:hi].tolist()):
                 counts[self.entities[j]] += int(c)
-        added = self.__dict__.get("_added")
         if added is not None:
             for b, c in added.pairs.get(entity, {}).items():
                 counts[b] += c

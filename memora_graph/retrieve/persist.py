@@ -16,8 +16,9 @@ from, as the bank's manifest records it (memora_graph/integrity/): after any wri
 (a rebuild, `memora consolidate`, `memora index`) the files are stale and are not used. A file
 whose hash no longer matches its record is damaged: it is not used either, and a warning says so.
 Either way the view reads Kùzu instead and writes the files again (where the bank is writable).
-Hashing every file at each open cost 0.6 s at 1,000 h, so a process that hashed them all records
-each file's size, inode and change times in `verified.json`; a later open hashes again only a
+Hashing every file at each open cost 0.6 s at 1,000 h, so a process that hashed them all (or
+wrote them: `_stamp_written`) records each file's size, inode and change times in
+`verified.json`; a later open hashes again only a
 file whose stat differs (any write through the file system changes it), or one changed less than
 `RACY_S` before it was verified (a write within the file system's timestamp granularity, as git
 treats a "racily clean" file). `memora verify` always hashes every file.
@@ -48,6 +49,7 @@ from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
 
 FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of large vector tables
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
+STAMP_WAIT_BYTES = 64 << 20  # the writer waits out RACY_S for its young files when they hold this much
 DIRNAME = "tools-{participant}"
 # named queries of one key whose every row is kept (retrieve/rows.py): the query giving them all, and
 # for a query giving a list of rows per key, the key column and the columns its rows are ordered by
@@ -108,6 +110,7 @@ class PersistedStores:
         if meta.get("participant") != participant or meta.get("embed_model") != embed_model:
             raise StaleStores(f"{root}: computed for another participant or embedding model")
         stores = cls(root, meta)
+        stores._opened_ns = time.time_ns()  # before any hashing: what a stamp recorded later may vouch for
         stamps = {} if not trust_stamps else stores._stamps()
         for name in meta.get("files", {}):
             if name in stamps and stamps[name] == _stat_stamp(root / name):
@@ -133,8 +136,10 @@ class PersistedStores:
         return {n: st for n, st in files.items() if isinstance(st, list) and len(st) == 4 and max(st[2], st[3]) < racy}
 
     def _record_stamps(self) -> None:
-        """Record the stat of every file just hashed (best effort: a read-only bank keeps hashing)."""
-        at = time.time_ns()
+        """Record the stat of every file just hashed (best effort: a read-only bank keeps hashing).
+        The time recorded is the open's start, before the hashing: a file changed while it was
+        being hashed has a change time after it, so its stamp is not trusted."""
+        at = self.__dict__.get("_opened_ns") or time.time_ns()
         try:
             files = {n: _stat_stamp(self.root / n) for n in self._checked}
             tmp = self.root / f".verified.{os.getpid()}.tmp"
@@ -224,6 +229,31 @@ def _stat_stamp(path: Path) -> list[int]:
     return [st.st_size, st.st_ino, st.st_mtime_ns, st.st_ctime_ns]
 
 
+def _stamp_written(root: Path, files: dict[str, str], db_sha256: str) -> None:
+    """Record, as a reader that hashed them would (`verified.json`), the stat of the files this
+    process just wrote and hashed, so that the first open in another process reads their stat
+    instead of hashing them all (1.5 GB, 2.2 CPU-s at 1,000 h). The files are in a directory of
+    this process's own (renamed into place afterwards, which leaves their stat as it is), so their
+    bytes are the hashed ones when the stamp is taken; a stamp counts only for a file changed
+    RACY_S before it, as for a reader's. Where the files still that young hold STAMP_WAIT_BYTES
+    or more, the writer waits until they are old enough (at most RACY_S); smaller young files
+    are left to the first open to hash."""
+    racy_ns = int(RACY_S * 1e9)
+    stats = {n: _stat_stamp(root / n) for n in files}
+    now = time.time_ns()
+    young = [st for st in stats.values() if max(st[2], st[3]) >= now - racy_ns]
+    if young and sum(st[0] for st in young) >= STAMP_WAIT_BYTES:
+        time.sleep((max(max(st[2], st[3]) for st in young) + racy_ns - now) / 1e9 + 0.01)
+    at = time.time_ns()
+    stamps = {}
+    for n in files:
+        st = _stat_stamp(root / n)
+        if max(st[2], st[3]) < at - racy_ns:
+            stamps[n] = st
+    if stamps:
+        (root / "verified.json").write_text(json.dumps({"db_sha256": db_sha256, "at_ns": at, "files": stamps}))
+
+
 def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, release: bool = False) -> Path:
     """Warm `view` (open on the database) and persist what it loaded. The directory is replaced
     whole (written aside, then renamed), so a reader sees the old files or the new ones.
@@ -275,6 +305,7 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, 
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+        _stamp_written(tmp, files, db_sha256)
         if root.exists():
             old = root.with_name(f".{root.name}.{os.getpid()}.old")
             try:

@@ -78,8 +78,8 @@ class VectorTable:
     @classmethod
     def normalized(cls, ids: list[str], mat: np.ndarray) -> VectorTable:
         """A table from rows already L2-normalised by this class (a persisted, memory-mapped `mat`)."""
-        table = cls.__new__(cls)
-        table.ids, table.index, table.mat = ids, {i: n for n, i in enumerate(ids)}, mat
+        table = cls.__new__(cls)  # a plain array over the mapping: indexing a np.memmap costs ~10 us a row
+        table.ids, table.index, table.mat = ids, {i: n for n, i in enumerate(ids)}, np.asarray(mat)
         return table
 
     @classmethod
@@ -117,7 +117,7 @@ class VectorTable:
         """This table scanning its distinct rows (`unique_rows`' result, perhaps memory-mapped)."""
         if head % UNIQUE_BLOCK or head < UNIQUE_BLOCK or len(inverse) != head or len(rows) % UNIQUE_BLOCK:
             raise ValueError(f"distinct rows for {head} rows do not fit blocks of {UNIQUE_BLOCK}")
-        self._unique = (rows, inverse, head)
+        self._unique = (np.asarray(rows), np.asarray(inverse), head)
         return self
 
     def unique_rows(self, checks: int = 4,
@@ -220,7 +220,7 @@ class Bm25:
         self.ids, self.k1, self.b, self.avg = ids, k1, b, avg
         self.terms = terms
         self.vocab = {t: i for i, t in enumerate(terms)}
-        self.offsets, self.docs, self.tfs, self.lengths = offsets, docs, tfs, lengths
+        self.offsets, self.docs, self.tfs, self.lengths = (np.asarray(a) for a in (offsets, docs, tfs, lengths))
         self.n = len(ids)
 
     def arrays(self) -> tuple[dict, dict[str, np.ndarray]]:

@@ -318,8 +318,7 @@ def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[
         p = by_id.get(c.id)
         if p is None:
             continue
-        here = sorted((e for e in view.entities.values() if e["status"] == "active" and e["location"] == p["location_id"]),
-                      key=lambda e: (-(e["n_observations"] or 0), e["id"]))
+        here = _objects_at(view).get(p["location_id"], ())
         out.append(PlaceRecord(
             place_id=p["location_id"], name=p["name"], zones=p["zones"] or [], features=p["features"] or [],
             turns=p["turn_count"], first_seen={"video": p["first_video"], "t": p["first_seen"]},
@@ -328,6 +327,22 @@ def _search_places(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[
             similarity=round(c.similarity, 4), score=_score(c), evidence=[p["id"]], duplicates=c.duplicates or None,
         ))
     return out
+
+
+def _objects_at(view: MemoryView) -> dict[str, list[dict]]:
+    """location -> the active entities there, most observed first (ties by id): computed once per
+    view (the entities change only with a remembered moment, which drops it: view.absorb), not a
+    scan of every entity per place answered."""
+    at = view.__dict__.get("_objects_at")
+    if at is None:
+        at = {}
+        for e in view.entities.values():
+            if e["status"] == "active":
+                at.setdefault(e["location"], []).append(e)
+        for group in at.values():
+            group.sort(key=lambda e: (-(e["n_observations"] or 0), e["id"]))
+        view.__dict__["_objects_at"] = at
+    return at
 
 
 # -- inferred knowledge ------------------------------------------------------------------------------
@@ -347,10 +362,22 @@ def _inferred_graph(view: MemoryView, cands: dict[str, Candidate], query: str) -
     if not grounded:
         return
     kinds = {view.entities[e]["kind"] for e in grounded}
-    links = _links(view)
+    used = _link_kinds(view)
     for c in cands.values():
-        used = {view.entities[e]["kind"] for e in links.get(c.id, ()) if e in view.entities}
-        c.graph = len(used & kinds) / len(kinds)
+        c.graph = len(used.get(c.id, frozenset()) & kinds) / len(kinds)
+
+
+def _link_kinds(view: MemoryView) -> dict[str, frozenset[str]]:
+    """routine / preference id -> the kinds of the entities it uses or is about, computed once per
+    view (a preference links up to thousands of entity records at 1,000 h: reading their kinds per
+    candidate cost ~35 ms a search). Dropped with the links (`reload_inferred`) and with the
+    entities (`absorb`)."""
+    kinds = view.__dict__.get("_link_kinds")
+    if kinds is None:
+        ents = view.entities
+        kinds = {rid: frozenset(ents[e]["kind"] for e in linked if e in ents) for rid, linked in _links(view).items()}
+        view.__dict__["_link_kinds"] = kinds
+    return kinds
 
 
 def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> RoutineRecord:
@@ -492,6 +519,33 @@ def _search_patterns(view: MemoryView, query: str, q: np.ndarray, k: int) -> lis
 
 
 # -- object history and state ------------------------------------------------------------------------
+class _ObjectNames:
+    """What `resolve_object` matches a reference against, read from every entity once per view (a
+    scan of every entity record per call cost ~13 ms at 1,000 h): the entities by id, object id,
+    kind and name (lower case), by object id and kind for the reference as a slug, and each
+    entity's (id, object id, name in lower case) for the substring match."""
+
+    def __init__(self, ents: dict[str, dict]):
+        exact: dict[str, list[str]] = {}
+        exact_slug: dict[str, list[str]] = {}
+        self.rows = [(i, e["object_id"], e["name"].lower()) for i, e in ents.items()]
+        for i, e in ents.items():
+            for key in {i.lower(), e["object_id"], e["kind"], e["name"].lower()}:
+                exact.setdefault(key, []).append(i)
+            for key in {e["object_id"], e["kind"]}:
+                exact_slug.setdefault(key, []).append(i)
+        # tuples of strings: the cyclic collector stops walking them (a view lives long)
+        self.exact = {k: tuple(v) for k, v in exact.items()}
+        self.exact_slug = {k: tuple(v) for k, v in exact_slug.items()}
+
+
+def _object_names(view: MemoryView) -> _ObjectNames:
+    names = view.__dict__.get("_object_names")
+    if names is None:
+        names = view.__dict__["_object_names"] = _ObjectNames(view.entities)
+    return names
+
+
 def resolve_object(view: MemoryView, text: str) -> tuple[list[str], str]:
     """Entity ids for an object reference, best first, and how they matched: exact (id, object
     id, kind or name), substring, or embedding (cosine > 0.6 over entity identities)."""
@@ -502,11 +556,11 @@ def resolve_object(view: MemoryView, text: str) -> tuple[list[str], str]:
     def order(ids):
         return sorted(ids, key=lambda i: (ents[i]["status"] != "active", -(ents[i]["n_observations"] or 0), i))
 
-    exact = [i for i, e in ents.items() if t in (i.lower(), e["object_id"], e["kind"], e["name"].lower())
-             or slug in (e["object_id"], e["kind"])]
+    names = _object_names(view)
+    exact = {*names.exact.get(t, ()), *names.exact_slug.get(slug, ())}
     if exact:
         return order(exact), "exact"
-    sub = [i for i, e in ents.items() if slug in e["object_id"] or t in e["name"].lower()]
+    sub = [i for i, object_id, name in names.rows if slug in object_id or t in name]
     if sub:
         return order(sub), "substring"
     q = view.embed(text)

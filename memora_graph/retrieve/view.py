@@ -10,6 +10,7 @@ the large tables (segments, state history) with prepared named queries.
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import os
@@ -228,6 +229,8 @@ class MemoryView:
     def close(self) -> None:
         if self._owns and self._store is not None:
             self._store.close()
+        if self.__dict__.pop("_frozen", False):
+            gc.unfreeze()  # what `warm` froze can be collected again (a cycle among it included)
 
     def __enter__(self) -> MemoryView:
         return self
@@ -464,7 +467,12 @@ class MemoryView:
         return cache[table]
 
     # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
-    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words")
+    _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words", "_objects_at", "_link_kinds",
+                       "_object_names")
+    # of those, what depends only on the entities' words (ids, names, kinds: kept while a remember
+    # changes no entity's words) and what on their places, states and counts (dropped at every change)
+    _ENTITY_WORDS = ("_entity_words", "_link_kinds", "_object_names")
+    _ENTITY_STATE = ("active_entities", "max_observations", "_objects_at")
     # what a remember or a consolidation changes, by table: the participant-wide rows read again from
     # the store from then on (the persisted ones describe the database before it)
     _ROWS_OF = {"entity": "_tool_entities", "place": "_tool_places", "routine": "_tool_routines",
@@ -520,7 +528,7 @@ class MemoryView:
             self._changed("entity")
             kept = self._entities_absorbed(delta["entities"], delta.get("entity_rows") or {})
             for name in self._ENTITY_DERIVED:
-                if kept is None or name in ("active_entities", "max_observations") or (kept and name == "_entity_words"):
+                if kept is None or name in self._ENTITY_STATE or (kept and name in self._ENTITY_WORDS):
                     loaded.pop(name, None)
             if kept is None:
                 vectors.pop("entity", None)
@@ -606,7 +614,7 @@ class MemoryView:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
         links), after a consolidation replaced it: the next call reads the new records."""
         loaded = self.__dict__
-        for name in ("routines", "preferences", "_links"):
+        for name in ("routines", "preferences", "_links", "_link_kinds"):
             loaded.pop(name, None)
         for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
             cache.pop("routine", None)
@@ -622,6 +630,11 @@ class MemoryView:
         if self.config.keyword == "bm25":
             for t in TABLES:
                 self._bm25(t)
+        # What was loaded lives as long as the view: out of the cyclic collector's reach (gc.freeze),
+        # a full collection no longer walks it (at 1,000 h, 100-200 ms, paid by whichever call it
+        # fell in). `close` gives it back.
+        gc.freeze()
+        self._frozen = True
 
 
 def _writable(bank: Path) -> bool:

@@ -7,6 +7,7 @@ import json
 import logging
 import shutil
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -56,7 +57,8 @@ def test_persisted_stores_give_the_results_kuzu_gives(bank, embedder):
         assert view._persisted is not None and view._store is None
         assert call_tool(view, "search_objects", {"query": "knife"}).results
         assert view._store is None, "search_objects reads only persisted stores: Kùzu stays closed"
-        assert type(view.vectors("entity").mat).__name__ == "memmap"
+        mat = view.vectors("entity").mat
+        assert not mat.flags.owndata and isinstance(mat.base, np.memmap), "mapped, not read into memory"
     assert _results(bank, embedder, persist=True) == reference
 
 
@@ -186,6 +188,52 @@ def test_perf_startup_prints_its_figures(bank):
         assert label in r.output
     assert "heavy modules imported by `memora --help`: none" in r.output
     assert store_dir(bank, P).is_dir()
+
+
+def test_the_writer_stamps_its_files_so_a_first_open_hashes_none_and_a_later_change_is_caught(
+        bank, embedder, monkeypatch, caplog):
+    """The process that writes the stores hashed every file as it wrote it: it records their stat
+    (once they are RACY_S old), so the first open elsewhere reads stat only; a file changed after
+    the stamp, its size and mtime put back, is still hashed and refused."""
+    import os
+
+    from memora_graph.retrieve import persist
+
+    monkeypatch.setattr(persist, "STAMP_WAIT_BYTES", 0)  # these few KB are worth the wait here
+    persist_bank(bank, [P])
+    stamps = json.loads((store_dir(bank, P) / "verified.json").read_text())
+    meta = json.loads((store_dir(bank, P) / "meta.json").read_text())
+    assert set(stamps["files"]) == set(meta["files"]), "every file written is stamped"
+    assert all(max(st[2], st[3]) < stamps["at_ns"] - persist.RACY_S * 1e9 for st in stamps["files"].values())
+    hashed = []
+    real = persist._sha256
+    monkeypatch.setattr(persist, "_sha256", lambda path: hashed.append(path.name) or real(path))
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None
+    assert hashed == [], "the first open hashed files the writer had stamped"
+    path = store_dir(bank, P) / "bm25-segment-tfs.npy"
+    st = path.stat()
+    data = bytearray(path.read_bytes())
+    data[-1] ^= 0x01
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    with caplog.at_level(logging.WARNING, logger="memora_graph.integrity"):
+        with MemoryView.open(bank, P, embedder) as view:
+            assert view._persisted is None
+    assert hashed[0] == "bm25-segment-tfs.npy"
+    assert any("bm25-segment-tfs.npy" in r.getMessage() and "damaged" in r.getMessage() for r in caplog.records)
+
+
+def test_a_writer_stamps_no_file_younger_than_racy_s(bank, monkeypatch):
+    """Files written less than RACY_S ago, too small to wait for, are left to the first open to hash."""
+    from memora_graph.retrieve import persist
+
+    monkeypatch.setattr(persist, "STAMP_WAIT_BYTES", 1 << 40)
+    persist_bank(bank, [P])
+    assert not (store_dir(bank, P) / "verified.json").exists()
+    stores = PersistedStores.open(bank, P, Bank(bank).manifest()["participants"][P]["integrity"]["sha256"],
+                                  json.loads((store_dir(bank, P) / "meta.json").read_text())["embed_model"])
+    assert stores._checked == set(stores.meta["files"]), "every file hashed at the first open"
 
 
 def test_stores_written_part_by_part_are_the_files_a_warm_view_writes(bank, embedder, tmp_path):

@@ -151,3 +151,39 @@ def test_the_distinct_rows_scan_gives_every_value_and_rank_of_the_whole_scan():
 def test_tables_mostly_distinct_or_small_are_scanned_whole():
     assert _repeating_table(20 * UNIQUE_BLOCK, 20 * UNIQUE_BLOCK * 10).unique_rows(min_rows=1) is None
     assert _repeating_table(5 * UNIQUE_BLOCK, 10).unique_rows() is None  # under UNIQUE_MIN_ROWS
+
+
+def _used_with_reference(rows: list[dict], entity: str, k: int) -> list[tuple[str, int]]:
+    """The entities seen in the most of `entity`'s segments, ties by id: counted from the rows."""
+    by_segment = defaultdict(set)
+    for r in rows:
+        by_segment[r["segment"]].add(r["entity"])
+    counts = Counter(o for es in by_segment.values() if entity in es for o in es if o != entity)
+    return sorted(counts.items(), key=lambda ec: (-ec[1], ec[0]))[:k]
+
+
+def test_used_with_counts_shared_segments_ties_by_id_from_arrays_and_with_added_moments(tmp_path):
+    from memora_graph.retrieve.graph import ObservationGraph
+
+    rng = random.Random(3)
+    ents = [f"e{n:03d}" for n in range(60)]
+    rows = [{"segment": f"v{s // 50}#t{s % 50}", "entity": e, "location": rng.choice(["sink", "hob", ""]), "n": 1}
+            for s in range(2_000) for e in rng.sample(ents[:8] if s % 3 else ents, rng.randint(1, 5))]
+    graph = ObservationGraph(rows)
+    header, arrays = graph.arrays()
+    for name, a in arrays.items():
+        np.save(tmp_path / f"{name}.npy", a)
+    mapped = ObservationGraph.from_arrays(header, {n: np.load(tmp_path / f"{n}.npy", mmap_mode="r") for n in arrays})
+    ties = 0
+    for e in ents + ["unknown"]:
+        for k in (1, 5, 80):
+            want = _used_with_reference(rows, e, k)
+            assert graph.used_with(e, k) == want == mapped.used_with(e, k), (e, k)
+        counts = [c for _, c in _used_with_reference(rows, e, 80)]
+        ties += len(counts) - len(set(counts))
+    assert ties > 100, "the rows give many ties to break by id"
+    added = [("e001", "sink"), ("e059", "hob"), ("e030", "")]
+    mapped.add("v99#t0", added)
+    rows += [{"segment": "v99#t0", "entity": e, "location": loc, "n": 1} for e, loc in added]
+    for e in ("e001", "e030", "e059", "e002"):
+        assert mapped.used_with(e, 5) == _used_with_reference(rows, e, 5), e

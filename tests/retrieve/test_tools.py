@@ -263,3 +263,46 @@ def test_perf_tools_reports_every_tool_and_recall(small_bank):
     rec = {(r["search"], r["table"]): r["recall@10"] for r in report.recall.to_dicts()}
     assert rec[("numpy exact", "segment")] == 1.0 and rec[("kuzu brute force", "segment")] >= 0.9
     assert ("kuzu hnsw", "segment") in rec
+
+
+def test_per_view_indexes_answer_as_a_scan_of_every_entity(small_bank, embedder):
+    """The objects at a place (search_environment), the share of the query's objects a routine or
+    preference links (its graph score) and the entities an object reference matches
+    (get_object_history) come from indexes made once per view: each equals a scan of every entity."""
+    from memora_graph.retrieve.tools import grounded_entities, resolve_object
+
+    with MemoryView.open(small_bank[0], "P37", embedder) as view:
+        ents = view.entities
+        for q in ("sink", "hob", "counter top", "fridge", "cupboard drawer"):
+            for rec in call_tool(view, "search_environment", {"query": q, "top_k": 30}).results:
+                here = sorted((e for e in ents.values() if e["status"] == "active" and e["location"] == rec.place_id),
+                              key=lambda e: (-(e["n_observations"] or 0), e["id"]))
+                assert rec.objects_here == [e["name"] for e in here[:10]]
+        links: dict[str, set[str]] = {}
+        for r in view.fetch("_tool_inferred_links"):
+            links.setdefault(r["id"], set()).add(r["entity"])
+        graded = 0
+        for q in ("wash the pan", "knife", "cut the onion", "put the plate in the rack", "spoon and bowl"):
+            kinds = {ents[e]["kind"] for e in grounded_entities(view, q)}
+            prefs = call_tool(view, "get_preferences", {"query": q, "top_k": 30}).preferences
+            routines = call_tool(view, "get_routine_skill", {"goal_query": q, "top_k": 30}).routines
+            records = [(p.preference_id, p.score) for p in prefs] + [(r.routine_id, r.score) for r in routines]
+            for rid, score in records:
+                used = {ents[e]["kind"] for e in links.get(rid, ()) if e in ents}
+                assert score.graph == (round(len(used & kinds) / len(kinds), 4) if kinds else None), (q, rid)
+                graded += bool(score.graph)
+        assert graded, "some records share the query's objects"
+        names = sorted({e["name"] for e in ents.values()})
+        for text in ["pan", "Knife", " tap ", "chopping board", "bo", "nothing like it", *names[:25], *sorted(ents)[:5]]:
+            t = text.strip().lower()
+            slug = t.replace(" ", "_")
+            exact = [i for i, e in ents.items() if t in (i.lower(), e["object_id"], e["kind"], e["name"].lower())
+                     or slug in (e["object_id"], e["kind"])]
+            sub = [i for i, e in ents.items() if slug in e["object_id"] or t in e["name"].lower()]
+            ids, how = resolve_object(view, text)
+            if exact or sub:
+                order = sorted(exact or sub,
+                               key=lambda i: (ents[i]["status"] != "active", -(ents[i]["n_observations"] or 0), i))
+                assert (ids, how) == (order, "exact" if exact else "substring"), text
+            else:
+                assert how == "embedding", text

@@ -37,6 +37,7 @@ def test_remember_tool_in_process_and_reads_see_it(tmp_path):
     try:
         assert "remember" in {e.name for e in service.endpoints()}
         before = service.call("search_objects", {"query": "kettle"})
+        assert not service.call("get_object_history", {"object_query": "kettle"})["found"]  # (its names index made)
         got = service.call("remember", {"text": "put the kettle on the counter", "video": "kitchen-1", "start": 12.5,
                                         "end": 14.0})
         assert got["segment"] == "kitchen-1#t0000" and got["ops"][0]["op"] == "ADD"
