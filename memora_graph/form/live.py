@@ -553,7 +553,10 @@ class LiveWriter:
                     self._one("_live_entity_update", **{k: getattr(e, k) for k in _ENTITY_UPDATE})
             else:
                 self.store.write("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
-            if relocated:
+            if len(relocated) <= _SCALAR_ROWS:
+                for eid in relocated:
+                    self.store.write("_live_located_at_clear", participant=p, id=eid)
+            else:
                 self.store.write("_located_at_clear", participant=p, ids=relocated)
             self._add("_live_add_located", located)
             moment = {**seg_row, "emb": _floats(seg_vec), "duration": duration, "key": key,
