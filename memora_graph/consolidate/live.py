@@ -171,14 +171,23 @@ class IncrementalConsolidation:
     def save(self) -> None:
         if self.cache_path is None or (not self.unsaved and self.cache_path.exists()):
             return
-        text = json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
-                           "videos": {v: f.to_json() for v, f in self.folds.items()},
+        # one video at a time, counting, so that folds over the cap cost one video's JSON, not
+        # every video's (at 100 h the whole document took ~1 GB to build only to be dropped)
+        head = json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
                            "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}})
+        parts, size = [head[:-1], ', "videos": {'], len(head) + 13
+        for n, (v, f) in enumerate(self.folds.items()):
+            part = ("" if n == 0 else ", ") + json.dumps(v) + ": " + json.dumps(f.to_json())
+            size += len(part)
+            if size > CACHE_MAX_BYTES:  # not worth reading back (see CACHE_MAX_BYTES): none kept
+                self.kept_bytes = size
+                self.cache_path.unlink(missing_ok=True)
+                self.saved = False
+                return
+            parts.append(part)
+        parts.append("}}")
+        text = "".join(parts)
         self.kept_bytes = len(text)
-        if len(text) > CACHE_MAX_BYTES:  # not worth reading back (see CACHE_MAX_BYTES): none kept
-            self.cache_path.unlink(missing_ok=True)
-            self.saved = False
-            return
         self.cache_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.cache_path.with_suffix(".tmp")
         tmp.write_text(text)
