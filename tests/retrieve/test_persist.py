@@ -43,6 +43,28 @@ def _results(path, embedder, persist: bool) -> list[str]:
         return out
 
 
+def _count_hashes(monkeypatch) -> list[str]:
+    """The names of the store files hashed from now on, in order."""
+    from memora_graph.retrieve import persist
+
+    hashed: list[str] = []
+    real = persist._sha256
+    monkeypatch.setattr(persist, "_sha256", lambda path: hashed.append(path.name) or real(path))
+    return hashed
+
+
+def _flip_keeping_size_and_mtime(path, offset: int) -> None:
+    """Flip one bit of `path` in place and put its access and modification times back: only the
+    change time tells (a bit flipped under the file system would not even move that)."""
+    import os
+
+    st = path.stat()
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x01
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+
+
 def test_persisted_stores_give_the_results_kuzu_gives(bank, embedder):
     reference = _results(bank, embedder, persist=False)
     assert not store_dir(bank, P).exists(), "persist=False writes nothing"
@@ -123,8 +145,6 @@ def test_a_file_damaged_after_opening_is_not_used(bank, embedder, caplog):
 def test_an_open_hashes_only_files_changed_since_one_was_hashed(bank, embedder, monkeypatch, caplog):
     """A process that hashed every file records their stat; a later open hashes only a file whose
     stat differs, so a bit flipped in place (its times put back) is still caught."""
-    import os
-
     from memora_graph.retrieve import persist
 
     reference = _results(bank, embedder, persist=False)
@@ -133,18 +153,11 @@ def test_an_open_hashes_only_files_changed_since_one_was_hashed(bank, embedder, 
     with MemoryView.open(bank, P, embedder) as view:
         assert view._persisted is not None
     assert (store_dir(bank, P) / "verified.json").is_file()
-    hashed = []
-    real = persist._sha256
-    monkeypatch.setattr(persist, "_sha256", lambda path: hashed.append(path.name) or real(path))
+    hashed = _count_hashes(monkeypatch)
     with MemoryView.open(bank, P, embedder) as view:
         assert view._persisted is not None
     assert hashed == [], "unchanged files were hashed again"
-    path = store_dir(bank, P) / "graph-pairs.npy"
-    st = path.stat()
-    data = bytearray(path.read_bytes())
-    data[-3] ^= 0x01
-    path.write_bytes(bytes(data))
-    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))  # same size, same mtime: the change time still moved
+    _flip_keeping_size_and_mtime(store_dir(bank, P) / "graph-pairs.npy", -3)  # the change time still moved
     with caplog.at_level(logging.WARNING, logger="memora_graph.integrity"):
         with MemoryView.open(bank, P, embedder) as view:
             assert view._persisted is None
@@ -195,8 +208,6 @@ def test_the_writer_stamps_its_files_so_a_first_open_hashes_none_and_a_later_cha
     """The process that writes the stores hashed every file as it wrote it: it records their stat
     (once they are RACY_S old), so the first open elsewhere reads stat only; a file changed after
     the stamp, its size and mtime put back, is still hashed and refused."""
-    import os
-
     from memora_graph.retrieve import persist
 
     monkeypatch.setattr(persist, "STAMP_WAIT_BYTES", 0)  # these few KB are worth the wait here
@@ -205,18 +216,11 @@ def test_the_writer_stamps_its_files_so_a_first_open_hashes_none_and_a_later_cha
     meta = json.loads((store_dir(bank, P) / "meta.json").read_text())
     assert set(stamps["files"]) == set(meta["files"]), "every file written is stamped"
     assert all(max(st[2], st[3]) < stamps["at_ns"] - persist.RACY_S * 1e9 for st in stamps["files"].values())
-    hashed = []
-    real = persist._sha256
-    monkeypatch.setattr(persist, "_sha256", lambda path: hashed.append(path.name) or real(path))
+    hashed = _count_hashes(monkeypatch)
     with MemoryView.open(bank, P, embedder) as view:
         assert view._persisted is not None
     assert hashed == [], "the first open hashed files the writer had stamped"
-    path = store_dir(bank, P) / "bm25-segment-tfs.npy"
-    st = path.stat()
-    data = bytearray(path.read_bytes())
-    data[-1] ^= 0x01
-    path.write_bytes(bytes(data))
-    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    _flip_keeping_size_and_mtime(store_dir(bank, P) / "bm25-segment-tfs.npy", -1)
     with caplog.at_level(logging.WARNING, logger="memora_graph.integrity"):
         with MemoryView.open(bank, P, embedder) as view:
             assert view._persisted is None
