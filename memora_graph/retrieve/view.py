@@ -515,15 +515,16 @@ class MemoryView:
         their next use. Called by the one thread that writes, under the lock the readers take."""
         loaded = self.__dict__
         sid = delta["segment"]
-        vectors, bm25 = self._grown("vectors", "segment"), self._grown("bm25", "segment")
-        if vectors is not None or bm25 is not None:
+        seg_vectors, seg_bm25 = self._grown("vectors", "segment"), self._grown("bm25", "segment")
+        if seg_vectors is not None or seg_bm25 is not None:
             row = delta.get("segment_row") or self.store.fetch("_live_segment_row", participant=self.participant,
                                                                id=sid)[0]  # the writer hands it over: no read
-            if vectors is not None:
-                loaded["_vector_cache"]["segment"] = vectors.appended(sid, np.asarray(row["emb"], dtype=np.float32))
-            if bm25 is not None:
-                loaded["_bm25_cache"]["segment"] = bm25.added(sid, f"{row['summary']} {row['narrative']}")
-        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})
+            if seg_vectors is not None:
+                emb = np.asarray(row["emb"], dtype=np.float32)
+                loaded["_vector_cache"]["segment"] = seg_vectors.appended(sid, emb)
+            if seg_bm25 is not None:
+                loaded["_bm25_cache"]["segment"] = seg_bm25.added(sid, f"{row['summary']} {row['narrative']}")
+        vectors, bm25 = loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})  # every table's
         if delta.get("entities"):
             self._changed("entity")
             kept = self._entities_absorbed(delta["entities"], delta.get("entity_rows") or {})
