@@ -14,6 +14,7 @@ import gc
 import json
 import logging
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -38,6 +39,26 @@ if TYPE_CHECKING:
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 log = logging.getLogger("memora_graph.integrity")
 TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
+
+
+# Views whose loaded data `warm` froze (gc.freeze is process-wide: the permanent generation holds
+# every warm view's objects). The last of them to close unfreezes: closing one view while another
+# stays open must not hand the open view's objects back to the cyclic collector.
+_FROZEN = {"views": 0}
+_FROZEN_LOCK = threading.Lock()
+
+
+def _freeze() -> None:
+    with _FROZEN_LOCK:
+        gc.freeze()  # what was loaded since (this view's) joins the permanent generation
+        _FROZEN["views"] += 1
+
+
+def _thaw() -> None:
+    with _FROZEN_LOCK:
+        _FROZEN["views"] -= 1
+        if _FROZEN["views"] == 0:
+            gc.unfreeze()  # what every warm view froze can be collected again (a cycle among it included)
 
 
 class ToolError(MemoraError):
@@ -230,7 +251,7 @@ class MemoryView:
         if self._owns and self._store is not None:
             self._store.close()
         if self.__dict__.pop("_frozen", False):
-            gc.unfreeze()  # what `warm` froze can be collected again (a cycle among it included)
+            _thaw()
 
     def __enter__(self) -> MemoryView:
         return self
@@ -634,8 +655,9 @@ class MemoryView:
         # What was loaded lives as long as the view: out of the cyclic collector's reach (gc.freeze),
         # a full collection no longer walks it (at 1,000 h, 100-200 ms, paid by whichever call it
         # fell in). `close` gives it back.
-        gc.freeze()
-        self._frozen = True
+        if not self.__dict__.get("_frozen"):
+            _freeze()
+            self._frozen = True
 
 
 def _writable(bank: Path) -> bool:

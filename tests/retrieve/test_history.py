@@ -122,3 +122,26 @@ def test_kept_segment_rows_are_the_rows_kuzu_returns(bank, embedder):
     assert [json.dumps(e) for e in got_events] == [json.dumps(e) for e in want_events] and all(want_events[:-1])
     assert len(got) == len(ids) and got == want
     assert [json.dumps(r) for r in got] == [json.dumps(r) for r in want]  # same fields, same order, same values
+
+
+def test_closing_one_warm_view_leaves_another_frozen(bank, embedder):
+    """`warm` puts what a view loaded out of the cyclic collector's reach (gc.freeze, process-wide);
+    closing one of two warm views must not unfreeze what the other still holds, and closing the
+    last gives everything back."""
+    import gc
+
+    persist_bank(bank, [P])
+    before = gc.get_freeze_count()
+    assert before == 0, "nothing else in the test process froze objects"
+    first, second = MemoryView.open(bank, P, embedder), MemoryView.open(bank, P, embedder)
+    try:
+        first.warm()
+        second.warm()
+        frozen = gc.get_freeze_count()
+        assert frozen > 0
+        first.close()
+        assert gc.get_freeze_count() >= frozen, "the open view's objects stay frozen"
+    finally:
+        first.close()
+        second.close()
+    assert gc.get_freeze_count() == 0
