@@ -147,6 +147,8 @@ class IncrementalConsolidation:
         tables = self.index.tables_from_json(data["tables"])
         for v, (fold, rows) in data["videos"].items():
             f = self.folds[v] = _VideoFold.from_json(fold)
+            self._shared(f.episodes)
+            f.ngrams = {self.index.share(t) for t in f.ngrams}
             self.ngram_videos.update(f.ngrams)
             self.segment_ids |= f.segments
             self.index.put(self.index.rows_from_json(rows, tables), v)
@@ -226,7 +228,7 @@ class IncrementalConsolidation:
         fresh = {}
         for video in dirty:
             steps = by_video.get(video, [])
-            ngrams = {tokens for tokens, _ in rules._windows(steps)}
+            ngrams = {self.index.share(tokens) for tokens, _ in rules._windows(steps)}  # equal n-grams: one tuple
             flipped |= self._count(ngrams, +1)
             fresh[video] = (steps, ngrams)
         recurring = _Recurring(self.ngram_videos, rules.min_videos)
@@ -235,7 +237,7 @@ class IncrementalConsolidation:
                                          organizational_habits=rules.video_habits(video, steps),
                                          workflow_patterns=rules.video_workflows(video, steps),
                                          action_sequences=rules.video_sequences(video, steps, recurring))
-            episodes = enricher.video_episodes(steps)
+            episodes = self._shared(enricher.video_episodes(steps))
             touched_goals.update(e.goal for e in episodes)
             self.folds[video] = _VideoFold(marks[video], reader.raw.get(video, set()), {s.segment for s in steps},
                                            ngrams, episodes, enricher.tool_uses(steps))
@@ -276,6 +278,17 @@ class IncrementalConsolidation:
         out.seconds = {"read": round(t1 - t0, 3), "folds": round(t2 - t1, 3), "consolidation": round(t3 - t2, 3),
                        "enrichment": round(t4 - t3, 3), "collect": round(time.perf_counter() - t4, 3)}
         return out
+
+    def _shared(self, episodes: list[EpisodeSummary]) -> list[EpisodeSummary]:
+        """`episodes` with their equal parts one object each (canonical steps, goals, objects): a
+        canonical step as its own text and StepAction per episode was most of the ~70 MB the
+        episodes of 100 h took."""
+        share = self.index.share
+        for e in episodes:
+            e.goal, e.head, e.kinds = share(e.goal), share(e.head), [share(k) for k in e.kinds]
+            e.canon = [share(("step", t, a.verb, a.noun, a.place, a.instrument), (t, a)) for t, a in e.canon]
+            e.entities = [(share(ke), n) for ke, n in e.entities]
+        return episodes
 
     def _count(self, ngrams, step: int) -> set[tuple]:
         """Add (+1) or remove (-1) one video's n-grams; returns those that crossed the threshold."""

@@ -517,13 +517,17 @@ class FoldIndex:
         ids = self.key_ids[kind]
         n = ids.get(key)
         if n is None:
-            key = tuple(self._share(x) for x in key)
+            key = tuple(self.share(x) for x in key)
             n = ids[key] = len(self.keys[kind])
             self.keys[kind].append(key)
         return n
 
-    def _share(self, x):
-        return self.shared.setdefault(x, x)
+    def share(self, key, value=None):
+        """The one object kept for `key` (`value`, or the key itself, the first time)."""
+        hit = self.shared.get(key)
+        if hit is None:
+            hit = self.shared[key] = key if value is None else value
+        return hit
 
     def _first_of(self, kind: str, r) -> tuple:
         if kind == "storage":
@@ -552,7 +556,7 @@ class FoldIndex:
             np.array([self._key_id(kind, keyf(r)) for r in records], dtype=np.int32),
             np.array([r.count for r in records], dtype=np.int64),
             np.array([r.videos.get(video, 0) for r in records], dtype=np.int64),
-            [self._share(self._first_of(kind, r)) for r in records],
+            [self.share(self._first_of(kind, r)) for r in records],
             [(np.array(offsets[n], dtype=np.int32), np.array(flats[n], dtype=np.int32)) for n in lists],
             np.array([h.trigger_count for h in records], dtype=np.int64) if kind == "habit" else None)
 
@@ -572,9 +576,9 @@ class FoldIndex:
 
     def tables_from_json(self, d: dict) -> dict:
         """`tables_to_json`'s document as `rows_from_json` reads it (this index's key ids)."""
-        return {"keys": {kind: np.array([self._key_id(kind, tuple(k)) for k in d["keys"][kind]] or [0], dtype=np.int32)
+        return {"keys": {kind: np.array([self._key_id(kind, tuple(k)) for k in d["keys"][kind]], dtype=np.int32)
                          for kind in self._KINDS},
-                "firsts": [self._share(_tuples(f)) for f in d["firsts"]]}
+                "firsts": [self.share(_tuples(f)) for f in d["firsts"]]}
 
     def rows_from_json(self, d: dict, tables: dict) -> VideoRows:
         """`rows_to_json`'s document as the index keeps it (`tables`: `tables_from_json`)."""
