@@ -36,13 +36,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import sys
 import threading
 import time
 from collections import Counter
 from pathlib import Path
 
 from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
-from memora_graph.consolidate.records import Enrichment, StepAction, VideoConsolidation
+from memora_graph.consolidate.records import Enrichment, VideoConsolidation
 from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
 
@@ -65,23 +66,32 @@ class _VideoFold:
         self.mark, self.raw, self.segments, self.ngrams = mark, raw, segments, ngrams
         self.episodes, self.tool_uses = episodes, tool_uses
 
-    def to_json(self) -> dict:
+    def to_json(self, tables: dict) -> dict:
+        """The fold as JSON; its n-grams and canonical steps as ids into `tables` (added to:
+        "ngrams" and "steps", value -> id), which the file holds once."""
+        ngrams, steps = tables.setdefault("ngrams", {}), tables.setdefault("steps", {})
+
+        def step(t, a):
+            return steps.setdefault((t, a.verb, a.noun, a.place, a.instrument), len(steps))
+
         return {"mark": list(self.mark), "raw": sorted(self.raw), "segments": sorted(self.segments),
-                "ngrams": [list(t) for t in self.ngrams],
-                "episodes": [[e.video, e.goal, e.head, e.cat, list(e.tokens), [[t, a.model_dump()] for t, a in e.canon],
+                "ngrams": [ngrams.setdefault(t, len(ngrams)) for t in self.ngrams],
+                "episodes": [[e.video, e.goal, e.head, e.cat, list(e.tokens), [step(t, a) for t, a in e.canon],
                               e.kinds, [[k, x, n] for (k, x), n in e.entities], e.t_start, e.t_end, e.segments]
                              for e in self.episodes],
                 "tool_uses": [[u.verb, u.target, u.tool, u.video, u.segment, u.narration,
                                [[o.kind, o.entity, o.category, o.is_fixture] for o in u.objects]] for u in self.tool_uses]}
 
     @classmethod
-    def from_json(cls, d: dict) -> _VideoFold:
-        episodes = [EpisodeSummary(video, goal, head, cat, tuple(tokens), [(t, StepAction(**a)) for t, a in canon],
+    def from_json(cls, d: dict, tables: dict) -> _VideoFold:
+        """`to_json`'s document (`tables`: its n-grams as tuples, its steps as (text, StepAction))."""
+        ngrams, steps = tables["ngrams"], tables["steps"]
+        episodes = [EpisodeSummary(video, goal, head, cat, tuple(tokens), [steps[i] for i in canon],
                                    kinds, [((k, x), n) for k, x, n in entities], t0, t1, segments)
                     for video, goal, head, cat, tokens, canon, kinds, entities, t0, t1, segments in d["episodes"]]
         tool_uses = [ToolUse(verb, target, tool, video, segment, narration, [Obj(*o) for o in objects])
                      for verb, target, tool, video, segment, narration, objects in d["tool_uses"]]
-        return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {tuple(t) for t in d["ngrams"]},
+        return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {ngrams[i] for i in d["ngrams"]},
                    episodes, tool_uses)
 
 
@@ -145,10 +155,13 @@ class IncrementalConsolidation:
             return
         self.stamp, self.merged = data["stamp"], dict(data["merged"])
         tables = self.index.tables_from_json(data["tables"])
+        share = self.index.share
+        folds = {"ngrams": [share(tuple(sys.intern(x) for x in t)) for t in data["folds"].get("ngrams", [])],
+                 "steps": [share(("step", t, *a), (t, self.index.step_action(tuple(a))))
+                           for t, *a in data["folds"].get("steps", [])]}
         for v, (fold, rows) in data["videos"].items():
-            f = self.folds[v] = _VideoFold.from_json(fold)
+            f = self.folds[v] = _VideoFold.from_json(fold, folds)
             self._shared(f.episodes)
-            f.ngrams = {self.index.share(t) for t in f.ngrams}
             self.ngram_videos.update(f.ngrams)
             self.segment_ids |= f.segments
             self.index.put(self.index.rows_from_json(rows, tables), v)
@@ -161,10 +174,10 @@ class IncrementalConsolidation:
         # every video's (at 100 h the whole document took ~1 GB to build only to be dropped)
         head = json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
                            "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}})
-        parts, size, firsts = [head[:-1], ', "videos": {'], len(head) + 13, {}
+        parts, size, firsts, folds = [head[:-1], ', "videos": {'], len(head) + 13, {}, {}
         for n, (v, f) in enumerate(self.folds.items()):
             part = ("" if n == 0 else ", ") + json.dumps(v) + ": " + json.dumps(
-                [f.to_json(), self.index.rows_to_json(self.index.videos[v], firsts)])
+                [f.to_json(folds), self.index.rows_to_json(self.index.videos[v], firsts)])
             size += len(part)
             if size > CACHE_MAX_BYTES:  # not worth reading back (see CACHE_MAX_BYTES): none kept
                 self.kept_bytes = size
@@ -172,7 +185,8 @@ class IncrementalConsolidation:
                 self.saved = False
                 return
             parts.append(part)
-        parts.append('}, "tables": ' + json.dumps(self.index.tables_to_json(firsts)) + "}")
+        parts.append('}, "tables": ' + json.dumps(self.index.tables_to_json(firsts)) + ', "folds": '
+                     + json.dumps({k: list(v) for k, v in folds.items()}) + "}")
         text = "".join(parts)
         if len(text) > CACHE_MAX_BYTES:
             self.kept_bytes = len(text)

@@ -593,7 +593,8 @@ class FoldIndex:
         workflows = [WorkflowPattern.model_construct(**w) for w in d["workflows"]]
         return VideoRows(d["video"], d["strings"], parts["storage"], parts["habit"], parts["sequence"], workflows)
 
-    def _step(self, key):
+    def step_action(self, key) -> StepAction | None:
+        """The one StepAction kept for (verb, noun, place, instrument)."""
         if key is None:
             return None
         a = self.steps.get(key)
@@ -608,11 +609,11 @@ class FoldIndex:
         if kind == "storage":
             t.place = first[0]
         elif kind == "habit":
-            t.trigger_step, t.next_step, t.habit, t.objects_involved = (self._step(first[0]), self._step(first[1]),
-                                                                         first[2], list(first[3]))
+            t.trigger_step, t.next_step = self.step_action(first[0]), self.step_action(first[1])
+            t.habit, t.objects_involved = first[2], list(first[3])
         else:
-            t.title, t.actions, t.activity_type, t.key_objects = (first[0], [self._step(a) for a in first[1]], first[2],
-                                                                  list(first[3]))
+            t.title, t.actions = first[0], [self.step_action(a) for a in first[1]]
+            t.activity_type, t.key_objects = first[2], list(first[3])
         return t
 
     # -- the merge kept up to date -------------------------------------------------------------
