@@ -51,8 +51,9 @@ log = logging.getLogger("memora_graph.consolidate")
 CACHE_FORMAT = 3
 # The folds are kept on disk (JSON) only up to this size: reading a larger file back costs more
 # time and memory than recomputing every video (format 2, records as JSON: 231 MB at 100 h took
-# ~70 CPU-s and ~2 GB to read; format 3, compact: 41 MB at 100 h, 7.4 CPU-s). Above it a later `memora consolidate --incremental` recomputes every video, as a batch run; a
-# server keeps its folds in memory whatever their size.
+# ~70 CPU-s and ~2 GB to read; format 3, compact: 41 MB at 100 h, 7.4 CPU-s). Above it a later
+# `memora consolidate --incremental` recomputes every video, as a batch run; a server keeps its
+# folds in memory whatever their size.
 CACHE_MAX_BYTES = 64 << 20
 
 
