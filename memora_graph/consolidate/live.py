@@ -36,70 +36,64 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import sys
 import threading
 import time
 from collections import Counter
 from pathlib import Path
 
 from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
-from memora_graph.consolidate.records import (
-    ActionSequence, Enrichment, OrganizationalHabit, StepAction, StoragePreference, VideoConsolidation, WorkflowPattern,
-)
+from memora_graph.consolidate.records import Enrichment, VideoConsolidation
 from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
 
 log = logging.getLogger("memora_graph.consolidate")
-CACHE_FORMAT = 2
+CACHE_FORMAT = 3
 # The folds are kept on disk (JSON) only up to this size: reading a larger file back costs more
-# time and memory than recomputing every video (231 MB at 100 h took ~70 CPU-s and ~2 GB to read).
-# Above it a later `memora consolidate --incremental` recomputes every video, as a batch run; a
-# server keeps its folds in memory whatever their size.
+# time and memory than recomputing every video (format 2, records as JSON: 231 MB at 100 h took
+# ~70 CPU-s and ~2 GB to read; format 3, compact: 41 MB at 100 h, 7.4 CPU-s). Above it a later
+# `memora consolidate --incremental` recomputes every video, as a batch run; a server keeps its
+# folds in memory whatever their size.
 CACHE_MAX_BYTES = 64 << 20
 
 
 class _VideoFold:
-    """What one video contributes to the participant's inferred knowledge (see the module)."""
+    """What one video contributes to the participant's inferred knowledge (see the module); its
+    records are kept by the `FoldIndex`, compact."""
 
-    __slots__ = ("mark", "raw", "segments", "ngrams", "records", "episodes", "tool_uses")
+    __slots__ = ("mark", "raw", "segments", "ngrams", "episodes", "tool_uses")
 
-    def __init__(self, mark, raw, segments, ngrams, records, episodes, tool_uses):
+    def __init__(self, mark, raw, segments, ngrams, episodes, tool_uses):
         self.mark, self.raw, self.segments, self.ngrams = mark, raw, segments, ngrams
-        self.records, self.episodes, self.tool_uses = records, episodes, tool_uses
+        self.episodes, self.tool_uses = episodes, tool_uses
 
-    def to_json(self) -> dict:
+    def to_json(self, tables: dict) -> dict:
+        """The fold as JSON; its n-grams and canonical steps as ids into `tables` (added to:
+        "ngrams" and "steps", value -> id), which the file holds once."""
+        ngrams, steps = tables.setdefault("ngrams", {}), tables.setdefault("steps", {})
+
+        def step(t, a):
+            return steps.setdefault((t, a.verb, a.noun, a.place, a.instrument), len(steps))
+
         return {"mark": list(self.mark), "raw": sorted(self.raw), "segments": sorted(self.segments),
-                "ngrams": [list(t) for t in self.ngrams], "records": self.records.model_dump(mode="json"),
-                "episodes": [[e.video, e.goal, e.head, e.cat, list(e.tokens), [[t, a.model_dump()] for t, a in e.canon],
+                "ngrams": [ngrams.setdefault(t, len(ngrams)) for t in self.ngrams],
+                "episodes": [[e.video, e.goal, e.head, e.cat, list(e.tokens), [step(t, a) for t, a in e.canon],
                               e.kinds, [[k, x, n] for (k, x), n in e.entities], e.t_start, e.t_end, e.segments]
                              for e in self.episodes],
                 "tool_uses": [[u.verb, u.target, u.tool, u.video, u.segment, u.narration,
                                [[o.kind, o.entity, o.category, o.is_fixture] for o in u.objects]] for u in self.tool_uses]}
 
     @classmethod
-    def from_json(cls, d: dict) -> _VideoFold:
-        episodes = [EpisodeSummary(video, goal, head, cat, tuple(tokens), [(t, StepAction(**a)) for t, a in canon],
+    def from_json(cls, d: dict, tables: dict) -> _VideoFold:
+        """`to_json`'s document (`tables`: its n-grams as tuples, its steps as (text, StepAction))."""
+        ngrams, steps = tables["ngrams"], tables["steps"]
+        episodes = [EpisodeSummary(video, goal, head, cat, tuple(tokens), [steps[i] for i in canon],
                                    kinds, [((k, x), n) for k, x, n in entities], t0, t1, segments)
                     for video, goal, head, cat, tokens, canon, kinds, entities, t0, t1, segments in d["episodes"]]
         tool_uses = [ToolUse(verb, target, tool, video, segment, narration, [Obj(*o) for o in objects])
                      for verb, target, tool, video, segment, narration, objects in d["tool_uses"]]
-        return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {tuple(t) for t in d["ngrams"]},
-                   _records(d["records"]), episodes, tool_uses)
-
-
-def _records(d: dict) -> VideoConsolidation:
-    """A video's records as `to_json` wrote them, constructed without validation (this process
-    validated them when it made them; tens of thousands per video took seconds to validate again)."""
-    def step(x):
-        return None if x is None else StepAction.model_construct(**x)
-
-    return VideoConsolidation.model_construct(
-        video=d["video"], storage_preferences=[StoragePreference.model_construct(**r) for r in d["storage_preferences"]],
-        organizational_habits=[OrganizationalHabit.model_construct(**{**r, "trigger_step": step(r["trigger_step"]),
-                                                                        "next_step": step(r["next_step"])})
-                               for r in d["organizational_habits"]],
-        workflow_patterns=[WorkflowPattern.model_construct(**r) for r in d["workflow_patterns"]],
-        action_sequences=[ActionSequence.model_construct(**{**r, "actions": [step(x) for x in r["actions"]]})
-                          for r in d["action_sequences"]])
+        return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {ngrams[i] for i in d["ngrams"]},
+                   episodes, tool_uses)
 
 
 class _Recurring:
@@ -161,11 +155,17 @@ class IncrementalConsolidation:
         if data.get("format") != CACHE_FORMAT:
             return
         self.stamp, self.merged = data["stamp"], dict(data["merged"])
-        self.folds = {v: _VideoFold.from_json(f) for v, f in data["videos"].items()}
-        for v, f in self.folds.items():
+        tables = self.index.tables_from_json(data["tables"])
+        share = self.index.share
+        folds = {"ngrams": [share(tuple(sys.intern(x) for x in t)) for t in data["folds"].get("ngrams", [])],
+                 "steps": [share(("step", t, *a), (t, self.index.step_action(tuple(a))))
+                           for t, *a in data["folds"].get("steps", [])]}
+        for v, (fold, rows) in data["videos"].items():
+            f = self.folds[v] = _VideoFold.from_json(fold, folds)
+            self._shared(f.episodes)
             self.ngram_videos.update(f.ngrams)
             self.segment_ids |= f.segments
-            self.index.put(f.records, v)
+            self.index.put(self.index.rows_from_json(rows, tables), v)
         self.routines = {g: RoutineSkill.model_validate(r) for g, r in data["routines"].items()}
 
     def save(self) -> None:
@@ -175,9 +175,10 @@ class IncrementalConsolidation:
         # every video's (at 100 h the whole document took ~1 GB to build only to be dropped)
         head = json.dumps({"format": CACHE_FORMAT, "stamp": self.stamp, "merged": self.merged,
                            "routines": {g: r.model_dump(mode="json") for g, r in self.routines.items()}})
-        parts, size = [head[:-1], ', "videos": {'], len(head) + 13
+        parts, size, firsts, folds = [head[:-1], ', "videos": {'], len(head) + 13, {}, {}
         for n, (v, f) in enumerate(self.folds.items()):
-            part = ("" if n == 0 else ", ") + json.dumps(v) + ": " + json.dumps(f.to_json())
+            part = ("" if n == 0 else ", ") + json.dumps(v) + ": " + json.dumps(
+                [f.to_json(folds), self.index.rows_to_json(self.index.videos[v], firsts)])
             size += len(part)
             if size > CACHE_MAX_BYTES:  # not worth reading back (see CACHE_MAX_BYTES): none kept
                 self.kept_bytes = size
@@ -185,8 +186,14 @@ class IncrementalConsolidation:
                 self.saved = False
                 return
             parts.append(part)
-        parts.append("}}")
+        parts.append('}, "tables": ' + json.dumps(self.index.tables_to_json(firsts)) + ', "folds": '
+                     + json.dumps({k: list(v) for k, v in folds.items()}) + "}")
         text = "".join(parts)
+        if len(text) > CACHE_MAX_BYTES:
+            self.kept_bytes = len(text)
+            self.cache_path.unlink(missing_ok=True)
+            self.saved = False
+            return
         self.kept_bytes = len(text)
         self.cache_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.cache_path.with_suffix(".tmp")
@@ -236,7 +243,7 @@ class IncrementalConsolidation:
         fresh = {}
         for video in dirty:
             steps = by_video.get(video, [])
-            ngrams = {tokens for tokens, _ in rules._windows(steps)}
+            ngrams = {self.index.share(tokens) for tokens, _ in rules._windows(steps)}  # equal n-grams: one tuple
             flipped |= self._count(ngrams, +1)
             fresh[video] = (steps, ngrams)
         recurring = _Recurring(self.ngram_videos, rules.min_videos)
@@ -245,10 +252,10 @@ class IncrementalConsolidation:
                                          organizational_habits=rules.video_habits(video, steps),
                                          workflow_patterns=rules.video_workflows(video, steps),
                                          action_sequences=rules.video_sequences(video, steps, recurring))
-            episodes = enricher.video_episodes(steps)
+            episodes = self._shared(enricher.video_episodes(steps))
             touched_goals.update(e.goal for e in episodes)
             self.folds[video] = _VideoFold(marks[video], reader.raw.get(video, set()), {s.segment for s in steps},
-                                           ngrams, records, episodes, enricher.tool_uses(steps))
+                                           ngrams, episodes, enricher.tool_uses(steps))
             self.segment_ids |= self.folds[video].segments
             self.index.put(records, video)
         # an n-gram that started or stopped recurring changes the action sequences of the unchanged
@@ -257,10 +264,7 @@ class IncrementalConsolidation:
         if resequence:
             more = _by_video(StepReader(merged).read(store, participant, {v: marks[v][0] for v in resequence}))
             for video in resequence:
-                f = self.folds[video]
-                f.records = f.records.model_copy(update={
-                    "action_sequences": rules.video_sequences(video, more.get(video, []), recurring)})
-                self.index.put(f.records, video)
+                self.index.put_sequences(rules.video_sequences(video, more.get(video, []), recurring), video)
         if dirty or gone or resequence or merged != self.merged:
             self.unsaved = True
         self.merged = merged
@@ -289,6 +293,17 @@ class IncrementalConsolidation:
         out.seconds = {"read": round(t1 - t0, 3), "folds": round(t2 - t1, 3), "consolidation": round(t3 - t2, 3),
                        "enrichment": round(t4 - t3, 3), "collect": round(time.perf_counter() - t4, 3)}
         return out
+
+    def _shared(self, episodes: list[EpisodeSummary]) -> list[EpisodeSummary]:
+        """`episodes` with their equal parts one object each (canonical steps, goals, objects): a
+        canonical step as its own text and StepAction per episode was most of the ~70 MB the
+        episodes of 100 h took."""
+        share = self.index.share
+        for e in episodes:
+            e.goal, e.head, e.kinds = share(e.goal), share(e.head), [share(k) for k in e.kinds]
+            e.canon = [share(("step", t, a.verb, a.noun, a.place, a.instrument), (t, a)) for t, a in e.canon]
+            e.entities = [(share(ke), n) for ke, n in e.entities]
+        return episodes
 
     def _count(self, ngrams, step: int) -> set[tuple]:
         """Add (+1) or remove (-1) one video's n-grams; returns those that crossed the threshold."""

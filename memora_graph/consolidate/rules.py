@@ -16,6 +16,8 @@ import hashlib
 import math
 from collections import Counter, defaultdict
 
+import numpy as np
+
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.memory import ParticipantMemory, MemoryStep, display
 from memora_graph.consolidate.records import (
@@ -440,90 +442,257 @@ class RuleConsolidator:
         )
 
 
+class _Thin:
+    """What the merge reads of a key's first record (in video order): its place (storage), its
+    steps as classes, statement and objects (habits), its title, actions, activity type and key
+    objects (sequences)."""
+
+    __slots__ = ("place", "trigger_step", "next_step", "habit", "objects_involved", "title", "actions", "activity_type",
+                 "key_objects")
+
+
+def _action_key(a: StepAction | None):
+    return None if a is None else (a.verb, a.noun, a.place, a.instrument)
+
+
+class _Rows:
+    """One video's records of one kind, compact: per record its merge key (an id into the index's
+    key table), count, observations in the video, what the merge reads of it as a first record
+    (a tuple shared by every equal one), and its evidence lists as indexes into the video's
+    string table (segment and entity ids), one flat array and offsets per list."""
+
+    __slots__ = ("keys", "counts", "seen", "firsts", "evidence", "extra")
+
+    def __init__(self, keys, counts, seen, firsts, evidence, extra=None):
+        self.keys, self.counts, self.seen, self.firsts, self.evidence, self.extra = keys, counts, seen, firsts, evidence, extra
+
+    def rows_of(self, key_id: int) -> list[int]:
+        return np.flatnonzero(self.keys == key_id).tolist()
+
+    def lists(self, i: int, strings: list[str]):
+        """Record `i`'s evidence lists, as strings."""
+        return [[strings[x] for x in flat[offsets[i]:offsets[i + 1]].tolist()] for offsets, flat in self.evidence]
+
+
+class VideoRows:
+    """One video's records as `FoldIndex` keeps them: storage preferences, habits and action
+    sequences as `_Rows`, workflow patterns (a handful) as records, the video's string table."""
+
+    __slots__ = ("video", "strings", "storage", "habit", "sequence", "workflows")
+
+    def __init__(self, video, strings, storage, habit, sequence, workflows):
+        self.video, self.strings, self.workflows = video, strings, workflows
+        self.storage, self.habit, self.sequence = storage, habit, sequence
+
+
+_EVIDENCE_LISTS = {"storage": ("supporting_episodes", "entities"), "habit": ("supporting_episodes", "entities"),
+                   "sequence": ("supporting_episodes", "segments", "entities")}
+
+
 class FoldIndex:
     """`RuleConsolidator.consolidate_participant` kept up to date one video at a time.
 
-    Each video's records are indexed by their merge key (key -> video -> records); the folds the
-    merge chooses from (counts and videos per key, the first record in video order) are updated
-    by the difference a video makes, so replacing one video costs its own records, not every
-    video's. The records chosen and their evidence (the union, in video order, of the chosen keys'
-    records) are the batch merge's: tests/consolidate and tests/serve compare them."""
+    Each video's records are kept compact (`VideoRows`: merge keys as ids into one key table per
+    kind, counts in arrays, evidence as indexes into the video's segment and entity ids; a record
+    object per n-gram took ~1 GB at 100 h); the folds the merge chooses from (counts and videos
+    per key, the first record in video order) are updated by the difference a video makes, so
+    replacing one video costs its own records, not every video's. The records chosen and their
+    evidence (the union, in video order, of the chosen keys' records) are the batch merge's:
+    tests/consolidate and tests/serve compare them."""
 
     _KINDS = ("storage", "habit", "sequence")
 
     def __init__(self, rules: RuleConsolidator):
         self.rules = rules
-        self.videos: dict[str, VideoConsolidation] = {}
-        self.index: dict[str, dict] = {k: {} for k in self._KINDS}  # kind -> key -> {video: [records]}
+        self.videos: dict[str, VideoRows] = {}
+        self.key_ids: dict[str, dict[tuple, int]] = {k: {} for k in self._KINDS}  # kind -> merge key -> id
+        self.keys: dict[str, list[tuple]] = {k: [] for k in self._KINDS}  # kind -> id -> merge key
+        self.shared: dict = {}  # equal first-record tuples and strings, one object each
+        self.steps: dict[tuple, StepAction] = {}
         self.storage, self.habits, self.sequences = _StorageFold(), _HabitFold(), _SequenceFold()
         self.triggers: dict[str, dict[str, int]] = {}  # habit trigger -> {video: its count there}
 
+    # -- compact form ------------------------------------------------------------------------
+    def _key_id(self, kind: str, key: tuple) -> int:
+        ids = self.key_ids[kind]
+        n = ids.get(key)
+        if n is None:
+            key = tuple(self.share(x) for x in key)
+            n = ids[key] = len(self.keys[kind])
+            self.keys[kind].append(key)
+        return n
+
+    def share(self, key, value=None):
+        """The one object kept for `key` (`value`, or the key itself, the first time)."""
+        hit = self.shared.get(key)
+        if hit is None:
+            hit = self.shared[key] = key if value is None else value
+        return hit
+
+    def _first_of(self, kind: str, r) -> tuple:
+        if kind == "storage":
+            return (r.place,)
+        if kind == "habit":
+            return (_action_key(r.trigger_step), _action_key(r.next_step), r.habit, tuple(r.objects_involved))
+        return (r.title, tuple(_action_key(a) for a in r.actions), r.activity_type, tuple(r.key_objects))
+
+    def compact(self, v: VideoConsolidation) -> VideoRows:
+        """`v` as the index keeps it."""
+        strings: dict[str, int] = {}
+        parts = {kind: self._rows(kind, v.video, records, keyf, strings) for kind, records, keyf in self._parts(v)}
+        return VideoRows(v.video, list(strings), parts["storage"], parts["habit"], parts["sequence"], list(v.workflow_patterns))
+
+    def _rows(self, kind: str, video: str, records, keyf, strings: dict[str, int]) -> _Rows:
+        """Records of one kind as `_Rows`, their evidence strings numbered in `strings` (added to)."""
+        lists = _EVIDENCE_LISTS[kind]
+        offsets = {name: [0] for name in lists}
+        flats = {name: [] for name in lists}
+        for r in records:
+            for name in lists:
+                flat = flats[name]
+                flat.extend(strings.setdefault(x, len(strings)) for x in getattr(r, name))
+                offsets[name].append(len(flat))
+        return _Rows(
+            np.array([self._key_id(kind, keyf(r)) for r in records], dtype=np.int32),
+            np.array([r.count for r in records], dtype=np.int64),
+            np.array([r.videos.get(video, 0) for r in records], dtype=np.int64),
+            [self.share(self._first_of(kind, r)) for r in records],
+            [(np.array(offsets[n], dtype=np.int32), np.array(flats[n], dtype=np.int32)) for n in lists],
+            np.array([h.trigger_count for h in records], dtype=np.int64) if kind == "habit" else None)
+
+    def rows_to_json(self, rows: VideoRows, firsts: dict) -> dict:
+        """One video's rows as JSON: merge keys as ids into `tables_to_json`'s key tables, first
+        records as ids into `firsts` (added to: first record -> id)."""
+        out = {"video": rows.video, "strings": rows.strings, "workflows": [w.model_dump(mode="json") for w in rows.workflows]}
+        for kind in self._KINDS:
+            part = getattr(rows, kind)
+            out[kind] = [part.keys.tolist(), part.counts.tolist(), part.seen.tolist(),
+                         [firsts.setdefault(f, len(firsts)) for f in part.firsts],
+                         [[o.tolist(), f.tolist()] for o, f in part.evidence], None if part.extra is None else part.extra.tolist()]
+        return out
+
+    def tables_to_json(self, firsts: dict) -> dict:
+        return {"keys": {kind: self.keys[kind] for kind in self._KINDS}, "firsts": list(firsts)}
+
+    def tables_from_json(self, d: dict) -> dict:
+        """`tables_to_json`'s document as `rows_from_json` reads it (this index's key ids)."""
+        return {"keys": {kind: np.array([self._key_id(kind, tuple(k)) for k in d["keys"][kind]], dtype=np.int32)
+                         for kind in self._KINDS},
+                "firsts": [self.share(_tuples(f)) for f in d["firsts"]]}
+
+    def rows_from_json(self, d: dict, tables: dict) -> VideoRows:
+        """`rows_to_json`'s document as the index keeps it (`tables`: `tables_from_json`)."""
+        parts = {}
+        for kind in self._KINDS:
+            keys, counts, seen, firsts, evidence, extra = d[kind]
+            parts[kind] = _Rows(
+                tables["keys"][kind][np.array(keys, dtype=np.int64)], np.array(counts, dtype=np.int64),
+                np.array(seen, dtype=np.int64), [tables["firsts"][f] for f in firsts],
+                [(np.array(o, dtype=np.int32), np.array(f, dtype=np.int32)) for o, f in evidence],
+                None if extra is None else np.array(extra, dtype=np.int64))
+        workflows = [WorkflowPattern.model_construct(**w) for w in d["workflows"]]
+        return VideoRows(d["video"], d["strings"], parts["storage"], parts["habit"], parts["sequence"], workflows)
+
+    def step_action(self, key) -> StepAction | None:
+        """The one StepAction kept for (verb, noun, place, instrument)."""
+        if key is None:
+            return None
+        a = self.steps.get(key)
+        if a is None:
+            verb, noun, place, instrument = key
+            a = self.steps[key] = (StepAction(verb=verb, noun=noun, place=place, instrument=instrument) if instrument
+                                   else StepAction(verb=verb, noun=noun, place=place))
+        return a
+
+    def _thin(self, kind: str, rows: _Rows, i: int) -> _Thin:
+        t, first = _Thin(), rows.firsts[i]
+        if kind == "storage":
+            t.place = first[0]
+        elif kind == "habit":
+            t.trigger_step, t.next_step = self.step_action(first[0]), self.step_action(first[1])
+            t.habit, t.objects_involved = first[2], list(first[3])
+        else:
+            t.title, t.actions = first[0], [self.step_action(a) for a in first[1]]
+            t.activity_type, t.key_objects = first[2], list(first[3])
+        return t
+
+    # -- the merge kept up to date -------------------------------------------------------------
     @staticmethod
     def _parts(v: VideoConsolidation):
         return (("storage", v.storage_preferences, _StorageFold.key), ("habit", v.organizational_habits, _HabitFold.key),
                 ("sequence", v.action_sequences, lambda a: tuple(a.steps)))
 
-    def _group_of(self, kind: str, key, record, create: bool):
+    def _table(self, kind: str, key, create: bool):
         if kind == "storage":
             table = self.storage.groups.setdefault(key[:2], {}) if create else self.storage.groups.get(key[:2], {})
-            sub = key[2]
-        else:
-            table, sub = (self.habits.groups if kind == "habit" else self.sequences.groups), key
-        g = table.get(sub)
-        if g is None and create:
-            first = (self.sequences._first(record) if kind == "sequence" else _Fold._thin(record))
-            g = table[sub] = _SequenceGroup(first)
-        return table, sub, g
+            return table, key[2]
+        return (self.habits.groups if kind == "habit" else self.sequences.groups), key
 
-    def put(self, v: VideoConsolidation | None, video: str) -> None:
+    def put(self, v: VideoConsolidation | VideoRows | None, video: str) -> None:
         """Replace `video`'s records with `v`'s (None: the video is gone)."""
         old = self.videos.pop(video, None)
         if old is not None:
-            self._apply(old, -1)
+            self._apply(old, self._KINDS, -1)
         if v is not None:
-            self.videos[video] = v
-            self._apply(v, +1)
+            rows = v if isinstance(v, VideoRows) else self.compact(v)
+            self.videos[video] = rows
+            self._apply(rows, self._KINDS, +1)
 
-    def _apply(self, v: VideoConsolidation, sign: int) -> None:
-        video = v.video
-        for kind, records, keyf in self._parts(v):
-            index = self.index[kind]
-            touched = {}
-            for r in records:
-                key = keyf(r)
-                per = index.setdefault(key, {})
-                if sign > 0:
-                    per.setdefault(video, []).append(r)
-                else:
-                    per.pop(video, None)
-                touched[key] = r
-                table, sub, g = self._group_of(kind, key, r, create=sign > 0)
-                g.count += sign * r.count
-                n = g.videos.get(video, 0) + sign * r.videos.get(video, 0)
+    def put_sequences(self, sequences: list[ActionSequence], video: str) -> None:
+        """Replace `video`'s action sequences (its other records stay)."""
+        rows = self.videos[video]
+        self._apply(rows, ("sequence",), -1)
+        strings = {x: i for i, x in enumerate(rows.strings)}
+        rows.sequence = self._rows("sequence", video, sequences, lambda a: tuple(a.steps), strings)
+        rows.strings = list(strings)
+        self._apply(rows, ("sequence",), +1)
+
+    def _apply(self, rows: VideoRows, kinds, sign: int) -> None:
+        video = rows.video
+        for kind in kinds:
+            part: _Rows = getattr(rows, kind)
+            names = self.keys[kind]
+            touched: dict[int, int] = {}
+            for i, (k, count, seen) in enumerate(zip(part.keys.tolist(), part.counts.tolist(), part.seen.tolist())):
+                table, sub = self._table(kind, names[k], sign > 0)
+                g = table.get(sub)
+                if g is None:
+                    g = table[sub] = _SequenceGroup(None)
+                g.count += sign * count
+                n = g.videos.get(video, 0) + sign * seen
                 if n:
                     g.videos[video] = n
                 else:
                     g.videos.pop(video, None)
-            for key, r in touched.items():
-                per = self.index[kind][key]
-                table, sub, g = self._group_of(kind, key, r, create=False)
-                if not per:
-                    del self.index[kind][key]
+                touched.setdefault(k, i)
+            for k, i in touched.items():
+                key = names[k]
+                table, sub = self._table(kind, key, False)
+                g = table[sub]
+                if not g.videos:
                     del table[sub]
                     if kind == "storage" and not table:
                         del self.storage.groups[key[:2]]
                     continue
-                first_video = min(per)
-                if first_video >= video:  # the first record (in video order) may be this video's or another's now
-                    first = per[first_video][0]
-                    g.first = self.sequences._first(first) if kind == "sequence" else _Fold._thin(first)
-        for h in v.organizational_habits:
-            per = self.triggers.setdefault(h.trigger, {})
+                first_video = min(g.videos)
+                if first_video == video and sign > 0:
+                    g.first = self._thin(kind, part, i)
+                elif first_video >= video:  # the first record (in video order) is another video's now
+                    other = getattr(self.videos[first_video], kind)
+                    g.first = self._thin(kind, other, other.rows_of(k)[0])
+            if kind == "habit":
+                self._triggers(part, video, sign)
+
+    def _triggers(self, part: _Rows, video: str, sign: int) -> None:
+        names = self.keys["habit"]
+        triggers = [names[k][0] for k in part.keys.tolist()]
+        for trigger, n in zip(triggers, part.extra.tolist()):
+            per = self.triggers.setdefault(trigger, {})
             if sign > 0:
-                per[video] = h.trigger_count
+                per[video] = n
             else:
                 per.pop(video, None)
-        for trigger in {h.trigger for h in v.organizational_habits}:
+        for trigger in set(triggers):
             per = self.triggers[trigger]
             if per:
                 self.habits.trigger_total[trigger] = sum(per.values())
@@ -536,18 +705,17 @@ class FoldIndex:
         videos = sorted(self.videos)
         workflows = _WorkflowFold()  # a handful per video, and their ties are broken by first appearance: refolded
         for video in videos:
-            for w in self.videos[video].workflow_patterns:
+            for w in self.videos[video].workflows:
                 workflows.add(w)
         kept_storage, kept_habits = rules._choose_storage(self.storage), rules._choose_habits(self.habits)
         kept_workflows, chosen = rules._choose_workflows(workflows), rules._choose_sequences(self.sequences)
         ev_workflows = {key: _Evidence() for key, _ in kept_workflows}
-        _gather(ev_workflows, [w for video in videos for w in self.videos[video].workflow_patterns], _WorkflowFold.key)
+        _gather(ev_workflows, [w for video in videos for w in self.videos[video].workflows], _WorkflowFold.key)
         sequences = []
         for steps in chosen:
             ev = _SequenceEvidence()
-            for _, records in sorted(self.index["sequence"][steps].items()):
-                for a in records:
-                    ev.add(a)
+            for lists in self._records_of("sequence", steps):
+                ev.extend(*lists)
             sequences.append(rules._merged_sequence(steps, self.sequences.groups[steps], ev))
         return Consolidation(
             participant=participant, videos=videos,
@@ -556,15 +724,29 @@ class FoldIndex:
             workflow_patterns=_with_evidence(WorkflowPattern, kept_workflows, ev_workflows),
             action_sequences=sequences)
 
+    def _records_of(self, kind: str, key: tuple):
+        """The evidence lists of `key`'s records, in video and record order."""
+        k = self.key_ids[kind][key]
+        table, sub = self._table(kind, key, False)
+        for video in sorted(table[sub].videos):
+            rows = self.videos[video]
+            part = getattr(rows, kind)
+            for i in part.rows_of(k):
+                yield part.lists(i, rows.strings)
+
     def _evidence(self, kind: str, kept) -> dict:
         out = {}
         for key, _ in kept:
             ev = out[key] = _Evidence()
-            for _, records in sorted(self.index[kind][key].items()):
-                for r in records:
-                    ev.episodes.update(dict.fromkeys(r.supporting_episodes))
-                    ev.entities.update(dict.fromkeys(r.entities))
+            for episodes, entities in self._records_of(kind, key):
+                ev.episodes.update(dict.fromkeys(episodes))
+                ev.entities.update(dict.fromkeys(entities))
         return out
+
+
+def _tuples(x):
+    """A JSON list read back as the nested tuples it was written from."""
+    return tuple(_tuples(y) for y in x) if isinstance(x, list) else x
 
 
 class _SequenceGroup:
