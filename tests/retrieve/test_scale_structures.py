@@ -233,3 +233,10 @@ def test_used_with_counts_shared_segments_ties_by_id_from_arrays_and_with_added_
     rows += [{"segment": "v99#t0", "entity": e, "location": loc, "n": 1} for e, loc in added]
     for e in ("e001", "e030", "e059", "e002"):
         assert mapped.used_with(e, 5) == _used_with_reference(rows, e, 5), e
+    by_segment = defaultdict(set)  # each segment's entities, from the rows
+    for r in rows:
+        by_segment[r["segment"]].add(r["entity"])
+    asked = [*sorted(by_segment), "v0#t0", "v3#t7", "v99#t0", "unknown", "v0#t0-longer-than-any-id", ""]
+    want = [by_segment.get(x) for x in asked]
+    assert mapped.segment_entities.many(asked) == want == [mapped.segment_entities.get(x) for x in asked]
+    assert mapped.segment_entities.many([]) == []
