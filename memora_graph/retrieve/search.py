@@ -357,10 +357,11 @@ class Bm25:
         if len(parts) == 1:  # a posting list names a document once: its scores are the documents'
             hit, s = parts[0]
         else:
-            scores = np.zeros(self.n, dtype=np.float64)
+            scores, found = np.zeros(self.n, dtype=np.float64), np.zeros(self.n, dtype=bool)
             for docs, part in parts:
                 scores[docs] += part  # terms added per document in the order they are visited
-            hit = np.flatnonzero(scores)  # every scored document scores above 0 (idf > 0, tf >= 1)
+                found[docs] = True
+            hit = np.flatnonzero(found)  # the scored documents (an eighth of the bytes of the scores to scan)
             s = scores[hit]
         if len(hit) > k:  # the k best, and every document tied with the k-th (ties go by id)
             kth = np.partition(s, len(s) - k)[len(s) - k]
