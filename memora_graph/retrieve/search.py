@@ -75,7 +75,7 @@ def _pool() -> ThreadPoolExecutor:
     the parent's threads do not exist)."""
     global _scan_pool
     if _scan_pool is None or _scan_pool[0] != os.getpid():
-        _scan_pool = (os.getpid(), ThreadPoolExecutor(SCAN_THREADS - 1, thread_name_prefix="memora-scan"))
+        _scan_pool = (os.getpid(), ThreadPoolExecutor(max(1, SCAN_THREADS - 1), thread_name_prefix="memora-scan"))
     return _scan_pool[1]
 
 
