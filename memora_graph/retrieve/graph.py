@@ -147,6 +147,28 @@ class _SegmentEntities:
             return default
         return {g.entities[j] for j in g._seg_entities[g._seg_offsets[i]:g._seg_offsets[i + 1]].tolist()}
 
+    def many(self, segments: list[str]) -> list[set[str] | None]:
+        """`get(s)` of each segment, found in the sorted ids with one search for all of them (a
+        search per id costs ~10 us at 1,000 h: a `search` call ranks ~100 segments)."""
+        g = self._g
+        if not segments:
+            return []
+        added = g.__dict__.get("_added") or _Added()
+        ids, ents, offs = g._segments, g.entities, g._seg_offsets
+        n, width = len(ids), ids.dtype.itemsize // 4
+        # ids of the arrays' width at most (a longer one is not there; a wider key would copy them)
+        fit = [s if len(s) <= width else "" for s in segments]
+        at = np.searchsorted(ids, np.asarray(fit, dtype=ids.dtype)).tolist() if n else [0] * len(segments)
+        out: list[set[str] | None] = []
+        for s, f, i in zip(segments, fit, at):
+            if s in added.segments:
+                out.append(set(added.segments[s]))
+            elif f and i < n and ids[i] == s:
+                out.append({ents[j] for j in g._seg_entities[offs[i]:offs[i + 1]].tolist()})
+            else:
+                out.append(None)
+        return out
+
     def __contains__(self, segment: str) -> bool:
         added = self._g.__dict__.get("_added")
         return (added is not None and segment in added.segments) or self._g._segment(segment) is not None

@@ -19,7 +19,9 @@ makes only when asked (`memora build --fts`, `memora index BANK --fts --hnsw`).
 from __future__ import annotations
 
 import math
+import os
 from collections import Counter, defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -63,6 +65,47 @@ HNSW_MIN_SEGMENTS: int | None = None
 UNIQUE_BLOCK = 64  # rows the distinct-rows product leaves to a plain product at the end (see VectorTable.sims)
 UNIQUE_MIN_ROWS = 20_000  # smaller tables are scanned whole (a few MB: nothing to save)
 UNIQUE_MAX_SHARE = 0.75  # kept only where at most this share of the rows is distinct
+SCAN_MIN_ROWS = 32_768  # a product over this many rows or more is split across SCAN_THREADS threads
+SCAN_THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+_scan_pool: tuple[int, ThreadPoolExecutor] | None = None  # (the process that made it, the pool)
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The threads that take the parts of a split product (made again in a forked child, where
+    the parent's threads do not exist)."""
+    global _scan_pool
+    if _scan_pool is None or _scan_pool[0] != os.getpid():
+        _scan_pool = (os.getpid(), ThreadPoolExecutor(max(1, SCAN_THREADS - 1), thread_name_prefix="memora-scan"))
+    return _scan_pool[1]
+
+
+def product(mat: np.ndarray, q: np.ndarray, threads: int | None = None) -> np.ndarray:
+    """`mat @ q` (float32 rows, one vector), bit for bit, split by rows across `threads` threads
+    (SCAN_THREADS by default) when `mat` has at least SCAN_MIN_ROWS rows. The scan is memory-bound
+    (one thread streams ~8 GB/s here: 97 MB of distinct segment rows at 1,000 h); the threads share
+    it, so the wall time falls and the CPU time stays. The parts start at multiples of
+    UNIQUE_BLOCK rows and the last has more than one row, so each value is the one a single
+    product gives (see VectorTable.sims); tests/retrieve/test_scale_structures.py checks it."""
+    n = len(mat)
+    threads = SCAN_THREADS if threads is None else threads
+    if threads < 2 or n < SCAN_MIN_ROWS:
+        return mat @ q
+    step = -(-n // threads // UNIQUE_BLOCK) * UNIQUE_BLOCK
+    cuts = list(range(0, n, step))
+    if n - cuts[-1] < 2:  # a product of one row takes another path: the last part keeps two or more
+        cuts.pop()
+    cuts.append(n)
+    out = np.empty(n, dtype=np.result_type(mat.dtype, q.dtype))
+    parts = [(a, b) for a, b in zip(cuts, cuts[1:])]
+
+    def part(ab: tuple[int, int]) -> None:
+        np.matmul(mat[ab[0]:ab[1]], q, out=out[ab[0]:ab[1]])
+
+    pending = [_pool().submit(part, ab) for ab in parts[1:]]
+    part(parts[0])  # this thread takes the first part
+    for f in pending:
+        f.result()
+    return out
 
 
 class VectorTable:
@@ -99,18 +142,29 @@ class VectorTable:
         is a multiple of UNIQUE_BLOCK and the rows after it are a product of their own, never of
         one row). `unique_rows` checks it before keeping the distinct rows, and
         tests/retrieve/test_scale_structures.py checks it bit for bit."""
+        return self._sims(q, negate=False)
+
+    def _sims(self, q: np.ndarray, negate: bool) -> np.ndarray:
+        """`sims(q)`, or with `negate` its negation (exact: what `topk` partitions), made without
+        a second pass over every row: the distinct rows' values are negated before they are
+        spread back."""
         n = len(self.ids)
         if not n:
             return np.zeros(0, np.float32)
         unique = self.__dict__.get("_unique")
         if unique is None or n < unique[2]:
-            return self.mat @ q
+            s = product(self.mat, q)
+            return np.negative(s, out=s) if negate else s
         rows, inverse, head = unique
         start = head if n - head != 1 else head - UNIQUE_BLOCK  # a product of one row takes another path
+        u = product(rows, q)
+        if negate:
+            np.negative(u, out=u)
         s = np.empty(n, dtype=np.float32)
-        s[:start] = (rows @ q)[inverse[:start]]
+        np.take(u, inverse[:start], out=s[:start], mode="clip")  # every index is in range: no copy to check it
         if n > start:
-            s[start:] = self.mat[start:] @ q
+            rest = self.mat[start:] @ q
+            s[start:] = np.negative(rest, out=rest) if negate else rest
         return s
 
     def with_unique(self, rows: np.ndarray, inverse: np.ndarray, head: int) -> VectorTable:
@@ -152,13 +206,14 @@ class VectorTable:
 
     def topk(self, q: np.ndarray, k: int) -> list[tuple[str, float]]:
         """Exact top-k by cosine; ties broken by id so results are deterministic."""
-        s = self.sims(q)
-        if not len(s):
+        neg = self._sims(q, negate=True)  # -sims(q), the array partitioned
+        if not len(neg):
             return []
-        k = min(k, len(s))
-        part = np.argpartition(-s, k - 1)[:k] if k < len(s) else np.arange(len(s))
-        order = sorted(part, key=lambda i: (-float(s[i]), self.ids[i]))
-        return [(self.ids[i], float(s[i])) for i in order]
+        k = min(k, len(neg))
+        part = np.argpartition(neg, k - 1)[:k] if k < len(neg) else np.arange(len(neg))
+        ids = self.ids
+        order = sorted(zip(neg[part].tolist(), part.tolist()), key=lambda vi: (vi[0], ids[vi[1]]))
+        return [(ids[i], -v) for v, i in order]
 
     def appended(self, rid: str, vector: np.ndarray) -> VectorTable:
         """This table with one more row (a remembered segment), updated in place. The matrix grows
@@ -275,10 +330,20 @@ class Bm25:
         self.n = len(self.ids)
         return self
 
+    def _norms(self) -> np.ndarray:
+        """k1 * (1 - b + b * length / avg) of every document: the part of a posting's denominator
+        that does not depend on the term, computed once per corpus (again after `added`), with
+        the operations the per-posting formula applies, so that each value is the same."""
+        got = self.__dict__.get("_norm_cache")
+        if got is None or got[0] != (self.n, self.avg):
+            lengths = np.asarray(self.lengths[: self.n])
+            got = self._norm_cache = ((self.n, self.avg), self.k1 * (1 - self.b + self.b * lengths / self.avg))
+        return got[1]
+
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
         if k < 1:
             return []
-        scores = None
+        parts = []  # (documents, score) of each query term found, in the order the terms are visited
         for t in set(index_tokens(query)):
             docs, tf = self._slice(t)
             if not len(docs):
@@ -286,19 +351,25 @@ class Bm25:
             tf = tf.astype(np.float64)
             df = len(docs)
             idf = math.log(1 + (self.n - df + 0.5) / (df + 0.5))
-            norm = tf + self.k1 * (1 - self.b + self.b * self.lengths[docs] / self.avg)
-            if scores is None:
-                scores = np.zeros(self.n, dtype=np.float64)
-            scores[docs] += idf * tf * (self.k1 + 1) / norm  # a posting list names a document once
-        if scores is None:
+            parts.append((docs, idf * tf * (self.k1 + 1) / (tf + self._norms()[docs])))
+        if not parts:
             return []
-        hit = np.flatnonzero(scores)  # every scored document scores above 0 (idf > 0, tf >= 1)
-        if len(hit) > k:  # the k best, and every document tied with the k-th (ties go by id)
+        if len(parts) == 1:  # a posting list names a document once: its scores are the documents'
+            hit, s = parts[0]
+        else:
+            scores, found = np.zeros(self.n, dtype=np.float64), np.zeros(self.n, dtype=bool)
+            for docs, part in parts:
+                scores[docs] += part  # terms added per document in the order they are visited
+                found[docs] = True
+            hit = np.flatnonzero(found)  # the scored documents (an eighth of the bytes of the scores to scan)
             s = scores[hit]
+        if len(hit) > k:  # the k best, and every document tied with the k-th (ties go by id)
             kth = np.partition(s, len(s) - k)[len(s) - k]
-            hit = hit[s >= kth]
-        best = sorted(((float(scores[d]), int(d)) for d in hit), key=lambda sd: (-sd[0], self.ids[sd[1]]))[:k]
-        return [(self.ids[d], sc) for sc, d in best]
+            keep = s >= kth
+            hit, s = hit[keep], s[keep]
+        ids = self.ids
+        best = sorted(zip(s.tolist(), hit.tolist()), key=lambda sd: (-sd[0], ids[sd[1]]))[:k]
+        return [(ids[d], sc) for sc, d in best]
 
 
 # -- fusion ----------------------------------------------------------------------------------
@@ -352,7 +423,13 @@ def dedup(ranked: list[Candidate], table: VectorTable | None, threshold: float, 
     if table is None or not ranked:
         return ranked[:top_k]
     rows = [table.index.get(c.id) for c in ranked]
-    vecs = np.stack([table.mat[r] if r is not None else np.zeros(table.mat.shape[1], np.float32) for r in rows])
+    if None not in rows:
+        vecs = table.mat[np.asarray(rows, dtype=np.intp)]  # one gather, not a row at a time
+    else:  # a record without a vector: a zero row
+        vecs = np.zeros((len(rows), table.mat.shape[1]), np.float32)
+        have = [i for i, r in enumerate(rows) if r is not None]
+        if have:
+            vecs[have] = table.mat[np.asarray([rows[i] for i in have], dtype=np.intp)]
     gram = (vecs @ vecs.T).tolist()  # every pairwise cosine of the pool (rows are unit length or zero)
     kept: list[int] = []
     for i, c in enumerate(ranked):

@@ -244,8 +244,9 @@ def _search_activities(view: MemoryView, query: str, q: np.ndarray, k: int) -> l
     grounded = grounded_entities(view, query)
     if grounded:  # share of the query's objects (by kind) that the segment observed
         kinds = {view.entities[e]["kind"] for e in grounded}
-        for c in cands.values():
-            seen = {view.entities[e]["kind"] for e in view.graph.segment_entities.get(c.id, ()) if e in view.entities}
+        entities = view.entities
+        for c, observed in zip(cands.values(), view.graph.segment_entities.many(list(cands))):
+            seen = {entities[e]["kind"] for e in observed or () if e in entities}
             c.graph = len(seen & kinds) / len(kinds)
     kept = _finish(view, "segment", cands, k)
     ids = [c.id for c in kept]

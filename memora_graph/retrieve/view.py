@@ -341,11 +341,10 @@ class MemoryView:
             self.__dict__.get("_bm25_cache", {}).pop(table, None)
 
     def vectors(self, table: str) -> VectorTable:
-        cache = self.__dict__.setdefault("_vector_cache", {})
-        if table not in cache:
-            got = self._from_persisted(lambda p: p.vectors(table)) if self._persisted_for(table) else None
-            cache[table] = got if got is not None else self._vectors_from_store(table)
-        return cache[table]
+        got = self._grown("vectors", table)  # loaded, or read now from the persisted stores
+        if got is None:
+            got = self.__dict__["_vector_cache"][table] = self._vectors_from_store(table)
+        return got
 
     def _vectors_from_store(self, table: str) -> VectorTable:
         """One columnar fetch straight into a float32 matrix: as rows, each vector was 384 Python
@@ -467,25 +466,22 @@ class MemoryView:
         return self._bm25(table)
 
     def _bm25(self, table: str) -> Bm25:
-        cache = self.__dict__.setdefault("_bm25_cache", {})
-        if table not in cache and self._persisted_for(table):
-            got = self._from_persisted(lambda p: p.bm25(table))
-            if got is not None:
-                cache[table] = got
-        if table not in cache:
-            if table == "segment":
-                rows = self.frame("_tool_segment_texts").iter_rows(named=True)
-                docs = [(r["id"], f"{r['summary']} {r['narrative']}") for r in rows]
-            elif table == "entity":
-                docs = [(i, f"{e['name']} {e['kind']} {e['category']}") for i, e in self.entities.items() if e["status"] == "active"]
-            elif table == "place":
-                docs = [(p["id"], p["name"]) for p in self.places.values()]
-            elif table == "routine":
-                docs = [(i, r["retrieval_text"]) for i, r in self.routines.items()]
-            else:
-                docs = [(i, r["retrieval_text"]) for i, r in self.preferences.items()]
-            cache[table] = Bm25([d[0] for d in docs], [d[1] for d in docs])
-        return cache[table]
+        got = self._grown("bm25", table)  # loaded, or read now from the persisted stores
+        if got is not None:
+            return got
+        if table == "segment":
+            rows = self.frame("_tool_segment_texts").iter_rows(named=True)
+            docs = [(r["id"], f"{r['summary']} {r['narrative']}") for r in rows]
+        elif table == "entity":
+            docs = [(i, f"{e['name']} {e['kind']} {e['category']}") for i, e in self.entities.items() if e["status"] == "active"]
+        elif table == "place":
+            docs = [(p["id"], p["name"]) for p in self.places.values()]
+        elif table == "routine":
+            docs = [(i, r["retrieval_text"]) for i, r in self.routines.items()]
+        else:
+            docs = [(i, r["retrieval_text"]) for i, r in self.preferences.items()]
+        got = self.__dict__["_bm25_cache"][table] = Bm25([d[0] for d in docs], [d[1] for d in docs])
+        return got
 
     # -- a memory that grows while it is read (live memory: `memora serve --writable`) -------------
     _ENTITY_DERIVED = ("entities", "active_entities", "max_observations", "_entity_words", "_objects_at", "_link_kinds",
@@ -511,9 +507,11 @@ class MemoryView:
         loaded.setdefault("_rows_changed", set()).update((*(self._ROWS_OF[t] for t in tables), *rows))
 
     def _grown(self, kind: str, table: str | None = None):
-        """The loaded vectors / keywords of `table` or the graph, to which a remembered moment is
-        added; loaded from the persisted stores now if not yet (those lack the moment), None where
-        there is nothing to add to (a later load from the store reads the moment)."""
+        """The loaded vectors / keywords of `table` or the graph; loaded from the persisted stores
+        now if not yet; None where neither holds them. `vectors` and `_bm25` then compute them
+        from the store; `absorb` adds a remembered moment to what it returns (the persisted
+        stores lack the moment), or to nothing where it returns None (a later load from the store
+        reads the moment)."""
         loaded = self.__dict__
         if kind == "graph":
             if "graph" not in loaded and self._persisted is not None and self._persisted.has_graph():

@@ -5,6 +5,7 @@ observation graph answers as the dict-of-sets one, the distinct-rows scan of a v
 
 from __future__ import annotations
 
+import importlib
 import math
 import random
 from collections import Counter, defaultdict
@@ -12,9 +13,10 @@ from collections import Counter, defaultdict
 import numpy as np
 
 from memora_graph.embed import single_thread_blas
-from memora_graph.retrieve.search import UNIQUE_BLOCK, Bm25, VectorTable
+from memora_graph.retrieve.search import UNIQUE_BLOCK, Bm25, VectorTable, product
 from memora_graph.text import index_tokens
 
+search_module = importlib.import_module("memora_graph.retrieve.search")  # the package exports a tool of that name
 WORDS = "take put wash plate bowl knife cut onion pan stir open close tap sponge rinse cup kettle fill pour".split()
 
 
@@ -54,6 +56,20 @@ def test_bm25_arrays_score_as_the_posting_loop():
             assert bm.search(q, k) == want, (q, k)
             assert reopened.search(q, k) == want, (q, k)
     assert bm.postings("zebra") == [] and len(bm.postings("take")) > 100
+
+
+def test_bm25_scores_as_the_posting_loop_after_each_added_document():
+    """The per-document part of the denominator is computed once per corpus: a document added
+    (live memory) changes the average length, and the next search scores with the new one."""
+    rng = random.Random(3)
+    texts = [" ".join(rng.choice(WORDS) for _ in range(rng.randint(1, 9))) for _ in range(400)]
+    ids = [f"s{i:04d}" for i in range(len(texts))]
+    bm = Bm25(ids[:300], texts[:300])
+    for n in range(300, 400, 7):
+        for m in range(n - (7 if n > 300 else 0), n):
+            bm = bm.added(ids[m], texts[m])
+        for q in ("take plate", "wash the bowl with the sponge", "kettle", "cut onion pan"):
+            assert bm.search(q, 10) == _reference_bm25(ids[:n], texts[:n], q, 10), (n, q)
 
 
 def test_bm25_of_an_empty_corpus():
@@ -148,6 +164,36 @@ def test_the_distinct_rows_scan_gives_every_value_and_rank_of_the_whole_scan():
                 assert grown.topk(q, 20) == plain.topk(q, 20)
 
 
+def _reference_topk(table: VectorTable, q: np.ndarray, k: int) -> list[tuple[str, float]]:
+    """Exact top-k as first written: argpartition of the negated product, sorted by score then id."""
+    s = table.mat @ q
+    k = min(k, len(s))
+    part = np.argpartition(-s, k - 1)[:k] if k < len(s) else np.arange(len(s))
+    return [(table.ids[i], float(s[i])) for i in sorted(part, key=lambda i: (-float(s[i]), table.ids[i]))]
+
+
+def test_a_product_split_across_threads_gives_the_single_product_bit_for_bit(monkeypatch):
+    """The parts start at whole blocks and the last keeps two rows or more, so every value is the
+    one `mat @ q` gives; the top-k (ties among repeated rows included) is the one first written."""
+    single_thread_blas()
+    monkeypatch.setattr(search_module, "SCAN_MIN_ROWS", 2)
+    rng = np.random.default_rng(5)
+    queries = [q / np.linalg.norm(q) for q in rng.standard_normal((4, 384)).astype(np.float32)]
+    for n in (2, 63, 64, 65, 66, 129, 7 * UNIQUE_BLOCK + 1, 1000, 4099):
+        mat = rng.standard_normal((n, 384)).astype(np.float32)
+        for threads in (2, 3, 4):
+            for q in queries:
+                assert np.array_equal(product(mat, q, threads), mat @ q), (n, threads)
+    monkeypatch.setattr(search_module, "SCAN_THREADS", 3)
+    for extra in (0, 1, 3):
+        whole = _repeating_table(40 * UNIQUE_BLOCK + extra, 200, seed=extra)
+        fast = VectorTable.normalized(whole.ids, whole.mat).with_unique(*whole.unique_rows(min_rows=1))
+        for q in [*queries, np.asarray(whole.mat[5])]:  # a stored row: ties at the top
+            for k in (1, 10, 50, 200):
+                want = _reference_topk(whole, q, k)
+                assert whole.topk(q, k) == want and fast.topk(q, k) == want, (extra, k)
+
+
 def test_tables_mostly_distinct_or_small_are_scanned_whole():
     assert _repeating_table(20 * UNIQUE_BLOCK, 20 * UNIQUE_BLOCK * 10).unique_rows(min_rows=1) is None
     assert _repeating_table(5 * UNIQUE_BLOCK, 10).unique_rows() is None  # under UNIQUE_MIN_ROWS
@@ -187,3 +233,10 @@ def test_used_with_counts_shared_segments_ties_by_id_from_arrays_and_with_added_
     rows += [{"segment": "v99#t0", "entity": e, "location": loc, "n": 1} for e, loc in added]
     for e in ("e001", "e030", "e059", "e002"):
         assert mapped.used_with(e, 5) == _used_with_reference(rows, e, 5), e
+    by_segment = defaultdict(set)  # each segment's entities, from the rows
+    for r in rows:
+        by_segment[r["segment"]].add(r["entity"])
+    asked = [*sorted(by_segment), "v0#t0", "v3#t7", "v99#t0", "unknown", "v0#t0-longer-than-any-id", ""]
+    want = [by_segment.get(x) for x in asked]
+    assert mapped.segment_entities.many(asked) == want == [mapped.segment_entities.get(x) for x in asked]
+    assert mapped.segment_entities.many([]) == []
