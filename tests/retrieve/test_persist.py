@@ -233,6 +233,9 @@ def test_a_writer_stamps_no_file_younger_than_racy_s(bank, monkeypatch):
     from memora_graph.retrieve import persist
 
     monkeypatch.setattr(persist, "STAMP_WAIT_BYTES", 1 << 40)
+    # every file is young however long the write takes (on a loaded machine it can take over 2 s,
+    # and the files written first would then rightly be stamped)
+    monkeypatch.setattr(persist, "RACY_S", 3600.0)
     persist_bank(bank, [P])
     assert not (store_dir(bank, P) / "verified.json").exists()
     stores = PersistedStores.open(bank, P, Bank(bank).manifest()["participants"][P]["integrity"]["sha256"],
