@@ -602,7 +602,7 @@ class MemoryView:
         if table is not None:
             new = [i for i in embs if i not in table.index]
             dropped = any(i in table.index for i in gone)
-            if new and not dropped:  # entities added only: their rows inserted in id order (one copy of
+            if new and not dropped and table.ids:  # added only: their rows inserted in id order (one copy of
                 new.sort()           # the matrix, 23,299 rows at 1,000 h, where the general case makes three)
                 at = [bisect.bisect_left(table.ids, i) for i in new]
                 mat = np.insert(np.asarray(table.mat), at,
