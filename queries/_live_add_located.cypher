@@ -1,4 +1,4 @@
-// description: Current-location edges of entities a remembered moment added or moved.
+// description: Current-location edges of entities a remembered moment added or moved (more than a few: one or a few go through _live_located_at, ids bound as scalars; this UNWIND scans the Entity table).
 // params: participant, rows
 // mode: write
 UNWIND $rows AS r

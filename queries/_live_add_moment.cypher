@@ -1,4 +1,4 @@
-// description: A remembered moment that starts its video: the video grown (its length, turns, and actions by this segment's), the segment, the acknowledgement under the client key (Remembered) and where it happened (IN_PLACE); one statement, ids bound as scalars (Kùzu looks them up in the primary-key index). Returns the IN_PLACE edges written.
+// description: A remembered moment that starts its video: the video grown (its length, turns, and actions by this segment's), the segment, the acknowledgement under the client key (Remembered) and where it happened (IN_PLACE, each place's merged zones, features and sightings set through its row: no statement per place seen); one statement, ids bound as scalars (Kùzu looks them up in the primary-key index). Returns the IN_PLACE edges written.
 // params: participant, video, duration, id, turn, t_start, t_end, summary, narrative, action_breakdown, working_summary, location, n_actions, n_objects, emb, key, result, at, rows
 // mode: write
 MATCH (v:Video {id: $video})
@@ -11,4 +11,6 @@ UNWIND $rows AS r
 MATCH (p:Place {id: r.to})
 WHERE p.participant = $participant
 CREATE (s)-[:IN_PLACE {op: r.op, is_primary: r.is_primary, zones: r.zones}]->(p)
+SET p.zones = r.place_zones, p.features = r.features, p.last_seen = r.last_seen, p.last_video = r.last_video,
+    p.turn_count = r.turn_count
 RETURN count(*) AS n

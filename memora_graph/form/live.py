@@ -535,22 +535,29 @@ class LiveWriter:
             # with the hours of memory).
             self._add("_live_add_places", [{**place_row(pp), "emb": _floats(vec)}
                                            for pp, vec in zip(new_places, place_vecs[: len(new_places)])])
-            # One statement per changed place and entity (a moment changes one to three of each),
-            # its id bound as a scalar: cheaper for Kùzu than an UNWIND over rows.
+            # A place seen again gets its merged zones, features and sightings through the moment's
+            # IN_PLACE row (below); one whose text changed gets its new vector here, a statement
+            # per place (its id bound as a scalar: cheaper for Kùzu than an UNWIND over rows).
             vecs = {pp.id: vec for pp, vec in zip(restated, place_vecs[len(new_places):])}
             for pp in changed_places:
-                cols = {"id": pp.id, "zones": pp.zones, "features": pp.features, "last_seen": pp.last_seen,
-                        "last_video": pp.last_video, "turn_count": pp.turn_count}
                 if pp.id in vecs:
-                    self._one("_live_place_update", **cols, emb=_floats(vecs[pp.id]))
-                else:
-                    self._one("_live_place_seen", **cols)
+                    self._one("_live_place_update", id=pp.id, zones=pp.zones, features=pp.features,
+                              last_seen=pp.last_seen, last_video=pp.last_video, turn_count=pp.turn_count,
+                              emb=_floats(vecs[pp.id]))
             self._add("_live_add_entities", [{**entity_row(e), "emb": _floats(e.emb if e.emb is not None else
                                                                                 np.zeros(dim, np.float32))}
                                              for e in new_ents])
+            # The common edit (an existing entity changed, with one operation and one state event
+            # on it) is one statement after the moment's (`_live_edit`); the others, one statement
+            # per row here (ids bound as scalars) or, past a few rows, one UNWIND.
+            events = [{**{k: ev[k] for k in _EVENT}, "place": place_id(p, ev["location"])} for ev in result.events]
+            edits, events, op_rows = self._edits(changed, events, op_rows) if len(changed) <= _SCALAR_ROWS \
+                else ([], events, op_rows)
             if len(changed) <= _SCALAR_ROWS:
+                edited_ids = {e.id for e, _, _ in edits}
                 for e in changed:
-                    self._one("_live_entity_update", **{k: getattr(e, k) for k in _ENTITY_UPDATE})
+                    if e.id not in edited_ids:
+                        self._one("_live_entity_update", **{k: getattr(e, k) for k in _ENTITY_UPDATE})
             else:
                 self.store.write("_entity_update", participant=p, rows=[entity_row(e) for e in changed])
             if len(relocated) <= _SCALAR_ROWS:
@@ -558,9 +565,17 @@ class LiveWriter:
                     self.store.write("_live_located_at_clear", participant=p, id=eid)
             else:
                 self.store.write("_located_at_clear", participant=p, ids=relocated)
-            self._add("_live_add_located", located)
+            if len(located) <= _SCALAR_ROWS:
+                for r in located:
+                    self._one("_live_located_at", id=r["from"], place=r["to"])
+            else:
+                self._add("_live_add_located", located)
+            places = {pp.id: pp for pp in self.places.places.values()}
+            rows = [{**r, "place_zones": places[r["to"]].zones, "features": places[r["to"]].features,
+                     "last_seen": places[r["to"]].last_seen, "last_video": places[r["to"]].last_video,
+                     "turn_count": places[r["to"]].turn_count} for r in in_place]
             moment = {**seg_row, "emb": _floats(seg_vec), "duration": duration, "key": key,
-                      "result": json.dumps(answer), "at": _now(), "rows": in_place}
+                      "result": json.dumps(answer), "at": _now(), "rows": rows}
             if v.last_segment is not None:
                 got = int(self.store.write("_live_add_moment_next", prev=v.last_segment, **moment)[0]["n"])
             else:
@@ -570,7 +585,14 @@ class LiveWriter:
                 raise StoreError(f"{self.store.path}: the moment's segment was not written ({missing}its video "
                                  f"{seg.video_id} or one of its places is missing); nothing of this moment was kept")
             self._add("_live_add_spatial", spatial)
-            events = [{**{k: ev[k] for k in _EVENT}, "place": place_id(p, ev["location"])} for ev in result.events]
+            for e, ev, op in edits:
+                self._one("_live_edit", **{k: getattr(e, k) for k in _ENTITY_UPDATE}, segment=sid, place=ev["place"],
+                          op_id=op["id"], op_video=op["video"], op_turn=op["turn"], op_t=op["t"], op=op["op"],
+                          reason=op["reason"], changes=op["changes"], policy=op["policy"], ev_id=ev["id"],
+                          ev_video=ev["video"], ev_turn=ev["turn"], ev_t=ev["t"], ord=ev["ord"], ev_state=ev["state"],
+                          ev_location=ev["location"], prev_state=ev["prev_state"], prev_location=ev["prev_location"],
+                          zone=ev["zone"], ev_held_by=ev["held_by"], relative_to=ev["relative_to"],
+                          relation=ev["relation"], action=ev["action"], narration=ev["narration"], ev_op=ev["op"])
             if len(events) <= _SCALAR_ROWS:  # the common case: a statement per row, ids bound as scalars
                 for ev in events:
                     self._one("_live_add_event", segment=sid, **ev)
@@ -582,6 +604,24 @@ class LiveWriter:
             else:
                 self._add("_live_add_ops", op_rows)
             self._add("_live_add_merged", merged)
+
+    @staticmethod
+    def _edits(changed: list, events: list[dict], op_rows: list[dict]) -> tuple[list[tuple], list[dict], list[dict]]:
+        """The changed entities with exactly one operation and one state event on them, each
+        with those (one `_live_edit` statement apiece), and the events and operations left."""
+        n_ev, n_op = {}, {}
+        for ev in events:
+            n_ev[ev["entity"]] = n_ev.get(ev["entity"], 0) + 1
+        for op in op_rows:
+            n_op[op["entity"]] = n_op.get(op["entity"], 0) + 1
+        paired = {e.id for e in changed if n_ev.get(e.id) == 1 and n_op.get(e.id) == 1}
+        if not paired:
+            return [], events, op_rows
+        ev_of = {ev["entity"]: ev for ev in events if ev["entity"] in paired}
+        op_of = {op["entity"]: op for op in op_rows if op["entity"] in paired}
+        edits = [(e, ev_of[e.id], op_of[e.id]) for e in changed if e.id in paired]
+        return (edits, [ev for ev in events if ev["entity"] not in paired],
+                [op for op in op_rows if op["entity"] not in paired])
 
     def _one(self, name: str, **params) -> None:
         """Run one of the live writer's single-row statements (ids bound as scalars); its row must

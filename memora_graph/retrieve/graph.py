@@ -10,6 +10,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from memora_graph.retrieve.rows import find_sorted
+
 
 class ObservationGraph:
     """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
@@ -73,8 +75,7 @@ class ObservationGraph:
         return g
 
     def _segment(self, segment: str) -> int | None:
-        i = int(np.searchsorted(self._segments, segment))
-        return i if i < len(self._segments) and self._segments[i] == segment else None
+        return find_sorted(self._segments, segment)
 
     def used_with(self, entity: str, k: int = 5) -> list[tuple[str, int]]:
         """The entities seen in the most of this entity's segments."""

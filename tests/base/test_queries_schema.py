@@ -19,9 +19,10 @@ def empty_store(tmp_path):
 
 
 def _sample(field: str):
-    """A value of the column's type in the schema (where a column of that name exists), else text."""
+    """A value of the column's type in the schema (where a column of that name exists, or of its
+    name after a prefix: `place_zones` is a Place's `zones`, `ev_turn` a StateEvent's `turn`), else text."""
     types = {c.name: c.type for t in schema.schema_tables().values() for c in t.columns}
-    kind = types.get(field, "STRING")
+    kind = types.get(field) or types.get(field.split("_", 1)[-1], "STRING")
     if kind.startswith("FLOAT["):
         return [0.0] * 384
     if kind.endswith("[]"):

@@ -240,3 +240,18 @@ def test_used_with_counts_shared_segments_ties_by_id_from_arrays_and_with_added_
     want = [by_segment.get(x) for x in asked]
     assert mapped.segment_entities.many(asked) == want == [mapped.segment_entities.get(x) for x in asked]
     assert mapped.segment_entities.many([]) == []
+
+
+def test_find_sorted_finds_every_key_and_no_other_whatever_its_width():
+    """A sorted id array is searched with keys shorter, as wide as and wider than its strings
+    (a remembered segment id is often longer than a build's): the right position, or None."""
+    from memora_graph.retrieve.rows import find_sorted
+
+    ids = sorted({f"P01_{v:03d}#t{t:04d}" for v in range(40) for t in range(0, 300, 7)})
+    keys = np.asarray(ids, dtype=f"<U{max(map(len, ids))}")
+    for n, i in enumerate(ids):
+        assert find_sorted(keys, i) == n
+    for missing in ["live-perf#t0012", "P01_000#t0001", "P01_999#t9999", "P", "", "P01_039#t0294x"]:
+        assert find_sorted(keys, missing) is None
+    assert find_sorted(np.asarray(ids, dtype=object), ids[5]) == 5  # not a fixed-width array: searched as is
+    assert find_sorted(np.asarray([], dtype="<U1"), "x") is None
