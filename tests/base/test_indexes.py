@@ -44,7 +44,9 @@ def test_default_build_has_no_index_and_fts_recipes_say_how_to_build_them(small_
     assert r.exit_code == 1 and "memora index" in r.output and "--fts" in r.output
     with MemoryView.open(path, "P37", embedder) as view:  # the default recipe needs none
         assert call_tool(view, "search_objects", {"query": "knife"}).results
-    assert result.phases()["indexes (--fts)"] < 0.01
+    # the phase did nothing: the bound is loose, as a loaded machine makes even a no-op take
+    # ~10 ms; building the FTS indexes of these two participants takes seconds
+    assert result.phases()["indexes (--fts)"] < 0.5
 
 
 def test_index_command_builds_fts_indexes_and_the_fts_recipe_works(bank_copy, embedder):
