@@ -75,6 +75,18 @@ class Table:
             return out
         return {(a, b): f"COPY {self.name} FROM $frame (from='{a}', to='{b}')" for a, b in self.pairs}
 
+    def copy_file_statement(self, path: Path) -> str:
+        """The COPY of this table from a Parquet file a build wrote (its bulk load: Kùzu reads a
+        file in batches, where a frame bound as $frame is held whole until the commit). Kùzu
+        binds only frames as parameters, so the path is written into the statement: it must be
+        absolute and hold none of the characters that could end or escape the literal."""
+        text = str(path)
+        if not Path(text).is_absolute() or any(ch in text for ch in "'\"\\`\n\r\x00"):
+            raise StoreError(f"{text}: not a path a COPY statement can name (absolute, no quotes or backslashes)")
+        if self.kind == "REL" and len(self.pairs) != 1:
+            raise StoreError(f"COPY {self.name} from a file needs one FROM / TO pair; it has {len(self.pairs)}")
+        return f"COPY {self.name} FROM '{text}'"
+
 
 def _statements(text: str) -> list[str]:
     body = "\n".join(line for line in text.splitlines() if not line.strip().startswith("//"))

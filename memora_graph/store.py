@@ -330,6 +330,17 @@ class Store:
         self._execute(statement, {"frame": schema.conform(table, frame)})
         return frame.height
 
+    def copy_file(self, table: str, path: Path) -> None:
+        """Bulk load a Parquet file the caller wrote into a table (COPY FROM the file: Kùzu reads
+        it in batches). Its columns are the table's, in the schema's order (`schema.conform`)."""
+        statement = schema.table(table).copy_file_statement(Path(path))
+        if self._catalog is None:
+            self._catalog = self.tables()
+        if table not in self._catalog:
+            raise StoreError(f"{self.path}: the schema has table {table!r} but this database does not "
+                             "(schema not applied?)")
+        self._execute(statement)
+
     # -- schema ------------------------------------------------------------------------
     def apply_schema(self, folder: Path = SCHEMA_DIR) -> list[str]:
         """Apply schema/*.cypher in order, once each; returns the files applied now."""

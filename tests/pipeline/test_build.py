@@ -4,6 +4,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import polars as pl
 import pytest
@@ -113,15 +114,26 @@ def test_manifest_mismatch_is_reported(small_bank, tmp_path):
         Bank(copy).open("P01")
 
 
-def test_a_bulk_load_in_chunks_gives_the_same_rows(tmp_path, monkeypatch):
-    """The bulk load COPYs a table a chunk of videos at a time (its memory no longer grows with
-    the hours); every row of the database is the one a single COPY per table gives."""
+def test_a_bulk_load_through_parquet_files_gives_the_rows_of_in_memory_copies(tmp_path, monkeypatch):
+    """The bulk load COPYs each table from a Parquet file written a video at a time (Kùzu reads a
+    file in batches; in-memory frames were held whole until the commit); every row of the
+    database is the one a COPY of the whole table's frame gives, and no load file is left."""
+    import polars as pl
+
     from memora_graph.form import build as form_build
     from memora_graph.pipeline import build_bank
 
-    build_bank(tmp_path / "whole", ["P37"])  # not the session's small bank: other tests write to it
-    monkeypatch.setattr(form_build, "COPY_CHUNK_ROWS", 7)  # many chunks even for a small participant
-    build_bank(tmp_path / "chunked", ["P37"])
+    build_bank(tmp_path / "files", ["P37"])  # not the session's small bank: other tests write to it
+    assert not list((tmp_path / "files").rglob("*.parquet")), "the load's files are removed"
+    assert not (tmp_path / "files" / ".staging" / "P37").exists()
+
+    def copy_frames(self, table, frames):
+        frames = list(frames)
+        if frames:
+            self.store.copy(table, pl.concat(frames, how="vertical_relaxed"))
+
+    monkeypatch.setattr(form_build.ParticipantBuilder, "_copy_chunks", copy_frames)
+    build_bank(tmp_path / "frames", ["P37"])
 
     def dump(path):
         with Bank(path).open("P37", read_only=True) as store:
@@ -133,5 +145,33 @@ def test_a_bulk_load_in_chunks_gives_the_same_rows(tmp_path, monkeypatch):
                                {"p": "P37"}).sort("rel", "a", "b").rows()
         return nodes, rels
 
-    got, want = dump(tmp_path / "chunked"), dump(tmp_path / "whole")
+    got, want = dump(tmp_path / "files"), dump(tmp_path / "frames")
     assert len(got[0]) > 100 and got == want
+    assert any(t == "Segment" and '"emb": [' in n for t, n in got[0]), "the vectors are compared too"
+
+
+def test_a_load_file_left_by_a_killed_build_is_removed_by_the_next(tmp_path):
+    """A build killed during its bulk load leaves the table file it was writing in the staging
+    folder; the next build removes it and builds the participant whole."""
+    from memora_graph.form import build as form_build
+    from memora_graph.pipeline import build_bank
+
+    path = tmp_path / "bank"
+    left = path / ".staging" / "P37" / form_build.LOAD_DIR
+    left.mkdir(parents=True)
+    (left / "Segment.parquet").write_bytes(b"PAR1 half written")
+    build_bank(path, ["P37"])
+    assert not left.exists() and not (path / ".staging" / "P37").exists()
+    assert Bank(path).manifest()["participants"]["P37"]["counts"]["segments"] > 0
+
+
+def test_a_copy_statement_names_only_a_plain_absolute_file():
+    from memora_graph import schema
+    from memora_graph.errors import StoreError
+
+    table = schema.table("Segment")
+    assert table.copy_file_statement(Path("/tmp/x/Segment.parquet")) == "COPY Segment FROM '/tmp/x/Segment.parquet'"
+    for bad in ("relative/Segment.parquet", "/tmp/it's.parquet", '/tmp/a"b.parquet', "/tmp/a\\b.parquet",
+                "/tmp/a\nb.parquet"):
+        with pytest.raises(StoreError, match="not a path a COPY statement can name"):
+            table.copy_file_statement(Path(bad))
