@@ -118,8 +118,6 @@ def test_a_bulk_load_through_parquet_files_gives_the_rows_of_in_memory_copies(tm
     """The bulk load COPYs each table from a Parquet file written a video at a time (Kùzu reads a
     file in batches; in-memory frames were held whole until the commit); every row of the
     database is the one a COPY of the whole table's frame gives, and no load file is left."""
-    import polars as pl
-
     from memora_graph.form import build as form_build
     from memora_graph.pipeline import build_bank
 
