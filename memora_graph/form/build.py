@@ -359,7 +359,7 @@ class ParticipantBuilder:
         in-memory frames (50,000 rows each) held about four times the database in memory until
         the commit (the 1,000 h build's bulk load rose 5.5 GB this way, 1.5 GB from files). The
         rows and the one transaction are the same; the file is removed after."""
-        folder = self.staging.root / LOAD_DIR
+        folder = (self.staging.root / LOAD_DIR).absolute()  # COPY names it: a bank given as a relative path too
         path = folder / f"{table}.parquet"
         writer, first = None, None
         try:

@@ -121,7 +121,8 @@ def test_a_bulk_load_through_parquet_files_gives_the_rows_of_in_memory_copies(tm
     from memora_graph.form import build as form_build
     from memora_graph.pipeline import build_bank
 
-    build_bank(tmp_path / "files", ["P37"])  # not the session's small bank: other tests write to it
+    monkeypatch.chdir(tmp_path)
+    build_bank("files", ["P37"])  # a relative bank path, as `memora build banks/epic` gives
     assert not list((tmp_path / "files").rglob("*.parquet")), "the load's files are removed"
     assert not (tmp_path / "files" / ".staging" / "P37").exists()
 
