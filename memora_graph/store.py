@@ -322,11 +322,7 @@ class Store:
             pairs = ", ".join(f"{a}->{b}" for a, b in schema.table(table).pairs)
             raise StoreError(f"{self.path}: COPY {table} needs one of its FROM / TO pairs ({pairs}), "
                              f"not {from_table}->{to_table}") from None
-        if self._catalog is None:
-            self._catalog = self.tables()
-        if table not in self._catalog:
-            raise StoreError(f"{self.path}: the schema has table {table!r} but this database does not "
-                             "(schema not applied?)")
+        self._check_table(table)
         self._execute(statement, {"frame": schema.conform(table, frame)})
         return frame.height
 
@@ -334,12 +330,16 @@ class Store:
         """Bulk load a Parquet file the caller wrote into a table (COPY FROM the file: Kùzu reads
         it in batches). Its columns are the table's, in the schema's order (`schema.conform`)."""
         statement = schema.table(table).copy_file_statement(Path(path))
+        self._check_table(table)
+        self._execute(statement)
+
+    def _check_table(self, table: str) -> None:
+        """Refuse a COPY into a table the schema has but this database lacks."""
         if self._catalog is None:
             self._catalog = self.tables()
         if table not in self._catalog:
             raise StoreError(f"{self.path}: the schema has table {table!r} but this database does not "
                              "(schema not applied?)")
-        self._execute(statement)
 
     # -- schema ------------------------------------------------------------------------
     def apply_schema(self, folder: Path = SCHEMA_DIR) -> list[str]:
