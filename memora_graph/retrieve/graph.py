@@ -10,7 +10,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from memora_graph.retrieve.rows import find_sorted
+from memora_graph.retrieve.rows import find_sorted, find_sorted_many
 
 
 class ObservationGraph:
@@ -144,8 +144,11 @@ class _SegmentEntities:
         if added is not None and segment in added.segments:
             return set(added.segments[segment])
         i = g._segment(segment)
-        if i is None:
-            return default
+        return default if i is None else self._at(i)
+
+    def _at(self, i: int) -> set[str]:
+        """The entity ids of the arrays' i-th segment."""
+        g = self._g
         return {g.entities[j] for j in g._seg_entities[g._seg_offsets[i]:g._seg_offsets[i + 1]].tolist()}
 
     def many(self, segments: list[str]) -> list[set[str] | None]:
@@ -155,17 +158,12 @@ class _SegmentEntities:
         if not segments:
             return []
         added = g.__dict__.get("_added") or _Added()
-        ids, ents, offs = g._segments, g.entities, g._seg_offsets
-        n, width = len(ids), ids.dtype.itemsize // 4
-        # ids of the arrays' width at most (a longer one is not there; a wider key would copy them)
-        fit = [s if len(s) <= width else "" for s in segments]
-        at = np.searchsorted(ids, np.asarray(fit, dtype=ids.dtype)).tolist() if n else [0] * len(segments)
         out: list[set[str] | None] = []
-        for s, f, i in zip(segments, fit, at):
+        for s, i in zip(segments, find_sorted_many(g._segments, segments)):
             if s in added.segments:
                 out.append(set(added.segments[s]))
-            elif f and i < n and ids[i] == s:
-                out.append({ents[j] for j in g._seg_entities[offs[i]:offs[i + 1]].tolist()})
+            elif i is not None:
+                out.append(self._at(i))
             else:
                 out.append(None)
         return out

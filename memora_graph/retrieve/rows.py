@@ -48,6 +48,23 @@ def find_sorted(keys: np.ndarray, key: str) -> int | None:
     return i if i < len(keys) and keys[i] == key else None
 
 
+def find_sorted_many(keys: np.ndarray, wanted: list[str]) -> list[int | None]:
+    """`find_sorted` of each key, with one search for all of them (a search per key costs ~10 us
+    at 1,000 h; `search` looks up ~100). The same width rule: a key longer than a '<U' array's
+    width is none of its strings (searched as "", so no element is cast wider)."""
+    n = len(keys)
+    if not wanted or not n:
+        return [None] * len(wanted)
+    fits = [True] * len(wanted)
+    if keys.dtype.kind == "U":
+        width = keys.dtype.itemsize // 4
+        fits = [len(k) <= width for k in wanted]
+        at = np.searchsorted(keys, np.asarray([k if f else "" for k, f in zip(wanted, fits)], dtype=keys.dtype))
+    else:
+        at = np.searchsorted(keys, wanted)
+    return [i if f and i < n and keys[i] == k else None for k, f, i in zip(wanted, fits, at.tolist())]
+
+
 class KeyedRows:
     """The rows of a by-key query (`get(key)`: its row), or of a query giving each key a list of
     rows in order (`grouped`: `rows(key)`, as `_tool_video_events` gives a video's entries)."""

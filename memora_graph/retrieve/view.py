@@ -11,7 +11,6 @@ the large tables (segments, state history) with prepared named queries.
 from __future__ import annotations
 
 import bisect
-
 import gc
 import json
 import logging

@@ -255,3 +255,22 @@ def test_find_sorted_finds_every_key_and_no_other_whatever_its_width():
         assert find_sorted(keys, missing) is None
     assert find_sorted(np.asarray(ids, dtype=object), ids[5]) == 5  # not a fixed-width array: searched as is
     assert find_sorted(np.asarray([], dtype="<U1"), "x") is None
+
+
+def test_find_sorted_many_answers_as_find_sorted_does_key_by_key():
+    """One search for many keys gives each key the position `find_sorted` gives it: present,
+    missing, wider than the array, empty, repeated, in any order, and on an empty array."""
+    from memora_graph.retrieve.rows import find_sorted, find_sorted_many
+
+    ids = sorted({f"P01_{v:03d}#t{t:04d}" for v in range(40) for t in range(0, 300, 7)})
+    keys = np.asarray(ids, dtype=f"<U{max(map(len, ids))}")
+    asked = [ids[-1], "live-perf#t0012", ids[0], "", "P01_039#t0294x", ids[7], ids[7], "P", "zzz"]
+    want = [find_sorted(keys, k) for k in asked]
+    assert find_sorted_many(keys, asked) == want
+    assert want[0] == len(ids) - 1 and want[1] is None and want[5] == 7
+    objects = np.asarray(ids, dtype=object)
+    assert find_sorted_many(objects, asked) == [find_sorted(objects, k) for k in asked]
+    assert find_sorted_many(np.asarray([], dtype="<U1"), ["x", ""]) == [None, None]
+    assert find_sorted_many(keys, []) == []
+    with_empty = np.asarray(["", "a", "b"], dtype="<U1")  # an empty key that is there is found
+    assert find_sorted_many(with_empty, ["", "ab", "b"]) == [find_sorted(with_empty, k) for k in ["", "ab", "b"]] == [0, None, 2]
