@@ -116,11 +116,20 @@ class Staging:
             return []
         return sorted(p for p in self.root.iterdir() if p.is_dir() and _DIR.match(p.name))
 
-    def foreign(self) -> list[Path]:
-        """Everything in the folder that is not a staged video (never opened by a build)."""
+    def half_written(self) -> list[Path]:
+        """Folders a killed build left half-written: a video being staged (`.NAME.tmp`) or the bulk
+        load's files (`.load.tmp`). Never read; the next build of the participant removes them."""
         if not self.root.is_dir():
             return []
-        return sorted(p for p in self.root.iterdir() if not (p.is_dir() and _DIR.match(p.name)))
+        return sorted(p for p in self.root.glob(".*.tmp") if p.is_dir())
+
+    def foreign(self) -> list[Path]:
+        """Everything in the folder that is neither a staged video nor a half-written folder
+        (never opened by a build)."""
+        if not self.root.is_dir():
+            return []
+        half = set(self.half_written())
+        return sorted(p for p in self.root.iterdir() if not (p.is_dir() and _DIR.match(p.name)) and p not in half)
 
     @staticmethod
     def check(path: Path) -> str | None:
@@ -168,8 +177,8 @@ class Staging:
         for path, why in dropped:
             log.warning("%s: not loaded (%s); the video is built again", path, why)
             shutil.rmtree(path, ignore_errors=True)
-        for tmp in self.root.glob(".*.tmp") if self.root.is_dir() else []:
-            shutil.rmtree(tmp, ignore_errors=True)  # a video that was being staged when the build died
+        for tmp in self.half_written():
+            shutil.rmtree(tmp, ignore_errors=True)  # a video being staged, or a load, when the build died
         return good, dropped
 
     def clear(self, staged: list[StagedVideo]) -> None:

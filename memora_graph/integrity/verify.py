@@ -149,11 +149,12 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         if off and entry is not None and not mark:
             problems.append(f"{db}: counts differ from {MANIFEST}: {'; '.join(off)}")
     staging = Staging(bank.path / ".staging" / p)
-    entries, foreign = staging.entries(), staging.foreign()
-    if entries or foreign:
+    entries, foreign, half = staging.entries(), staging.foreign(), staging.half_written()
+    if entries or foreign or half:
         bad = [(e.name, why) for e in entries if (why := Staging.check(e))]
         row["staging"] = f"{len(entries)} video(s)" + (f", {len(bad)} damaged" if bad else "") + \
-            (f", {len(foreign)} foreign file(s)" if foreign else "")
+            (f", {len(foreign)} foreign file(s)" if foreign else "") + \
+            (f", {len(half)} half-written folder(s) of a killed build (the next build removes them)" if half else "")
         if entries and not mark:
             problems.append(f"{staging.root}: a build of {p} was interrupted with {len(entries)} video(s) staged; "
                             f"`memora build {bank.path} --participants {p}` resumes it")

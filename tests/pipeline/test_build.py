@@ -174,3 +174,29 @@ def test_a_copy_statement_names_only_a_plain_absolute_file():
                 "/tmp/a\nb.parquet"):
         with pytest.raises(StoreError, match="not a path a COPY statement can name"):
             table.copy_file_statement(Path(bad))
+
+
+def test_verify_names_half_written_folders_of_a_killed_build_without_calling_the_bank_damaged(tmp_path):
+    """What a build killed mid-video or mid-load leaves in the staging folder (`.NAME.tmp`,
+    `.load.tmp`) is shown by `verify` as half-written, not as damage (the next build removes it:
+    the test above); a file that no build writes there is still reported as foreign."""
+    from memora_graph.form import build as form_build
+    from memora_graph.integrity.verify import verify_bank
+    from memora_graph.pipeline import build_bank
+
+    path = tmp_path / "bank"
+    build_bank(path, ["P37"])
+    staging = path / ".staging" / "P37"
+    (staging / form_build.LOAD_DIR).mkdir(parents=True)
+    (staging / form_build.LOAD_DIR / "Segment.parquet").write_bytes(b"PAR1 half written")
+    (staging / ".0003_P37_101.tmp").mkdir()
+    report = verify_bank(path)
+    row = next(r for r in report.rows if r["participant"] == "P37")
+    assert report.ok, row["problems"]
+    assert "2 half-written folder(s)" in row["staging"]
+    (staging / "notes.txt").write_text("mine")
+    report = verify_bank(path)
+    row = next(r for r in report.rows if r["participant"] == "P37")
+    assert not report.ok and row["problems"] == [f"{staging / 'notes.txt'}: not a staged video (never opened by a build; remove it)"]
+    (staging / "notes.txt").unlink()
+    assert verify_bank(path).ok
