@@ -255,3 +255,26 @@ def test_the_served_ask_tool_returns_the_typed_answer(small_bank):
         out = service.call("ask", {"question": "How many times did P37 open the fridge?"})
     assert out["typed"]["kind"] == "count" and out["typed"]["count"] == int(out["answer"].split()[0])
     assert 0 < out["confidence"] < 1 and out["evidence"]
+
+
+def test_the_action_log_reads_each_step_by_its_own_words_when_wordings_repeat(lex):
+    """The log parses each distinct step wording once: steps that share a narration but not their
+    object or action still get their own classes, as parsing every step afresh gives them."""
+    from memora_graph.agent.open_answer import _segment_steps
+
+    def seg(i, steps):
+        return {"id": f"P07_101#t{i:04d}", "video": "P07_101", "t_start": 10.0 * i, "action_breakdown": json.dumps(steps)}
+
+    segments = [
+        seg(0, [{"narration": "put the knife in the drawer", "object": "knife", "action": "put", "timestamp": 1.0}]),
+        seg(1, [{"narration": "put the knife in the drawer", "object": "spoon", "action": "put", "timestamp": 2.0},
+                {"narration": "put the knife in the drawer", "object": "knife", "action": "take", "timestamp": 3.0}]),
+        seg(2, [{"narration": "open the fridge", "object": "fridge", "action": "open", "timestamp": 0.5},
+                {"narration": "put the knife in the drawer", "object": "knife", "action": "put", "timestamp": 4.0}]),
+    ]
+    seen: dict = {}
+    shared = [s for g in segments for s in _segment_steps(g, lex, seen)]
+    afresh = [s for g in segments for s in _segment_steps(g, lex)]
+    assert shared == afresh and len(seen) == 4
+    assert [s.objects[0] for s in shared[:3]] == ["knife", "spoon", "knife"]
+    assert shared[1].verb != shared[2].verb and [s.t for s in shared] == [1.0, 12.0, 13.0, 20.5, 24.0]
