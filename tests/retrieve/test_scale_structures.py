@@ -194,6 +194,34 @@ def test_a_product_split_across_threads_gives_the_single_product_bit_for_bit(mon
                 assert whole.topk(q, k) == want and fast.topk(q, k) == want, (extra, k)
 
 
+def test_rows_read_from_the_distinct_rows_are_the_rows_of_the_matrix():
+    """`vec` and `gather` (what fusion and dedup read) give each row's float32 values bit for bit
+    from the distinct rows, for rows before and after `head` and after appends, and dedup over
+    them collapses and keeps what it does over the whole matrix."""
+    from memora_graph.retrieve.search import Candidate, dedup
+
+    for extra in (0, 1, 5):
+        whole = _repeating_table(20 * UNIQUE_BLOCK + extra, 150, seed=extra)
+        fast = VectorTable.normalized(whole.ids, np.array(whole.mat)).with_unique(*whole.unique_rows(min_rows=1))
+        plain = VectorTable.normalized(whole.ids, np.array(whole.mat))
+        for i in range(2):
+            row = whole.mat[i * 11]
+            fast, plain = fast.appended(f"new{i}", row), plain.appended(f"new{i}", row)
+        n = len(plain)
+        for rid in [*plain.ids[:: 37], *plain.ids[-UNIQUE_BLOCK - 3:], "missing"]:
+            a, b = fast.vec(rid), plain.vec(rid)
+            assert (a is None and b is None) or a.tobytes() == b.tobytes(), rid
+        rng = np.random.default_rng(extra)
+        for rows in (rng.integers(0, n, 80), np.arange(n - 4, n), np.arange(0, n, 97), np.zeros(0, np.intp)):
+            assert fast.gather(rows).tobytes() == plain.mat[rows].tobytes()
+        q = np.asarray(whole.mat[3])
+        pool = [c for c, _ in plain.topk(q, 60)] + ["missing", plain.ids[-1]]
+        got = dedup([Candidate(c) for c in pool], fast, 0.95, 10)
+        want = dedup([Candidate(c) for c in pool], plain, 0.95, 10)
+        assert [(c.id, c.duplicates) for c in got] == [(c.id, c.duplicates) for c in want]
+        assert any(c.duplicates for c in want)  # repeated rows collapsed
+
+
 def test_tables_mostly_distinct_or_small_are_scanned_whole():
     assert _repeating_table(20 * UNIQUE_BLOCK, 20 * UNIQUE_BLOCK * 10).unique_rows(min_rows=1) is None
     assert _repeating_table(5 * UNIQUE_BLOCK, 10).unique_rows() is None  # under UNIQUE_MIN_ROWS
