@@ -72,6 +72,35 @@ def test_bm25_scores_as_the_posting_loop_after_each_added_document():
             assert bm.search(q, 10) == _reference_bm25(ids[:n], texts[:n], q, 10), (n, q)
 
 
+def test_bm25_reading_the_longest_posting_list_only_where_other_terms_occur_scores_as_the_posting_loop(monkeypatch):
+    """A query of several terms scores the longest posting list ("take": most documents) only at
+    the documents of its other terms where the k-th of those beats anything it alone can score.
+    The k best come out as the posting loop gives them, ties at the k-th included, whether that
+    shortcut was taken or not (a document of "take" alone scoring high: short, "take" repeated),
+    k larger than the documents scored, and after documents are added."""
+    rng = random.Random(11)
+    filler = [w for w in WORDS if w != "take"]
+    texts = [" ".join((["take"] if rng.random() < 0.5 else []) + rng.choices(filler, k=rng.randint(1, 10)))
+             for _ in range(4000)]
+    texts += [" ".join(["zinc", *rng.choices(filler, k=60)]) for _ in range(60)]  # a rare term in long documents
+    texts += ["take plate"] * 60 + ["plate kettle"] * 30 + [" ".join(["take"] * 30)] * 5 + ["take"] * 5
+    ids = [f"s{i:05d}" for i in range(len(texts))]
+    taken = []
+    pruned = Bm25._pruned
+    monkeypatch.setattr(Bm25, "_pruned", lambda self, found, k: taken.append(pruned(self, found, k)) or taken[-1])
+    queries = ["take plate", "take kettle sponge", "plate take take", "take onion", "take zebra plate", "take take",
+               "take zinc"]  # its k best for k = 50 hold documents of "take" alone
+    bm = Bm25(ids[:3900], texts[:3900])
+    for n in (3900, len(texts)):
+        if n > 3900:
+            for m in range(3900, n):
+                bm = bm.added(ids[m], texts[m])
+        for q in queries:
+            for k in (1, 3, 10, 50, 300, 6000):
+                assert bm.search(q, k) == _reference_bm25(ids[:n], texts[:n], q, k), (n, q, k)
+    assert any(t is not None for t in taken) and any(t is None for t in taken)  # both ways taken
+
+
 def test_bm25_of_an_empty_corpus():
     bm = Bm25([], [])
     assert bm.search("take plate", 5) == []
