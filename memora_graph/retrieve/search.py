@@ -171,7 +171,9 @@ class VectorTable:
         """This table scanning its distinct rows (`unique_rows`' result, perhaps memory-mapped)."""
         if head % UNIQUE_BLOCK or head < UNIQUE_BLOCK or len(inverse) != head or len(rows) % UNIQUE_BLOCK:
             raise ValueError(f"distinct rows for {head} rows do not fit blocks of {UNIQUE_BLOCK}")
-        self._unique = (np.asarray(rows), np.asarray(inverse), head)
+        # the indices as the platform's index type, in memory (2.9 MB at 1,000 h): np.take converted
+        # the stored int32 ones at every search
+        self._unique = (np.asarray(rows), np.asarray(inverse, dtype=np.intp), head)
         return self
 
     def unique_rows(self, checks: int = 4,
@@ -239,7 +241,30 @@ class VectorTable:
 
     def vec(self, rid: str) -> np.ndarray | None:
         n = self.index.get(rid)
-        return None if n is None else self.mat[n]
+        if n is None:
+            return None
+        unique = self.__dict__.get("_unique")
+        if unique is not None and n < unique[2]:  # its distinct row: the same values, held in memory
+            return unique[0][unique[1][n]]
+        return self.mat[n]
+
+    def gather(self, rows: np.ndarray) -> np.ndarray:
+        """`mat[rows]` (a copy; `rows` non-negative row numbers), read from the distinct rows where
+        the table has them (the same float32 values, `unique_rows`): the scan keeps those in
+        memory, while the rows of the whole matrix are memory-mapped (553 MB at 1,000 h), where
+        each row gathered is a page to fault in."""
+        rows = np.asarray(rows, dtype=np.intp)
+        unique = self.__dict__.get("_unique")
+        if unique is None:
+            return self.mat[rows]
+        distinct, inverse, head = unique
+        low = rows < head
+        if low.all():
+            return distinct[inverse[rows]]
+        out = np.empty((len(rows), self.mat.shape[1]), dtype=self.mat.dtype)
+        out[low] = distinct[inverse[rows[low]]]
+        out[~low] = self.mat[rows[~low]]
+        return out
 
 
 # -- keywords --------------------------------------------------------------------------------
@@ -340,28 +365,82 @@ class Bm25:
             got = self._norm_cache = ((self.n, self.avg), self.k1 * (1 - self.b + self.b * lengths / self.avg))
         return got[1]
 
+    def _idf(self, df: int) -> float:
+        return math.log(1 + (self.n - df + 0.5) / (df + 0.5))
+
+    def _scores(self, docs: np.ndarray, tf: np.ndarray, idf: float) -> np.ndarray:
+        """A term's score in each of `docs` (its term counts `tf`): each value is the one the
+        per-posting formula gives, whichever of the term's documents are scored with it."""
+        tf = tf.astype(np.float64)
+        return idf * tf * (self.k1 + 1) / (tf + self._norms()[docs])
+
+    def _bound(self, tf: np.ndarray, idf: float) -> float:
+        """More than any score of a term whose term counts are `tf` can reach: the score grows with
+        the count and falls with the document's length, so its value at the largest count and
+        the shortest document, with a margin far above the rounding of the five operations."""
+        norms = self._norms()
+        low = self.__dict__.get("_norm_min")
+        if low is None or low[0] is not norms:
+            low = self._norm_min = (norms, float(norms.min()))
+        top = float(tf.max())
+        return idf * top * (self.k1 + 1) / (top + low[1]) * (1 + 1e-9)
+
+    def _pruned(self, found: list[tuple[np.ndarray, np.ndarray]], k: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(documents, scores) holding every document of the top `k` of a query of several terms
+        (`found`: each term's documents and counts, in the order the terms are visited), scored
+        only where another term than the longest posting list occurs; None where that cannot be
+        shown. The longest list ("put": half the segments at 1,000 h) is read only at those
+        documents (its documents are in increasing order: `searchsorted`); a document it alone
+        names scores at most its bound, so where the k-th best of the others' documents scores
+        more, none of those is among the k best nor tied with them, and each kept score is the
+        sum the dense pass makes (the terms added in the order they are visited, from 0.0)."""
+        big = max(range(len(found)), key=lambda i: len(found[i][0]))
+        others = [found[i][0] for i in range(len(found)) if i != big]
+        if sum(len(d) for d in others) > len(found[big][0]) or sum(len(d) for d in others) < k:
+            return None  # little to save, or too few documents for a k-th
+        if len(others) == 1:
+            cand = others[0]
+        else:  # the documents of the others, in increasing order, each once (np.unique took ~20 ms for 34,000 here)
+            cand = np.sort(np.concatenate(others))
+            cand = cand[np.concatenate(([True], cand[1:] != cand[:-1]))]
+        if len(cand) < k:
+            return None
+        bdocs, btf = found[big]
+        at = np.minimum(np.searchsorted(bdocs, cand), len(bdocs) - 1)
+        inb = np.flatnonzero(bdocs[at] == cand)
+        scores = np.zeros(len(cand), dtype=np.float64)
+        for i, (docs, tf) in enumerate(found):
+            idf = self._idf(len(docs))
+            if i == big:
+                scores[inb] += self._scores(cand[inb], btf[at[inb]], idf)
+            else:
+                where = np.searchsorted(cand, docs) if len(others) > 1 else slice(None)
+                scores[where] += self._scores(docs, tf, idf)
+        kth = np.partition(scores, len(scores) - k)[len(scores) - k]
+        if not kth > self._bound(btf, self._idf(len(bdocs))):
+            return None
+        return cand, scores
+
     def search(self, query: str, k: int) -> list[tuple[str, float]]:
         if k < 1:
             return []
-        parts = []  # (documents, score) of each query term found, in the order the terms are visited
+        found = []  # (documents, term counts) of each query term found, in the order the terms are visited
         for t in set(index_tokens(query)):
             docs, tf = self._slice(t)
-            if not len(docs):
-                continue
-            tf = tf.astype(np.float64)
-            df = len(docs)
-            idf = math.log(1 + (self.n - df + 0.5) / (df + 0.5))
-            parts.append((docs, idf * tf * (self.k1 + 1) / (tf + self._norms()[docs])))
-        if not parts:
+            if len(docs):
+                found.append((docs, tf))
+        if not found:
             return []
-        if len(parts) == 1:  # a posting list names a document once: its scores are the documents'
-            hit, s = parts[0]
+        if len(found) == 1:  # a posting list names a document once: its scores are the documents'
+            hit, s = found[0][0], self._scores(*found[0], self._idf(len(found[0][0])))
+        elif (got := self._pruned(found, k)) is not None:
+            hit, s = got
         else:
-            scores, found = np.zeros(self.n, dtype=np.float64), np.zeros(self.n, dtype=bool)
-            for docs, part in parts:
-                scores[docs] += part  # terms added per document in the order they are visited
-                found[docs] = True
-            hit = np.flatnonzero(found)  # the scored documents (an eighth of the bytes of the scores to scan)
+            scores, seen = np.zeros(self.n, dtype=np.float64), np.zeros(self.n, dtype=bool)
+            for docs, tf in found:
+                scores[docs] += self._scores(docs, tf, self._idf(len(docs)))  # terms added per document in the order they are visited
+                seen[docs] = True
+            hit = np.flatnonzero(seen)  # the scored documents (an eighth of the bytes of the scores to scan)
             s = scores[hit]
         if len(hit) > k:  # the k best, and every document tied with the k-th (ties go by id)
             kth = np.partition(s, len(s) - k)[len(s) - k]
@@ -424,12 +503,12 @@ def dedup(ranked: list[Candidate], table: VectorTable | None, threshold: float, 
         return ranked[:top_k]
     rows = [table.index.get(c.id) for c in ranked]
     if None not in rows:
-        vecs = table.mat[np.asarray(rows, dtype=np.intp)]  # one gather, not a row at a time
+        vecs = table.gather(rows)  # one gather, not a row at a time
     else:  # a record without a vector: a zero row
         vecs = np.zeros((len(rows), table.mat.shape[1]), np.float32)
         have = [i for i, r in enumerate(rows) if r is not None]
         if have:
-            vecs[have] = table.mat[np.asarray([rows[i] for i in have], dtype=np.intp)]
+            vecs[have] = table.gather([rows[i] for i in have])
     gram = (vecs @ vecs.T).tolist()  # every pairwise cosine of the pool (rows are unit length or zero)
     kept: list[int] = []
     for i, c in enumerate(ranked):

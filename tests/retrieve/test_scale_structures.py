@@ -72,6 +72,35 @@ def test_bm25_scores_as_the_posting_loop_after_each_added_document():
             assert bm.search(q, 10) == _reference_bm25(ids[:n], texts[:n], q, 10), (n, q)
 
 
+def test_bm25_reading_the_longest_posting_list_only_where_other_terms_occur_scores_as_the_posting_loop(monkeypatch):
+    """A query of several terms scores the longest posting list ("take": most documents) only at
+    the documents of its other terms where the k-th of those beats anything it alone can score.
+    The k best come out as the posting loop gives them, ties at the k-th included, whether that
+    shortcut was taken or not (a document of "take" alone scoring high: short, "take" repeated),
+    k larger than the documents scored, and after documents are added."""
+    rng = random.Random(11)
+    filler = [w for w in WORDS if w != "take"]
+    texts = [" ".join((["take"] if rng.random() < 0.5 else []) + rng.choices(filler, k=rng.randint(1, 10)))
+             for _ in range(4000)]
+    texts += [" ".join(["zinc", *rng.choices(filler, k=60)]) for _ in range(60)]  # a rare term in long documents
+    texts += ["take plate"] * 60 + ["plate kettle"] * 30 + [" ".join(["take"] * 30)] * 5 + ["take"] * 5
+    ids = [f"s{i:05d}" for i in range(len(texts))]
+    taken = []
+    pruned = Bm25._pruned
+    monkeypatch.setattr(Bm25, "_pruned", lambda self, found, k: taken.append(pruned(self, found, k)) or taken[-1])
+    queries = ["take plate", "take kettle sponge", "plate take take", "take onion", "take zebra plate", "take take",
+               "take zinc"]  # its k best for k = 50 hold documents of "take" alone
+    bm = Bm25(ids[:3900], texts[:3900])
+    for n in (3900, len(texts)):
+        if n > 3900:
+            for m in range(3900, n):
+                bm = bm.added(ids[m], texts[m])
+        for q in queries:
+            for k in (1, 3, 10, 50, 300, 6000):
+                assert bm.search(q, k) == _reference_bm25(ids[:n], texts[:n], q, k), (n, q, k)
+    assert any(t is not None for t in taken) and any(t is None for t in taken)  # both ways taken
+
+
 def test_bm25_of_an_empty_corpus():
     bm = Bm25([], [])
     assert bm.search("take plate", 5) == []
@@ -192,6 +221,34 @@ def test_a_product_split_across_threads_gives_the_single_product_bit_for_bit(mon
             for k in (1, 10, 50, 200):
                 want = _reference_topk(whole, q, k)
                 assert whole.topk(q, k) == want and fast.topk(q, k) == want, (extra, k)
+
+
+def test_rows_read_from_the_distinct_rows_are_the_rows_of_the_matrix():
+    """`vec` and `gather` (what fusion and dedup read) give each row's float32 values bit for bit
+    from the distinct rows, for rows before and after `head` and after appends, and dedup over
+    them collapses and keeps what it does over the whole matrix."""
+    from memora_graph.retrieve.search import Candidate, dedup
+
+    for extra in (0, 1, 5):
+        whole = _repeating_table(20 * UNIQUE_BLOCK + extra, 150, seed=extra)
+        fast = VectorTable.normalized(whole.ids, np.array(whole.mat)).with_unique(*whole.unique_rows(min_rows=1))
+        plain = VectorTable.normalized(whole.ids, np.array(whole.mat))
+        for i in range(2):
+            row = whole.mat[i * 11]
+            fast, plain = fast.appended(f"new{i}", row), plain.appended(f"new{i}", row)
+        n = len(plain)
+        for rid in [*plain.ids[:: 37], *plain.ids[-UNIQUE_BLOCK - 3:], "missing"]:
+            a, b = fast.vec(rid), plain.vec(rid)
+            assert (a is None and b is None) or a.tobytes() == b.tobytes(), rid
+        rng = np.random.default_rng(extra)
+        for rows in (rng.integers(0, n, 80), np.arange(n - 4, n), np.arange(0, n, 97), np.zeros(0, np.intp)):
+            assert fast.gather(rows).tobytes() == plain.mat[rows].tobytes()
+        q = np.asarray(whole.mat[3])
+        pool = [c for c, _ in plain.topk(q, 60)] + ["missing", plain.ids[-1]]
+        got = dedup([Candidate(c) for c in pool], fast, 0.95, 10)
+        want = dedup([Candidate(c) for c in pool], plain, 0.95, 10)
+        assert [(c.id, c.duplicates) for c in got] == [(c.id, c.duplicates) for c in want]
+        assert any(c.duplicates for c in want)  # repeated rows collapsed
 
 
 def test_tables_mostly_distinct_or_small_are_scanned_whole():
