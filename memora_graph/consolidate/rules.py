@@ -317,8 +317,9 @@ class RuleConsolidator:
         """`consolidate_participant(memory, [consolidate_video(memory, v) for v in memory.videos])`,
         the same records, merged video by video: each video's records are folded into per-key
         counts and videos and dropped (their evidence lists, every segment and entity they were
-        counted from, were what grew with the hours: gigabytes at 1,000 h); the few records kept
-        are read again, video by video, for their evidence."""
+        counted from, were what grew with the hours: gigabytes at 1,000 h); action sequences are
+        only counted (no record is made of them); the few records kept are read again, video by
+        video, for their evidence (and a kept sequence for its counts per video and first window)."""
         videos = memory.videos
         by_video = memory.steps_by_video()
         storage, habits, workflows = _StorageFold(), _HabitFold(), _WorkflowFold()
