@@ -225,8 +225,9 @@ class StepTable(Mapping):
 
 # segments (~ state events / 3.5) per read of the state history: a participant is read a batch of
 # videos at a time, so the rows Kùzu and Arrow hold at once are bounded (at 1,000 h the whole
-# history at once was over a million rows, gigabytes beside the steps made from them)
-EVENT_BATCH_SEGMENTS = 40_000
+# history at once was over a million rows, gigabytes beside the steps made from them; what a read
+# leaves resident grows with its batch: at 100 h `load_memory` rose +229 MB with 40,000, +88 with 10,000)
+EVENT_BATCH_SEGMENTS = 10_000
 
 
 def load_memory(store: Store, participant: str) -> ParticipantMemory:
