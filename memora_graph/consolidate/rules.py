@@ -206,19 +206,30 @@ class RuleConsolidator:
     def recurring(self, memory: ParticipantMemory) -> set[tuple[str, ...]]:
         """Action n-grams seen in at least `min_videos` videos: the per-video pass reports only these."""
         if self._recurring is None or self._recurring[0] != id(memory):
-            # per n-gram: the last video it was seen in and how many videos so far (a video's windows
-            # come together), not the set of its videos: at 1,000 h most n-grams recur in hundreds
-            seen: dict[tuple[str, ...], list] = {}
-            for video, steps in memory.steps_by_video().items():
-                for tokens, _ in self._windows(steps):
-                    rec = seen.get(tokens)
-                    if rec is None:
-                        seen[tokens] = [video, 1]
-                    elif rec[0] != video:
-                        rec[0] = video
-                        rec[1] += 1
-            self._recurring = (id(memory), {t for t, (_, n) in seen.items() if n >= self.min_videos})
+            self._recurring = (id(memory), self._recurring_ngrams(memory))
         return self._recurring[1]
+
+    def _recurring_ngrams(self, memory: ParticipantMemory) -> set[tuple[str, ...]]:
+        # Each video's distinct n-grams as rows of token numbers (uint16 or uint32, padded with 0),
+        # all videos' rows counted at once: a row per n-gram and video, where a dict of every
+        # n-gram (a tuple and its count each) took ~1 GB at 1,000 h, most of them seen once.
+        tokens = sorted(memory.tokens())
+        number = {t: i + 1 for i, t in enumerate(tokens)}
+        width = max(self.sequence_lengths)
+        dtype = np.uint16 if len(tokens) < 2 ** 16 else np.uint32
+        rows = []
+        for _, steps in memory.steps_by_video().items():
+            found = {tuple(number[t] for t in ngram) for ngram, _ in self._windows(steps)}
+            if found:
+                rows.append(np.array([g + (0,) * (width - len(g)) for g in found], dtype=dtype))
+        if not rows:
+            return set()
+        every = np.concatenate(rows)
+        del rows
+        keys = np.ascontiguousarray(every).view(np.dtype((np.void, every.dtype.itemsize * width))).ravel()
+        unique, videos = np.unique(keys, return_counts=True)
+        kept = unique[videos >= self.min_videos].view(every.dtype).reshape(-1, width)
+        return {tuple(tokens[i - 1] for i in row if i) for row in kept.tolist()}
 
     def video_sequences(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
         found: dict[tuple[str, ...], dict] = {}
@@ -243,25 +254,51 @@ class RuleConsolidator:
             ))
         return out
 
-    def _sequence_evidence(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]],
+    def _sequence_counts(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]]):
+        """(steps' texts, count) of each action sequence `video_sequences` would report for one
+        video, in its order, without building the records."""
+        found: dict[tuple[str, ...], list] = {}
+        for tokens, window in self._windows(steps):
+            if tokens in recurring:
+                rec = found.get(tokens)
+                if rec is None:
+                    rec = found[tokens] = [tuple(s.text() for s in window), 0]
+                rec[1] += 1
+        return [(texts, n) for texts, n in found.values()]
+
+    def _sequence_evidence(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]],
                            evidence: dict[tuple[str, ...], _SequenceEvidence]) -> None:
         """What `video_sequences` would cite for one video, added to the chosen sequences' evidence
         (keyed by their steps' texts, as the merge groups them), without building the records:
-        a video's windows are grouped by their tokens, a group takes the texts of its first window."""
-        found: dict[tuple[str, ...], tuple] = {}
+        a video's windows are grouped by their tokens, a group takes the texts of its first window.
+        Also the video's count of each chosen sequence, and the first window it was seen in."""
+        found: dict[tuple[str, ...], list] = {}
         for tokens, window in self._windows(steps):
             if tokens not in recurring:
                 continue
             rec = found.get(tokens)
             if rec is None:
-                rec = found[tokens] = (evidence.get(tuple(s.text() for s in window)), [], [], [])
+                rec = found[tokens] = [evidence.get(tuple(s.text() for s in window)), [], [], [], 0, window]
             if rec[0] is not None:
                 rec[1].append(window[0].segment)
                 rec[2].extend(s.segment for s in window)
                 rec[3].extend(s.main.entity for s in window)
-        for ev, first, segments, entities in found.values():
+                rec[4] += 1
+        for ev, first, segments, entities, n, window in found.values():
             if ev is not None:
                 ev.extend(first, segments, entities)
+                ev.videos[video] += n
+                if ev.window is None:
+                    ev.window = window
+
+    def _window_sequence(self, steps: tuple[str, ...], window: list[MemoryStep]) -> ActionSequence:
+        """The fields `video_sequences` gives a sequence's record from its first window (no evidence)."""
+        cats = Counter(vocab.category(s.verb) for s in window if not s.is_filler)
+        return ActionSequence.model_construct(
+            title=" -> ".join(steps), steps=list(steps), actions=[s.action() for s in window],
+            activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0] if cats else None],
+            key_objects=_uniq(display(s.main.kind) for s in window), count=0, confidence=0.0, supporting_episodes=[],
+            segments=[], entities=[], videos={})
 
     # -- per participant ---------------------------------------------------------------
     def consolidate_participant(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> Consolidation:
@@ -280,30 +317,43 @@ class RuleConsolidator:
         """`consolidate_participant(memory, [consolidate_video(memory, v) for v in memory.videos])`,
         the same records, merged video by video: each video's records are folded into per-key
         counts and videos and dropped (their evidence lists, every segment and entity they were
-        counted from, were what grew with the hours: gigabytes at 1,000 h); the few records kept
-        are read again, video by video, for their evidence."""
+        counted from, were what grew with the hours: gigabytes at 1,000 h); action sequences are
+        only counted (no record is made of them); the few records kept are read again, video by
+        video, for their evidence (and a kept sequence for its counts per video and first window)."""
         videos = memory.videos
         by_video = memory.steps_by_video()
-        storage, habits, workflows, sequences = _StorageFold(), _HabitFold(), _WorkflowFold(), _SequenceFold()
+        storage, habits, workflows = _StorageFold(), _HabitFold(), _WorkflowFold()
+        # action sequences by their steps' texts: [count, videos, the last video]; the records are
+        # made for the chosen ones only (a record and a Counter of videos per recurring n-gram were
+        # ~1 GB at 1,000 h)
+        tally: dict[tuple[str, ...], list] = {}
+        recurring = self.recurring(memory)
         for video in videos:
-            v = self.consolidate_video(memory, video)
-            for p in v.storage_preferences:
+            steps = by_video.get(video, [])
+            for p in self.video_storage(video, steps):
                 storage.add(p)
-            for h in v.organizational_habits:
+            for h in self.video_habits(video, steps):
                 habits.add(h)
-            for w in v.workflow_patterns:
+            for w in self.video_workflows(video, steps):
                 workflows.add(w)
-            for a in v.action_sequences:
-                sequences.add(a)
+            for texts, n in self._sequence_counts(steps, recurring):
+                t = tally.get(texts)
+                if t is None:
+                    t = tally[texts] = [0, 0, None]
+                t[0] += n
+                if t[2] != video:
+                    t[1], t[2] = t[1] + 1, video
         kept_storage = self._choose_storage(storage)
         kept_habits = self._choose_habits(habits)
         kept_workflows = self._choose_workflows(workflows)
-        chosen = self._choose_sequences(sequences)
+        chosen = self._choose_sequence_keys({texts: (t[1], t[0], " -> ".join(texts)) for texts, t in tally.items()
+                                             if t[1] >= self.min_videos})
+        counts = {texts: tally[texts][0] for texts in chosen}
+        del tally
         ev_storage = {key: _Evidence() for key, _ in kept_storage}
         ev_habits = {key: _Evidence() for key, _ in kept_habits}
         ev_workflows = {key: _Evidence() for key, _ in kept_workflows}
         ev_sequences = {steps: _SequenceEvidence() for steps in chosen}
-        recurring = self.recurring(memory) if ev_sequences else set()
         for video in videos:  # the second read: only the kept records' evidence is gathered
             steps = by_video.get(video, [])
             if ev_storage and any(video in storage.groups[k[:2]][k[2]].videos for k in ev_storage):
@@ -313,14 +363,19 @@ class RuleConsolidator:
             if ev_workflows and any(video in workflows.groups[k].videos for k in ev_workflows):
                 _gather(ev_workflows, self.video_workflows(video, steps), _WorkflowFold.key)
             if ev_sequences:
-                self._sequence_evidence(steps, recurring, ev_sequences)
+                self._sequence_evidence(video, steps, recurring, ev_sequences)
+        sequences = []
+        for texts in chosen:
+            ev = ev_sequences[texts]
+            g = _SequenceGroup(self._window_sequence(texts, ev.window))
+            g.count, g.videos = counts[texts], ev.videos
+            sequences.append(self._merged_sequence(texts, g, ev))
         return Consolidation(
             participant=memory.participant, videos=list(videos),
             storage_preferences=_with_evidence(StoragePreference, kept_storage, ev_storage),
             organizational_habits=_with_evidence(OrganizationalHabit, kept_habits, ev_habits),
             workflow_patterns=_with_evidence(WorkflowPattern, kept_workflows, ev_workflows),
-            action_sequences=[self._merged_sequence(steps, sequences.groups[steps], ev_sequences[steps])
-                              for steps in chosen],
+            action_sequences=sequences,
         )
 
     @staticmethod
@@ -415,13 +470,18 @@ class RuleConsolidator:
 
     def _choose_sequences(self, fold: _SequenceFold) -> list[tuple[str, ...]]:
         """The step sequences kept, best first, from their counts and videos alone."""
+        return self._choose_sequence_keys({steps: (len(g.videos), g.count, g.first.title) for steps, g in fold.groups.items()
+                                           if len(g.videos) >= self.min_videos})
+
+    def _choose_sequence_keys(self, stats: dict[tuple[str, ...], tuple[int, int, str]]) -> list[tuple[str, ...]]:
+        """`_choose_sequences` from each sequence's (videos, count, title)."""
         # Group by the step tokens' text; the same tokens with other destinations are other texts,
         # which is intended: "put bowl on drying rack" and "put bowl in sink" are different habits.
-        candidates = {steps: g for steps, g in fold.groups.items() if len(g.videos) >= self.min_videos}
-        covered = _longest_cover({steps: len(g.videos) for steps, g in candidates.items()})
-        kept = [(steps, g) for steps, g in candidates.items() if covered.get(steps, 0) < len(g.videos)]
+        candidates = {steps: st for steps, st in stats.items() if st[0] >= self.min_videos}
+        covered = _longest_cover({steps: st[0] for steps, st in candidates.items()})
+        kept = [(steps, st) for steps, st in candidates.items() if covered.get(steps, 0) < st[0]]
         # (a sequence is dropped where a longer one covers every video it is seen in)
-        kept.sort(key=lambda sg: (-len(sg[1].videos), -sg[1].count, -len(sg[0]), sg[1].first.title))
+        kept.sort(key=lambda ks: (-ks[1][0], -ks[1][1], -len(ks[0]), ks[1][2]))
         out, seen = [], set()
         for steps, _ in kept:  # "wash -> rack -> take" and "take -> wash -> rack" are one loop: keep the best rotation
             loop = (len(steps), frozenset(steps))
@@ -785,10 +845,12 @@ class _SequenceFold:
 class _SequenceEvidence:
     """The ordered, duplicate-free union of a sequence's evidence over its occurrences."""
 
-    __slots__ = ("episodes", "segments", "entities")
+    __slots__ = ("episodes", "segments", "entities", "videos", "window")
 
     def __init__(self):
         self.episodes, self.segments, self.entities = {}, {}, {}
+        self.videos: Counter[str] = Counter()  # (the streaming merge's) count per video
+        self.window = None  # (the streaming merge's) first window seen
 
     def add(self, a: ActionSequence) -> None:
         self.extend(a.supporting_episodes, a.segments, a.entities)
@@ -1002,16 +1064,24 @@ class RuleEnricher:
             return f"get {display(head)}", head, "setup"
         return f"{vocab.phrase(top)} {display(head)}", head, "setup"
 
-    def video_episodes(self, steps: list[MemoryStep]) -> list[EpisodeSummary]:
+    def video_episodes(self, steps: list[MemoryStep], shared: dict | None = None) -> list[EpisodeSummary]:
         """One video's episodes as much as `routine_skills_from` reads of them (the merge across
-        videos needs no step)."""
+        videos needs no step). `shared`, if given, keeps one (text, action) per distinct
+        canonical step across calls (every episode of a participant is held until the merge)."""
         out = []
         for ep in self.episodes(steps):
             goal, head, cat = self.goal(ep)
             canon, last = [], None
             for s in ep:
                 if s.token != last:
-                    canon.append((s.text(), s.action()))
+                    if shared is None:
+                        canon.append((s.text(), s.action()))
+                    else:
+                        key = (s.text(), s.verb, s.main.kind, s.where()[0])
+                        step = shared.get(key)
+                        if step is None:
+                            step = shared[key] = (key[0], s.action())
+                        canon.append(step)
                     last = s.token
             entities: dict[tuple[str, str], int] = {}
             for s in ep:
@@ -1024,8 +1094,9 @@ class RuleEnricher:
         return out
 
     def routine_skills(self, memory: ParticipantMemory) -> list[RoutineSkill]:
-        return self.routine_skills_from(ep for _, steps in sorted(memory.steps_by_video().items())
-                                        for ep in self.video_episodes(steps))
+        by_video = memory.steps_by_video()  # a video's steps read one at a time (a table makes them when read)
+        shared: dict = {}
+        return self.routine_skills_from(ep for video in sorted(by_video) for ep in self.video_episodes(by_video[video], shared))
 
     def routine_skills_from(self, summaries) -> list[RoutineSkill]:
         """Routine skills from every video's episodes (`video_episodes`), in video order."""
@@ -1088,7 +1159,7 @@ class RuleEnricher:
         return out
 
     def tool_preferences(self, memory: ParticipantMemory) -> list[GeneratedPreference]:
-        return self.tool_preferences_from(self.tool_uses(memory.steps))
+        return self.tool_preferences_from(u for s in memory.iter_steps() for u in self.tool_uses([s]))
 
     def tool_preferences_from(self, tool_uses) -> list[GeneratedPreference]:
         """Generated preferences from every video's tool uses (`tool_uses`), in video and time order."""

@@ -256,3 +256,53 @@ def test_the_fold_index_kept_video_by_video_gives_the_whole_list_merge(small_ban
         index.put(None, gone)
         del current[gone]
         check()
+
+
+def test_steps_held_as_columns_are_the_steps_read_as_objects(small_bank):
+    """`load_memory` keeps the steps as columns (`StepTable`) and makes a video's steps when they
+    are read; they are the steps `StepReader.read` makes, and consolidation + enrichment over
+    them give the records of the same memory held as lists."""
+    from memora_graph.consolidate.memory import StepReader, merged_map
+    from memora_graph.consolidate.rules import RuleConsolidator, RuleEnricher
+
+    found = []
+    for p in SMALL:
+        with Bank(small_bank[0]).open(p, read_only=True) as store:
+            memory = load_memory(store, p)
+            sizes = {v: 1 for v in memory.videos}
+            listed = StepReader(merged_map(store, p)).read(store, p, sizes)
+            entity_ids = {r["id"] for r in store.fetch("_consolidate_entity_ids", participant=p)}
+        assert memory.steps == listed and len(listed) > 100
+        assert [s for v in memory.steps_by_video() for s in memory.steps_by_video()[v]] == listed
+        assert memory.tokens() == {s.token for s in listed}
+        as_lists = ParticipantMemory(p, memory.segments, listed)
+        assert as_lists.videos == memory.videos and as_lists.segment_ids == memory.segment_ids
+        assert RuleConsolidator().recurring(memory) == RuleConsolidator().recurring(as_lists)
+        assert (RuleEnricher().enrich(memory, Consolidation(participant=p)).model_dump()
+                == RuleEnricher().enrich(as_lists, Consolidation(participant=p)).model_dump())
+        a, b = infer(memory, entity_ids, get_processors()), infer(as_lists, entity_ids, get_processors())
+        assert (a.routines, a.preferences, a.supported_by, a.uses, a.about) == (
+            b.routines, b.preferences, b.supported_by, b.uses, b.about)
+        found += [*a.routines, *a.preferences]
+    assert {r.get("subtype", r.get("source")) for r in found} >= {"routine_skill", "action_sequence", "storage", "habit"}
+
+
+def test_recurring_n_grams_are_those_seen_in_at_least_two_videos(small_bank):
+    """The n-grams counted as rows of token numbers are those a set of videos per n-gram gives."""
+    from memora_graph.consolidate.rules import RuleConsolidator
+
+    rules = RuleConsolidator()
+    memories = [_memory()]
+    for p in SMALL:
+        with Bank(small_bank[0]).open(p, read_only=True) as store:
+            memories.append(load_memory(store, p))
+    seen = set()
+    for memory in memories:
+        videos: dict[tuple, set] = {}
+        for video, steps in memory.steps_by_video().items():
+            for tokens, _ in rules._windows(steps):
+                videos.setdefault(tokens, set()).add(video)
+        want = {t for t, vs in videos.items() if len(vs) >= rules.min_videos}
+        assert RuleConsolidator().recurring(memory) == want
+        seen |= want
+    assert {len(t) for t in seen} == {3, 4, 5}
