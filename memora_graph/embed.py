@@ -103,10 +103,6 @@ class CachedEmbedder:
         """Forget every cached vector (a benchmark's 'cold' call must embed its query)."""
         self._cache.clear()
 
-    def cached(self, texts: list[str], kind: str = "passage") -> bool:
-        """Whether every one of these texts is embedded already (encoding them costs nothing)."""
-        return all(self._key(kind, t) in self._cache for t in texts)
-
     def encode(self, texts: list[str], kind: str = "passage") -> np.ndarray:
         keys = [self._key(kind, t) for t in texts]
         todo: dict[bytes, str] = {}

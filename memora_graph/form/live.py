@@ -37,7 +37,7 @@ import polars as pl
 
 from memora_graph import schema
 from memora_graph.bank import Bank, pid_alive
-from memora_graph.embed import torch_threads, uses_torch
+from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
 from memora_graph.form.build import entity_row, place_row
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
@@ -286,8 +286,6 @@ class LiveWriter:
             store.close()
         self._stack.callback(self._close_store)
         self.opened_sha256: str | None = opened
-        self._embedder_pool = None  # the thread a moment's new texts are embedded in (`_embed_ahead`)
-        self._pending = None
         self.commits = 0  # moments committed by this writer (a reader opened after one must not use stores)
         self._load()
         self.reader = reader or NarrationReader()
@@ -342,36 +340,7 @@ class LiveWriter:
                                              last_segment=None if last is None else f"{r['video']}#t{last:04d}")
 
     def _embed_one(self, text: str) -> np.ndarray:
-        self._embedded()  # the moment's texts first, in their one batch (the vectors a synchronous run gets)
         return self.embedder.encode([text])[0]
-
-    def _embed_ahead(self, texts: list[str]):
-        """Start embedding a moment's texts (its summary, its objects' identity texts) in the
-        writer's embedding thread, where ONNX Runtime runs outside the GIL while this thread
-        snapshots, edits and prepares the rows: on a machine with a core to spare, a remember
-        that embeds a new text waits for about the longer of the two instead of their sum. The
-        same texts in the same one call as before, so the same vectors. None where nothing is to
-        be embedded or the encoder is PyTorch (its thread settings are scoped to this thread)."""
-        cached = getattr(self.embedder, "cached", None)
-        if cached is None or cached(texts) or uses_torch(self.embedder, "passage"):
-            return None
-        if self._embedder_pool is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._embedder_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="memora-embed")
-            self._stack.callback(self._embedder_pool.shutdown)
-        self._pending = self._embedder_pool.submit(self.embedder.encode, texts)
-        return self._pending
-
-    def _embedded(self) -> None:
-        """Wait for the moment's texts being embedded ahead, if any (its error is raised where its
-        vectors are used)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            try:
-                pending.result()
-            except BaseException:  # noqa: BLE001 - raised again by whoever reads the vectors
-                pass
 
     # -- closing -----------------------------------------------------------------------
     def _close_store(self) -> None:
@@ -438,20 +407,13 @@ class LiveWriter:
             # state the writer changes only once the transaction committed: on failure it is rebuilt.
             # An edit changes active entities of the observed kinds only (an edit on any other id is
             # repaired into an ADD): those are copied, not the registry, which grows with the hours.
-            texts = [segment.activity.summary] + sorted({identity_text(o.name, o.category) for o in segment.objects})
-            embedding = self._embed_ahead(texts)
-            try:
-                touchable = self.editor.active_of_kinds({o.kind for o in segment.objects})
-                snapshot = self._snapshot(touchable)
-            except BaseException:
-                self._embedded()
-                raise
+            touchable = self.editor.active_of_kinds({o.kind for o in segment.objects})
+            snapshot = self._snapshot(touchable)
             try:
                 # one short text at a time: torch's thread pool only spins against the readers' threads
                 with torch_threads(1, self.embedder, kind="passage"):
-                    result, rows = self._write(key, segment, v, turn, touchable, texts, embedding)
+                    result, rows = self._write(key, segment, v, turn, touchable)
             except BaseException:
-                self._embedded()
                 self._restore(snapshot)
                 raise
             n_actions = len(segment.activity.action_breakdown)
@@ -484,17 +446,15 @@ class LiveWriter:
         self.editor._index = None  # rebuilt from the registry on the next edit
         self.places.places, self.editor._ord, self._op_seq = places, ord_, op_seq
 
-    def _write(self, key: str, seg: LayeredSegment, v: _Video, turn: int, touchable: list, texts: list[str],
-               embedding) -> tuple[list[dict], dict]:
+    def _write(self, key: str, seg: LayeredSegment, v: _Video, turn: int, touchable: list) -> tuple[list[dict], dict]:
         p, dim = self.participant, self.embedder.dim
         before = {e.id: (e.status, e.location) for e in touchable}
         known_places = set(self.places.places)
         old_turns = {k: pp.turn_count for k, pp in self.places.places.items()}
         old_texts = {k: pp.text() for k, pp in self.places.places.items()}
+        texts = [seg.activity.summary] + sorted({identity_text(o.name, o.category) for o in seg.objects})
+        seg_vec = self.embedder.encode(texts)[0]
         result = self.editor.edit(seg)
-        if embedding is not None:
-            self._embedded()
-        seg_vec = (embedding.result() if embedding is not None else self.embedder.encode(texts))[0]
         in_place, spatial = self.places.merge(seg)
         new_places = [pp for k, pp in sorted(self.places.places.items()) if k not in known_places]
         changed_places = [pp for k, pp in sorted(self.places.places.items())
@@ -621,27 +581,11 @@ class LiveWriter:
                      "last_seen": places[r["to"]].last_seen, "last_video": places[r["to"]].last_video,
                      "turn_count": places[r["to"]].turn_count} for r in in_place]
             moment = {**seg_row, "emb": _floats(seg_vec), "duration": duration, "key": key,
-                      "result": json.dumps(answer), "at": _now()}
-            if v.last_segment is not None and len(rows) == 1 and edits:
-                # the common moment (a video continued, one place, an existing entity edited): one
-                # statement for the moment and its first edit, the rest as below (Kùzu's cost is
-                # mostly per statement: its buffers, its plan, its pipelines)
-                (e, ev, op), edits = edits[0], edits[1:]
-                r = rows[0]
-                self._one("_live_moment_edit", prev=v.last_segment, **{k: x for k, x in moment.items() if k != "participant"},
-                          place=r["to"], in_op=r["op"],
-                          is_primary=r["is_primary"], zones=r["zones"], place_zones=r["place_zones"],
-                          features=r["features"], place_last_seen=r["last_seen"], place_last_video=r["last_video"],
-                          turn_count=r["turn_count"], entity=e.id, status=e.status, merged_into=e.merged_into,
-                          state=e.state, e_location=e.location, held_by=e.held_by, color=e.color,
-                          material=e.material, size=e.size, last_seen=e.last_seen, last_video=e.last_video,
-                          last_turn=e.last_turn, n_observations=e.n_observations, ev_place=ev["place"],
-                          **self._edit_params(ev, op))
-                got = 1
-            elif v.last_segment is not None:
-                got = int(self.store.write("_live_add_moment_next", prev=v.last_segment, rows=rows, **moment)[0]["n"])
+                      "result": json.dumps(answer), "at": _now(), "rows": rows}
+            if v.last_segment is not None:
+                got = int(self.store.write("_live_add_moment_next", prev=v.last_segment, **moment)[0]["n"])
             else:
-                got = int(self.store.write("_live_add_moment", rows=rows, **moment)[0]["n"])
+                got = int(self.store.write("_live_add_moment", **moment)[0]["n"])
             if got != len(in_place) or not in_place:
                 missing = f"the previous segment {v.last_segment} or " if v.last_segment else ""
                 raise StoreError(f"{self.store.path}: the moment's segment was not written ({missing}its video "
@@ -649,7 +593,12 @@ class LiveWriter:
             self._add("_live_add_spatial", spatial)
             for e, ev, op in edits:
                 self._one("_live_edit", **{k: getattr(e, k) for k in _ENTITY_UPDATE}, segment=sid, place=ev["place"],
-                          **self._edit_params(ev, op))
+                          op_id=op["id"], op_video=op["video"], op_turn=op["turn"], op_t=op["t"], op=op["op"],
+                          reason=op["reason"], changes=op["changes"], policy=op["policy"], ev_id=ev["id"],
+                          ev_video=ev["video"], ev_turn=ev["turn"], ev_t=ev["t"], ord=ev["ord"], ev_state=ev["state"],
+                          ev_location=ev["location"], prev_state=ev["prev_state"], prev_location=ev["prev_location"],
+                          zone=ev["zone"], ev_held_by=ev["held_by"], relative_to=ev["relative_to"],
+                          relation=ev["relation"], action=ev["action"], narration=ev["narration"], ev_op=ev["op"])
             if len(events) <= _SCALAR_ROWS:  # the common case: a statement per row, ids bound as scalars
                 for ev in events:
                     self._one("_live_add_event", segment=sid, **ev)
@@ -661,16 +610,6 @@ class LiveWriter:
             else:
                 self._add("_live_add_ops", op_rows)
             self._add("_live_add_merged", merged)
-
-    @staticmethod
-    def _edit_params(ev: dict, op: dict) -> dict:
-        """An edit's operation and state event as the parameters of `_live_edit` and `_live_moment_edit`."""
-        return dict(op_id=op["id"], op_video=op["video"], op_turn=op["turn"], op_t=op["t"], op=op["op"],
-                    reason=op["reason"], changes=op["changes"], policy=op["policy"], ev_id=ev["id"],
-                    ev_video=ev["video"], ev_turn=ev["turn"], ev_t=ev["t"], ord=ev["ord"], ev_state=ev["state"],
-                    ev_location=ev["location"], prev_state=ev["prev_state"], prev_location=ev["prev_location"],
-                    zone=ev["zone"], ev_held_by=ev["held_by"], relative_to=ev["relative_to"],
-                    relation=ev["relation"], action=ev["action"], narration=ev["narration"], ev_op=ev["op"])
 
     @staticmethod
     def _edits(changed: list, events: list[dict], op_rows: list[dict]) -> tuple[list[tuple], list[dict], list[dict]]:

@@ -272,8 +272,9 @@ def test_remembered_places_and_entities_match_the_writers_memory(tmp_path):
 
 def test_every_answered_operation_and_state_event_is_in_the_database(tmp_path):
     """A remember's answer is what the database keeps: every operation and state event it reports
-    is a row, on its entity and in its segment, across interleaved videos (most of these moments
-    continue their video in one place with one edit: one statement, `_live_moment_edit`)."""
+    is a row, on its entity and in its segment, across interleaved videos (a Kùzu CREATE holding
+    a new segment and a new state event linked to it lost such events at commit: see
+    docs/live-memory.md, fifth round)."""
     bank = tmp_path / "bank"
     ops, events = {}, {}
     with LiveWriter(bank, "P01") as memory:
