@@ -51,7 +51,8 @@ class EntityState:
     emb: np.ndarray | None = field(default=None, repr=False)
 
     def attrs(self) -> dict[str, str]:
-        return {a: getattr(self, a) for a in ATTRS if getattr(self, a)}
+        d = self.__dict__
+        return {a: d[a] for a in ATTRS if d[a]}
 
     def identity_text(self) -> str:
         return identity_text(self.name, self.category)

@@ -156,6 +156,14 @@ class _Video:
     ctx: MomentContext = field(default_factory=MomentContext)
 
 
+def _shallow(e):
+    """A shallow copy of an entity record (what `copy.copy` makes of a dataclass, ~2.5x faster: at
+    1,000 h a remember snapshots ~50 entities of the observed kinds)."""
+    other = object.__new__(type(e))
+    other.__dict__.update(e.__dict__)
+    return other
+
+
 def _floats(vec) -> list[float]:
     return np.asarray(vec, dtype=np.float32).tolist()
 
@@ -422,13 +430,11 @@ class LiveWriter:
         """What an edit changes in the writer's memory (the entities it may touch, the places,
         the counters), to put back if the transaction fails: the registry then matches the
         database again. New entities are the registry's last keys (a dict keeps its order)."""
-        import copy
-
         # a place's fields are strings, numbers and lists of strings: copying its lists is a deep copy
         # (copy.deepcopy walked every string of every place: about 0.5 ms per remember)
         places = {k: replace(pp, zones=list(pp.zones), features=list(pp.features))
                   for k, pp in self.places.places.items()}
-        return ({e.id: copy.copy(e) for e in touchable}, len(self.editor.entities),
+        return ({e.id: _shallow(e) for e in touchable}, len(self.editor.entities),
                 places, self.editor._ord, self._op_seq)
 
     def _restore(self, snap) -> None:
