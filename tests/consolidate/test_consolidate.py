@@ -46,6 +46,15 @@ def _dishes(video: str, t0: float) -> list[MemoryStep]:
     ]
 
 
+def _memories(small_bank) -> list[ParticipantMemory]:
+    """The hand-made memory, then each SMALL participant's as `load_memory` reads it."""
+    memories = [_memory()]
+    for p in SMALL:
+        with Bank(small_bank[0]).open(p, read_only=True) as store:
+            memories.append(load_memory(store, p))
+    return memories
+
+
 def _memory() -> ParticipantMemory:
     steps = _dishes("P01_101", 10.0) + _dishes("P01_102", 50.0) + _dishes("P01_103", 100.0)
     eggs = [  # only in one video: a tool preference (repeated evidence), never a cross-video habit
@@ -205,10 +214,7 @@ def test_streaming_merge_gives_the_records_of_the_whole_list_merge(small_bank):
     their evidence and their order are those of merging every video's consolidation at once."""
     from memora_graph.consolidate.rules import RuleConsolidator
 
-    memories = [_memory()]
-    for p in SMALL:
-        with Bank(small_bank[0]).open(p, read_only=True) as store:
-            memories.append(load_memory(store, p))
+    memories = _memories(small_bank)
     for memory in memories:
         whole = _as_list_path(memory)
         streamed = RuleConsolidator().consolidate_streaming(memory)
@@ -225,10 +231,7 @@ def test_the_fold_index_kept_video_by_video_gives_the_whole_list_merge(small_ban
     from memora_graph.consolidate.records import VideoConsolidation
     from memora_graph.consolidate.rules import FoldIndex, RuleConsolidator
 
-    memories = [_memory()]
-    for p in SMALL:
-        with Bank(small_bank[0]).open(p, read_only=True) as store:
-            memories.append(load_memory(store, p))
+    memories = _memories(small_bank)
     rules = RuleConsolidator()
     for memory in memories:
         parts = {v: rules.consolidate_video(memory, v) for v in memory.videos}
@@ -292,10 +295,7 @@ def test_recurring_n_grams_are_those_seen_in_at_least_two_videos(small_bank):
     from memora_graph.consolidate.rules import RuleConsolidator
 
     rules = RuleConsolidator()
-    memories = [_memory()]
-    for p in SMALL:
-        with Bank(small_bank[0]).open(p, read_only=True) as store:
-            memories.append(load_memory(store, p))
+    memories = _memories(small_bank)
     seen = set()
     for memory in memories:
         videos: dict[tuple, set] = {}
