@@ -396,7 +396,8 @@ class Bm25:
         sum the dense pass makes (the terms added in the order they are visited, from 0.0)."""
         big = max(range(len(found)), key=lambda i: len(found[i][0]))
         others = [found[i][0] for i in range(len(found)) if i != big]
-        if sum(len(d) for d in others) > len(found[big][0]) or sum(len(d) for d in others) < k:
+        named = sum(len(d) for d in others)
+        if named > len(found[big][0]) or named < k:
             return None  # little to save, or too few documents for a k-th
         if len(others) == 1:
             cand = others[0]
