@@ -243,15 +243,9 @@ class RuleConsolidator:
         out = []
         for tokens, rec in found.items():
             window = rec["window"]
-            texts = [s.text() for s in window]
-            cats = Counter(vocab.category(s.verb) for s in window if not s.is_filler)
-            out.append(ActionSequence.model_construct(
-                title=" -> ".join(texts), steps=texts, actions=[s.action() for s in window],
-                activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0] if cats else None],
-                key_objects=_uniq(display(s.main.kind) for s in window), count=rec["n"], confidence=0.0,
-                supporting_episodes=_uniq(rec["first"]), segments=_uniq(rec["segments"]),
-                entities=_uniq(rec["entities"]), videos={video: rec["n"]},
-            ))
+            out.append(self._window_sequence(
+                tuple(s.text() for s in window), window, count=rec["n"], supporting_episodes=_uniq(rec["first"]),
+                segments=_uniq(rec["segments"]), entities=_uniq(rec["entities"]), videos={video: rec["n"]}))
         return out
 
     def _sequence_counts(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]]):
@@ -291,14 +285,15 @@ class RuleConsolidator:
                 if ev.window is None:
                     ev.window = window
 
-    def _window_sequence(self, steps: tuple[str, ...], window: list[MemoryStep]) -> ActionSequence:
-        """The fields `video_sequences` gives a sequence's record from its first window (no evidence)."""
+    def _window_sequence(self, steps: tuple[str, ...], window: list[MemoryStep], **evidence) -> ActionSequence:
+        """A sequence's record from its first window: the fields `video_sequences` gives it, with
+        `evidence` (count, supporting_episodes, segments, entities, videos; none by default)."""
         cats = Counter(vocab.category(s.verb) for s in window if not s.is_filler)
+        fields = {"count": 0, "supporting_episodes": [], "segments": [], "entities": [], "videos": {}, **evidence}
         return ActionSequence.model_construct(
             title=" -> ".join(steps), steps=list(steps), actions=[s.action() for s in window],
             activity_type=vocab.ACTIVITY_TYPE[cats.most_common(1)[0][0] if cats else None],
-            key_objects=_uniq(display(s.main.kind) for s in window), count=0, confidence=0.0, supporting_episodes=[],
-            segments=[], entities=[], videos={})
+            key_objects=_uniq(display(s.main.kind) for s in window), confidence=0.0, **fields)
 
     # -- per participant ---------------------------------------------------------------
     def consolidate_participant(self, memory: ParticipantMemory, per_video: list[VideoConsolidation]) -> Consolidation:
