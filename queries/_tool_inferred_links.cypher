@@ -3,3 +3,4 @@
 MATCH (n:Routine:Preference)-[:USES|ABOUT]->(e:Entity)
 WHERE n.participant = $participant
 RETURN n.id AS id, e.id AS entity
+ORDER BY id, entity
