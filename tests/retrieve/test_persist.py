@@ -256,3 +256,14 @@ def test_stores_written_part_by_part_are_the_files_a_warm_view_writes(bank, embe
     got = json.loads((store_dir(bank, P) / "meta.json").read_text())["files"]
     want = json.loads((store_dir(other, P) / "meta.json").read_text())["files"]
     assert len(got) > 40 and got == want
+
+
+def test_every_persisted_row_query_orders_its_rows():
+    """The persisted rows files are hashed and compared byte for byte: a participant-wide query
+    whose rows are kept must give them in one order, never Kùzu's scan order (which varies with
+    its threads; `_tool_inferred_links` once made two writes of one bank differ)."""
+    from memora_graph.queries import get_query
+    from memora_graph.retrieve.persist import ROW_QUERIES
+
+    for name in ROW_QUERIES:
+        assert "ORDER BY" in get_query(name).cypher.upper(), name
