@@ -231,59 +231,45 @@ class RuleConsolidator:
         kept = unique[videos >= self.min_videos].view(every.dtype).reshape(-1, width)
         return {tuple(tokens[i - 1] for i in row if i) for row in kept.tolist()}
 
-    def video_sequences(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
-        found: dict[tuple[str, ...], dict] = {}
+    def _recurring_windows(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> dict[tuple, list]:
+        """One video's windows whose tokens recur, grouped by their tokens in the order first seen: a
+        group is one action sequence of the video, its first window gives the sequence's texts."""
+        found: dict[tuple[str, ...], list[list[MemoryStep]]] = {}
         for tokens, window in self._windows(steps):
             if tokens in recurring:
-                rec = found.setdefault(tokens, {"n": 0, "first": [], "segments": [], "window": window, "entities": []})
-                rec["n"] += 1
-                rec["first"].append(window[0].segment)
-                rec["segments"] += [s.segment for s in window]
-                rec["entities"] += [s.main.entity for s in window]
+                found.setdefault(tokens, []).append(window)
+        return found
+
+    def video_sequences(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]]) -> list[ActionSequence]:
         out = []
-        for tokens, rec in found.items():
-            window = rec["window"]
+        for windows in self._recurring_windows(steps, recurring).values():
+            first, n = windows[0], len(windows)
             out.append(self._window_sequence(
-                tuple(s.text() for s in window), window, count=rec["n"], supporting_episodes=_uniq(rec["first"]),
-                segments=_uniq(rec["segments"]), entities=_uniq(rec["entities"]), videos={video: rec["n"]}))
+                tuple(s.text() for s in first), first, count=n, supporting_episodes=_uniq(w[0].segment for w in windows),
+                segments=_uniq(s.segment for w in windows for s in w),
+                entities=_uniq(s.main.entity for w in windows for s in w), videos={video: n}))
         return out
 
     def _sequence_counts(self, steps: list[MemoryStep], recurring: set[tuple[str, ...]]):
         """(steps' texts, count) of each action sequence `video_sequences` would report for one
         video, in its order, without building the records."""
-        found: dict[tuple[str, ...], list] = {}
-        for tokens, window in self._windows(steps):
-            if tokens in recurring:
-                rec = found.get(tokens)
-                if rec is None:
-                    rec = found[tokens] = [tuple(s.text() for s in window), 0]
-                rec[1] += 1
-        return [(texts, n) for texts, n in found.values()]
+        return [(tuple(s.text() for s in windows[0]), len(windows))
+                for windows in self._recurring_windows(steps, recurring).values()]
 
     def _sequence_evidence(self, video: str, steps: list[MemoryStep], recurring: set[tuple[str, ...]],
                            evidence: dict[tuple[str, ...], _SequenceEvidence]) -> None:
         """What `video_sequences` would cite for one video, added to the chosen sequences' evidence
-        (keyed by their steps' texts, as the merge groups them), without building the records:
-        a video's windows are grouped by their tokens, a group takes the texts of its first window.
+        (keyed by their steps' texts, as the merge groups them), without building the records.
         Also the video's count of each chosen sequence, and the first window it was seen in."""
-        found: dict[tuple[str, ...], list] = {}
-        for tokens, window in self._windows(steps):
-            if tokens not in recurring:
+        for windows in self._recurring_windows(steps, recurring).values():
+            ev = evidence.get(tuple(s.text() for s in windows[0]))
+            if ev is None:
                 continue
-            rec = found.get(tokens)
-            if rec is None:
-                rec = found[tokens] = [evidence.get(tuple(s.text() for s in window)), [], [], [], 0, window]
-            if rec[0] is not None:
-                rec[1].append(window[0].segment)
-                rec[2].extend(s.segment for s in window)
-                rec[3].extend(s.main.entity for s in window)
-                rec[4] += 1
-        for ev, first, segments, entities, n, window in found.values():
-            if ev is not None:
-                ev.extend(first, segments, entities)
-                ev.videos[video] += n
-                if ev.window is None:
-                    ev.window = window
+            ev.extend([w[0].segment for w in windows], [s.segment for w in windows for s in w],
+                      [s.main.entity for w in windows for s in w])
+            ev.videos[video] += len(windows)
+            if ev.window is None:
+                ev.window = windows[0]
 
     def _window_sequence(self, steps: tuple[str, ...], window: list[MemoryStep], **evidence) -> ActionSequence:
         """A sequence's record from its first window: the fields `video_sequences` gives it, with
