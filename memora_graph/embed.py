@@ -6,7 +6,7 @@ their "query: " / "passage: " prefixes.
 
 Batches of 32, and for builds `adaptive_threads` (every core while the machine is otherwise idle,
 one thread as soon as other processes take CPU): the measurements that chose them are in
-docs/performance.md ("Embedding throughput").
+docs/findings/embedding-defaults.md ("Embedding throughput").
 """
 
 from __future__ import annotations
@@ -189,7 +189,7 @@ _BLAS_LIMITED = False
 def single_thread_blas() -> None:
     """Tool calls do small matrix products (a query against <= 1.4k rows); on the 2-core
     machines this project targets, OpenBLAS' worker threads make such a product many times
-    slower (the same spin as torch's; docs/performance.md). Limit BLAS to one thread, once per process."""
+    slower (the same spin as torch's; docs/findings/embedding-defaults.md). Limit BLAS to one thread, once per process."""
     global _BLAS_LIMITED
     if _BLAS_LIMITED:
         return
@@ -245,7 +245,7 @@ def encode_passages(embedder, texts: list[str], batch_size: int = 32) -> np.ndar
 # another MEMORA_EMBED_MODEL embeds its queries with torch too.
 #
 # `memora perf encoders` compares them; the figures that made onnx-int8 the default are in
-# docs/performance.md ("Query encoders"). Passages stay on torch, so the stored vectors stay
+# docs/findings/embedding-defaults.md ("Query encoders"). Passages stay on torch, so the stored vectors stay
 # exactly those of existing banks.
 QUERY_ENCODERS = {
     "onnx-int8": "MiniLM in ONNX Runtime, 8-bit weights in blocks of 32 (recall@10 0.99)",

@@ -1,7 +1,7 @@
 """MiniLM through ONNX Runtime: the query side of every tool call, without torch.
 
 A tool call with a new query used to spend most of its time in a PyTorch forward pass of
-MiniLM, plus `import torch` in a one-shot process (docs/performance.md has the figures). Here the bundled
+MiniLM, plus `import torch` in a one-shot process (docs/findings/embedding-defaults.md has the figures). Here the bundled
 all-MiniLM-L6-v2 is exported once (torch is needed for that one step only) into a cache
 directory, and queries run through `onnxruntime.InferenceSession` with the `tokenizers` fast
 tokenizer; mean pooling and L2 normalisation are part of the exported graph. The export:
@@ -11,7 +11,7 @@ tokenizer; mean pooling and L2 normalisation are part of the exported graph. The
 2. `onnxruntime.transformers.optimizer` with the fusions: `model.onnx` (fp32);
 3. `MatMulNBitsQuantizer` (8-bit weights in blocks of 32, int8 compute): `model-int8.onnx`.
    ONNX Runtime's `quantize_dynamic` (per-tensor int8 activations) was measured too and
-   rejected for its recall (docs/performance.md, "Query encoders").
+   rejected for its recall (docs/findings/embedding-defaults.md, "Query encoders").
 
 Each variant is checked against the torch model on probe sentences (padded batch included)
 before the export is published. The export directory is written under a temporary name and

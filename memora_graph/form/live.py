@@ -73,7 +73,7 @@ class _OnnxPassages:
     dominates a single short text). Its vectors match the PyTorch model's to cosine >= 0.9999999
     on P01's narrations (each component within 2.2e-7; PyTorch one text at a time, as remembers
     ran before, is within 1.1e-7 of a build's batches), and no top-10 list changed when a
-    vector is swapped for it (docs/live-memory.md, "Where a remember's CPU goes")."""
+    vector is swapped for it (docs/findings/live-remember-latency.md, "Where a remember's CPU goes")."""
 
     def __init__(self, model: str):
         from memora_graph.onnx_embed import OnnxEmbedder

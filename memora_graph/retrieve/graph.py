@@ -17,7 +17,7 @@ class ObservationGraph:
     """Entity <-> segment edges (StateEvent -OBSERVED_IN-> Segment), with where each was seen, and
     the entity co-occurrence counts (segments two entities share), computed once. The counts are
     kept sparse (pairs that co-occur, sorted): a dense entity x segment incidence product grows as
-    entities^2 x segments and does not fit a 1,000-hour memory (docs/performance.md, "Memory at scale").
+    entities^2 x segments and does not fit a 1,000-hour memory (docs/findings/scale-first-runs.md).
 
     Everything is held as flat arrays (`arrays()`; `from_arrays` reopens them memory-mapped from
     the persisted tool stores without rebuilding anything): segment ids sorted, each segment's

@@ -11,7 +11,7 @@ tools` measures side by side, so a reader sees every retrieval variant in one pl
 - fusion: reciprocal-rank fusion of the vector and keyword ranks plus a small graph term, so a
   record found by both signals beats one found by either alone.
 
-The default ("inprocess") is the measured fastest (docs/performance.md, "Retrieval recipes").
+The default ("inprocess") is the measured fastest (docs/findings/embedding-defaults.md, "Retrieval recipes").
 `fts`, `kuzu` and `hnsw` use Kùzu per call and need its FTS (and HNSW) indexes, which a build
 makes only when asked (`memora build --fts`, `memora index BANK --fts --hnsw`).
 """
@@ -57,7 +57,7 @@ DEFAULT_RECIPE = "inprocess"
 # From this many segments on, a participant whose database has the FTS and HNSW indexes opens with
 # the "hnsw" recipe when no recipe is asked for; None: never (ask for it with --recipe hnsw).
 # `memora perf scale` measures the crossover; no measured size has HNSW faster, so the switch is off
-# until one does (docs/performance.md, "Memory at scale").
+# until one does (docs/findings/scale-first-runs.md).
 HNSW_MIN_SEGMENTS: int | None = None
 
 

@@ -52,7 +52,7 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
     content (and the same JSON as text); `output_schemas` also advertises each tool's result
     schema. Off by default: a client that validates results against it (the `mcp` SDK's does, in
     pure-Python jsonschema) spends several times the call itself on it (`memora perf serve
-    --output-schemas`; docs/performance.md)."""
+    --output-schemas`; docs/findings/model-backed-runs.md)."""
     tools = [types.Tool(name=e.name, description=e.description, input_schema=e.input_schema,
                         output_schema=e.output_schema if output_schemas else None,
                         annotations=WRITES if e.kind == "remember" else READ_ONLY)
