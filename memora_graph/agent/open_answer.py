@@ -35,6 +35,7 @@ from pydantic import BaseModel, Field
 
 from memora_graph.agent.open_parse import OpenQuestion, fix_keys, noun_classes, parse_open
 from memora_graph.perceive.lexicon import Lexicon
+from memora_graph.text import counted
 
 NOT_IN_MEMORY = "not in memory"
 # EPIC noun categories of where things are put or taken from (a narration's second object)
@@ -357,7 +358,7 @@ def _place(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
             verb = "took" if q.source else "put"
             text = f"{pv.name} ({word} {verb} there in {s.video} at {clock(s.t)})"
             return OpenAnswer(**base, kind="place", answer=text, in_memory=True, place=pv, evidence=[s.segment],
-                              support=len(cands), detail=f"{len(cands)} placements of the {what} in memory",
+                              support=len(cands), detail=f"{counted(len(cands), 'placement')} of the {what} in memory",
                               features=_features(len(cands), 1.0, 1.0))
         counts = Counter(c.place for c in cands)
         (best, n), *rest = counts.most_common()
@@ -448,8 +449,8 @@ def _time(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -
     word = "first" if q.order == "first" else "last"
     videos = list(dict.fromkeys(h.video for h in hits))
     m = MomentValue(video=s.video, time_seconds=round(s.t, 2), clock=clock(s.t))
-    return OpenAnswer(**base, kind="time", answer=f"{s.video} at {m.clock} ({word} of {len(hits)} times, in "
-                      f"{len(videos)} videos)", in_memory=True, moment=m, evidence=[s.segment], support=len(hits),
+    return OpenAnswer(**base, kind="time", answer=f"{s.video} at {m.clock} ({word} of {counted(len(hits), 'time')}, in "
+                      f"{counted(len(videos), 'video')})", in_memory=True, moment=m, evidence=[s.segment], support=len(hits),
                       detail=f"{s.text} ({word} time)", features=_features(len(hits), 1.0, 1.0, exact=exact))
 
 
@@ -467,11 +468,11 @@ def _count(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
         return _never(q, base)
     videos = list(dict.fromkeys(h.video for h in hits))
     n = len(videos) if q.unit == "videos" else len(hits)
-    unit = "videos" if q.unit == "videos" else "times"
+    unit = "video" if q.unit == "videos" else "time"
     asked = action_text(q.verb, _subject(q)[0] if _subject(q) else None)
-    return OpenAnswer(**base, kind="count", answer=f"{n} {unit} ({asked}; {len(hits)} records in {len(videos)} videos)",
+    return OpenAnswer(**base, kind="count", answer=f"{counted(n, unit)} ({asked}; {counted(len(hits), 'record')} in {counted(len(videos), 'video')})",
                       in_memory=True, count=n, evidence=_ids(hits), support=len(hits),
-                      detail=f"counted {len(hits)} records of '{asked}'", features=_features(len(hits), 1.0, 1.0))
+                      detail=f"counted {counted(len(hits), 'record')} of '{asked}'", features=_features(len(hits), 1.0, 1.0))
 
 
 def _yesno(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
@@ -479,7 +480,7 @@ def _yesno(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
     if not hits:
         return _never(q, base)
     videos = list(dict.fromkeys(h.video for h in hits))
-    return OpenAnswer(**base, kind="yesno", answer=f"yes ({len(hits)} times in {len(videos)} videos; last in "
+    return OpenAnswer(**base, kind="yesno", answer=f"yes ({counted(len(hits), 'time')} in {counted(len(videos), 'video')}; last in "
                       f"{hits[-1].video} at {clock(hits[-1].t)}: {hits[-1].text})", in_memory=True, yes=True,
                       evidence=_ids(hits), support=len(hits), detail=hits[-1].text, features=_features(len(hits)))
 
@@ -551,7 +552,7 @@ def _routine(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict
                                      noun=(c.nouns[0] if c and c.nouns else ""), text=s))
         n = int(best.get("count") or 0)
         return OpenAnswer(**base, kind="routine", answer=" -> ".join(s.text for s in steps) +
-                          f" (routine '{best.get('goal')}', seen {n} times)", in_memory=True, steps=steps,
+                          f" (routine '{best.get('goal')}', seen {counted(n, 'time')})", in_memory=True, steps=steps,
                           evidence=[best["id"], *(best.get("supporting_episodes") or [])[:5]], support=n,
                           detail=f"the consolidated routine '{best.get('goal')}'",
                           features=_features(n, float(best.get("confidence") or 0.5), 1.0, exact=False))
@@ -569,7 +570,7 @@ def _routine(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict
         return _never(q, base)
     seq, n = windows.most_common(1)[0]
     steps = [RoutineStep(order=i + 1, verb=v or "", noun=o, text=action_text(v, o)) for i, (v, o) in enumerate(seq)]
-    return OpenAnswer(**base, kind="routine", answer=" -> ".join(s.text for s in steps) + f" (seen {n} times)",
+    return OpenAnswer(**base, kind="routine", answer=" -> ".join(s.text for s in steps) + f" (seen {counted(n, 'time')})",
                       in_memory=True, steps=steps, support=n, detail="the most common sequence around it in the episodes",
                       features=_features(n, n / sum(windows.values()), 0.0, True, False))
 

@@ -10,6 +10,7 @@ import click
 
 from memora_graph.cli.options import FAMILY, RECIPE, check_participant_option, output_options
 from memora_graph.output import render
+from memora_graph.text import counted
 
 if TYPE_CHECKING:
     import polars as pl
@@ -86,6 +87,49 @@ def records_frame(result, compact: bool = False) -> pl.DataFrame:
     return pl.DataFrame([{c: _flat(r.get(c)) for c in cols} for r in rows], infer_schema_length=None)
 
 
+_HEAD_SKIP = {"tool", "participant", "arguments", "evidence", "notes"}
+
+
+def _line(value, width: int = 110) -> str:
+    text = " ".join(str(_short(value, width)).split())
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def result_summary(res) -> str:
+    """A tool result for a person reading a terminal: what was asked, the result's own fields (a
+    found object, its current state, a video's length), then one numbered line per record (its id,
+    what it says, its similarity) in rank order, list by list. Every field is in --json; the
+    records' fields one column each in --csv / --nl."""
+    result = res.as_json()
+    arguments = ", ".join(f"{k}={v!r}" for k, v in (result.get("arguments") or {}).items() if v not in (None, ""))
+    lines = [f"{result.get('tool', '?')} on {result.get('participant', '?')}'s memory ({arguments})"]
+    lists = set(res._lists)
+    for key, value in result.items():
+        if key in _HEAD_SKIP or key in lists or value in (None, "", [], {}):
+            continue
+        if isinstance(value, list) and value and isinstance(value[0], dict):
+            value = f"{counted(len(value), 'entry', 'entries')} (--json shows them)"
+        lines.append(f"  {key}: {_line(value)}")
+    records = list(res.records())
+    by_list: dict[str, list] = {}
+    for name, rec in records:
+        by_list.setdefault(name, []).append(rec)
+    for name, recs in by_list.items():
+        lines.append(f"{name} ({counted(len(recs), 'record')}):")
+        for i, rec in enumerate(recs, 1):
+            data = rec.model_dump(mode="json")
+            rid = next((data[f] for f in _ID_FIELDS if data.get(f)), "")
+            sim = data.get("similarity")
+            tail = f"  (similarity {sim:.2f})" if isinstance(sim, (int, float)) else ""
+            lines.append(f"{i:>3}. {rid}  {_line(rec.text() or json.dumps(data, ensure_ascii=False), 100)}{tail}")
+    if not records:
+        lines.append("(no records)")
+    for note in result.get("notes") or []:
+        lines.append(f"note: {_line(note, 200)}")
+    lines.append("(--json: the whole result with evidence ids and scores; --csv / --nl: every field of the records)")
+    return "\n".join(lines)
+
+
 @click.command("tools")
 @click.option("--memory", "family", type=FAMILY, default=None,
               help="Only the tools of one memory representation: memora (default for --json), flat1d, graph2d.")
@@ -141,7 +185,9 @@ def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
 
     TEXT, if given, fills the tool's positional argument (query, object_query, goal_query,
     time_seconds: `memora tools` lists them). --json prints the whole result (records, evidence
-    ids, score breakdown); --table / --csv / --nl print its records.
+    ids, score breakdown); by default (--table) a summary: the result's own fields, then one
+    numbered line per record (id, what it says, similarity); --csv / --nl print every field of
+    its records.
 
     \b
     Examples:
@@ -170,7 +216,6 @@ def tool_cmd(bank, name, text, participant, args, recipe, family, fmt):
         click.echo(json.dumps(result, indent=2, ensure_ascii=False, default=str))
         return
     if fmt == "table":
-        lists = {k for k, _ in res.records()} | set(res._lists)
-        head = {k: v for k, v in result.items() if k not in lists and k != "evidence"}
-        click.echo(json.dumps(head, ensure_ascii=False, default=str)[:2000])
-    click.echo(render(records_frame(res, compact=fmt == "table"), fmt))
+        click.echo(result_summary(res))
+        return
+    click.echo(render(records_frame(res), fmt))

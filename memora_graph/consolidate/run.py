@@ -32,6 +32,7 @@ from memora_graph.llm.backends import CallRecord
 from memora_graph.embed import encode_passages
 from memora_graph.form.build import model_call_frame
 from memora_graph.store import Store
+from memora_graph.text import counted
 
 
 
@@ -204,7 +205,7 @@ def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: 
                      keywords=[s.object_name, s.preferred_location, s.context.replace("_", " "), "store", "keep", "put"],
                      objects=[s.object_name], context=s.context, episodes=s.supporting_episodes, entities=s.entities,
                      videos=s.videos, count=s.count, confidence=s.confidence, source="consolidation",
-                     evidence_summary=f"{s.count} of {s.total} observations in {len(s.videos)} videos",
+                     evidence_summary=f"{s.count} of {s.total} observations in {counted(len(s.videos), 'video')}",
                      detail={"object": s.object, "preferred_location": s.preferred_location, "place": s.place,
                              "total": s.total, "alternatives": s.alternatives})
     for h in consolidation.organizational_habits:
@@ -212,7 +213,7 @@ def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: 
                      keywords=[*h.trigger.split(), *h.next_action.split()], objects=h.objects_involved,
                      context=h.trigger, episodes=h.supporting_episodes, entities=h.entities, videos=h.videos,
                      count=h.count, confidence=h.confidence, source="consolidation",
-                     evidence_summary=f"{h.count} of {h.trigger_count} times in {len(h.videos)} videos",
+                     evidence_summary=f"{h.count} of {h.trigger_count} times in {counted(len(h.videos), 'video')}",
                      detail={"trigger": h.trigger, "next_action": h.next_action, "trigger_count": h.trigger_count,
                              **({"trigger_step": h.trigger_step.model_dump()} if h.trigger_step else {}),
                              **({"next_step": h.next_step.model_dump()} if h.next_step else {})})
@@ -221,7 +222,7 @@ def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: 
                      keywords=[w.category, *w.objects[:6], *w.use.replace("@", "").split(), *w.then.split()],
                      objects=w.objects, context=w.category, episodes=w.supporting_episodes, entities=w.entities,
                      videos=w.videos, count=w.count, confidence=w.confidence, source="consolidation",
-                     evidence_summary=f"{w.count} times with {len(w.objects)} objects in {len(w.videos)} videos",
+                     evidence_summary=f"{w.count} times with {counted(len(w.objects), 'object')} in {counted(len(w.videos), 'video')}",
                      detail={"category": w.category, "use": w.use, "then": w.then})
     for a in consolidation.action_sequences:
         c.routine("seq", tuple(a.steps), goal=a.title, activity_type=a.activity_type, steps=a.steps,

@@ -243,12 +243,45 @@ def test_tool_cli(small_bank):
     r = runner.invoke(main, ["tool", str(path), "search_objects", "--participant", "P37", "--arg", "query", "knife",
                              "--arg", "top_k", "2", "--nl"])
     assert r.exit_code == 0 and len(r.output.strip().splitlines()) == 2
-    r = runner.invoke(main, ["tool", str(path), "search", "knife", "--participant", "P37"])
-    assert r.exit_code == 0 and "s_vector" in r.output
+    r = runner.invoke(main, ["tool", str(path), "search", "knife", "--participant", "P37", "--csv"])
+    assert r.exit_code == 0 and "similarity" in r.output.splitlines()[0]
     r = runner.invoke(main, ["tool", str(path), "nope", "--participant", "P37"])
     assert r.exit_code == 1 and "no tool 'nope'" in r.output
     r = runner.invoke(main, ["tool", str(path), "search", "knife", "--participant", "P01"])
     assert r.exit_code == 1 and "not in this bank" in r.output
+
+
+@pytest.mark.parametrize("argv", [
+    ["search", "knife"],
+    ["get_object_history", "knife"],
+    ["get_routine_skill", "wash the pan"],
+    ["search_objects", "--arg", "query", "knife", "--arg", "top_k", "1"],
+], ids=lambda a: a[0])
+def test_tool_without_json_prints_a_readable_summary(small_bank, argv):
+    """`memora tool` without --json reads as lines of words, not a wide wrapped table: what was
+    asked, then one numbered line per record (its id and what it says) in the result's rank order,
+    every line short enough for a terminal; a count says "1 record", not "1 records"."""
+    path, _ = small_bank
+    runner = CliRunner()
+    base = ["tool", str(path), *argv, "--participant", "P37"]
+    whole = json.loads(runner.invoke(main, [*base, "--json"]).output)
+    r = runner.invoke(main, base)
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+    assert lines[0].startswith(f"{argv[0]} on P37's memory (")
+    assert not any(ch in r.output for ch in "┃│┏━"), "a table, not a summary"
+    assert max(map(len, lines)) <= 160
+    for name in ("results", "objects", "activities", "places", "patterns", "routines", "preferences", "state_history"):
+        recs = whole.get(name) or []
+        if not recs:
+            continue
+        assert f"{name} ({len(recs)} record{'' if len(recs) == 1 else 's'}):" in lines
+        start = lines.index(f"{name} ({len(recs)} record{'' if len(recs) == 1 else 's'}):")
+        for i, rec in enumerate(recs, 1):
+            rid = next(rec[f] for f in ("entity_id", "segment_id", "place_id", "pattern_id", "routine_id",
+                                        "preference_id", "event_id", "id") if rec.get(f))
+            assert lines[start + i].split()[:2] == [f"{i}.", rid]
+    assert any(whole.get(n) for n in ("results", "objects", "routines", "state_history")), "the call found records"
 
 
 def test_perf_tools_reports_every_tool_and_recall(small_bank):
