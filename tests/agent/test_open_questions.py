@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import pytest
 from click.testing import CliRunner
@@ -124,6 +125,35 @@ def test_typed_answers_match_the_annotations(small_bank, cohort, lex):
         assert placed.kind == "place" and placed.place.place == last_put.place and placed.place.video == last_put.video_id
         for e in placed.evidence + n.evidence:  # evidence ids are the bank's segments
             assert e.split("#")[0] in view.videos
+
+
+def test_answers_count_in_the_right_number(small_bank, cohort, lex):
+    """An action seen once, in one video, is "1 time", "in 1 video", "1 record", and an object put
+    once has "1 placement": no "1 videos" or "1 placements" in an answer or its detail."""
+    bank, _ = small_bank
+    b = cohort["P37"]
+    steps = [s for v in b.videos for s in b.steps_by_video[v]]
+    by_action: dict = {}
+    for s in steps:
+        by_action.setdefault(s.action, []).append(s)
+    once = [a for a, r in by_action.items() if len(r) == 1 and a.noun not in ("hand", "")]
+    puts = [s for s in steps if s.place and s.action.verb in PUT_VERB_KEYS and s.action.noun != s.place]
+    put_once = [n for n in {s.action.noun for s in puts} if sum(s.action.noun == n for s in puts) == 1]
+    assert once and put_once, "P37 has an action seen once and an object put once"
+    texts = []
+    with MemoryView.open(bank, "P37") as view:
+        for action in once[:5]:
+            verb, obj = action.verb.replace("-", " "), action.noun.replace("_", " ")
+            for q in (f"How many times did P37 {verb} the {obj}?", f"In which video did P37 last {verb} the {obj}?",
+                      f"Has P37 ever {verb}ed the {obj}?".replace("eed", "ed")):
+                a = answer_open(view, "P37", q, lex)
+                texts += [a.answer, a.detail or ""]
+        for noun in sorted(put_once)[:5]:
+            a = answer_open(view, "P37", f"Where did P37 last put the {noun.replace('_', ' ')}?", lex)
+            texts += [a.answer, a.detail or ""]
+    joined = "\n".join(texts)
+    assert re.search(r"\b1 (video|time|record|placement)\b", joined), joined  # the singular is used
+    assert not re.search(r"\b1 (videos|times|records|placements)\b", joined), joined
 
 
 def test_not_in_memory_says_why(small_bank, lex):
