@@ -448,7 +448,10 @@ def render_html(markdown: str) -> str:
     body = MarkdownIt("commonmark", {"html": False}).enable("table").render(markdown)
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse;margin:1em 0}"
              "td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
-             "blockquote{margin:1em 0;padding:0 1em;border-left:3px solid #ccc}")
+             "blockquote{margin:1em 0;padding:0 1em;border-left:3px solid #ccc}"
+             # figures scale to the page: the RGP figure takes the row, the three small ones share the next
+             "img{max-width:100%;height:auto;vertical-align:top}"
+             "img[src='reliability.png'],img[src='compression.png'],img[src='decisions.png']{max-width:32%}")
     return f"<!doctype html><html><head><meta charset='utf-8'><style>{style}</style></head><body>{body}</body></html>"
 
 
