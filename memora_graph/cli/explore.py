@@ -24,8 +24,10 @@ def explore_cmd(bank, participant, out):
       xdg-open memory.html                  # or open it in any browser, offline
     """
     from memora_graph.explore import write_explorer
+    from memora_graph.text import counted
 
     path, data = write_explorer(bank, participant, out or f"{participant}.html")
     size = path.stat().st_size / 1e6
-    click.echo(f"{participant}: {len(data['videos'])} videos, {len(data['segments'])} segments, {len(data['events'])} state "
-               f"events, {len(data['routines'])} routines, {len(data['preferences'])} preferences -> {path} ({size:.1f} MB)")
+    counts = ", ".join(counted(len(data[k]), noun) for k, noun in (("videos", "video"), ("segments", "segment"),
+                       ("events", "state event"), ("routines", "routine"), ("preferences", "preference")))
+    click.echo(f"{participant}: {counts} -> {path} ({size:.1f} MB)")
