@@ -9,7 +9,7 @@ import re
 import pytest
 
 from memora_graph.bench.report import _figures, render_html
-from support.browser import CHROMIUM, NO_CHROMIUM, _run, elements
+from support.browser import CHROMIUM, NO_CHROMIUM, dump_dom, elements
 
 WINDOW = (1400, 1000)
 CONDITIONS = {"no_memory": "Parametric", "flat_1d_raw": "Flat-1D (raw)", "flat_1d_edited": "Flat-1D (processed)",
@@ -63,8 +63,7 @@ def test_the_figure_row_fits_a_1400_px_window(tmp_path):
     assert all(f'src="{p.name}"' in html for p in figures)
     page = tmp_path / "report.html"
     page.write_text(html.replace("</body>", MEASURE + "</body>"))
-    dom = _run([f"--window-size={WINDOW[0]},{WINDOW[1]}", "--virtual-time-budget=5000", "--dump-dom",
-                page.resolve().as_uri()], timeout=90).stdout
+    dom = dump_dom(page, size=WINDOW, settle_ms=5000)
     root = elements(dom, "html")[0]
     assert int(root["data-loaded"]) == len(figures), "every figure loaded"
     viewport = int(root["data-viewport"])

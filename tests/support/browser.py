@@ -42,9 +42,12 @@ def _url(page: Path, fragment: str) -> str:
     return Path(page).resolve().as_uri() + (f"#{fragment}" if fragment else "")
 
 
-def dump_dom(page: Path, fragment: str = "", size: tuple[int, int] = (1400, 1000), timeout: float = 90) -> str:
-    """The serialized DOM once the page has loaded (its inline scripts have run by then)."""
-    return _run([f"--window-size={size[0]},{size[1]}", "--dump-dom", _url(page, fragment)], timeout).stdout
+def dump_dom(page: Path, fragment: str = "", size: tuple[int, int] = (1400, 1000), timeout: float = 90,
+             settle_ms: int = 0) -> str:
+    """The serialized DOM once the page has loaded (its inline scripts have run by then); with
+    `settle_ms`, after that much virtual time more (images decoded, load handlers run)."""
+    settle = [f"--virtual-time-budget={settle_ms}"] if settle_ms else []
+    return _run([f"--window-size={size[0]},{size[1]}", *settle, "--dump-dom", _url(page, fragment)], timeout).stdout
 
 
 def screenshot(page: Path, out: Path, fragment: str = "", size: tuple[int, int] = (1400, 1000), timeout: float = 90) -> Path:
