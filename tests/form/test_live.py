@@ -274,7 +274,7 @@ def test_every_answered_operation_and_state_event_is_in_the_database(tmp_path):
     """A remember's answer is what the database keeps: every operation and state event it reports
     is a row, on its entity and in its segment, across interleaved videos (a Kùzu CREATE holding
     a new segment and a new state event linked to it lost such events at commit: see
-    docs/findings/live-remember-latency.md, fifth round)."""
+    docs/findings/live-remember-latency-1000h.md, fifth round)."""
     bank = tmp_path / "bank"
     ops, events = {}, {}
     with LiveWriter(bank, "P01") as memory:
