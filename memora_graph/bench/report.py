@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import re
+import textwrap
 from collections import Counter, defaultdict
 from pathlib import Path
 from statistics import mean, median
@@ -523,9 +524,9 @@ def _figures(rep: dict[str, Any], out: Path) -> list[Path]:
         ax.plot(x, np.median(without, axis=0), label="without editor (one record per observation)")
         ax.plot(x, np.median(edited, axis=0), label="MEMORA editor (live entities)")
         words = compression_words(form, float(np.median(without[:, -1])), float(np.median(edited[:, -1])))
-        ax.set_xlabel(words["xlabel"])
+        ax.set_xlabel("\n".join(textwrap.wrap(words["xlabel"], 60)))  # wrapped: the figure is 5.5 in wide
         ax.set_ylabel("Entity Memory records (median)")
-        ax.set_title(words["title"], fontsize=9)
+        ax.set_title("\n".join(textwrap.wrap(words["title"], 60)), fontsize=9)
         ax.legend(fontsize=8)
         fig.tight_layout()
         paths.append(_save(fig, out / "compression.png", plt))
