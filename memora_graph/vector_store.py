@@ -60,6 +60,10 @@ def _key(text: str) -> bytes:
     return hashlib.blake2b(text.encode(), digest_size=16).digest()
 
 
+BUSY_TIMEOUT_S = 60.0  # how long a statement waits for another process's lock
+OPEN_TRIES = 5  # a file locked while it is opened (another worker creating it) is tried again, then left alone
+
+
 class _Disk:
     """The SQLite file: key (blake2b of the text) -> float32 bytes."""
 
@@ -68,7 +72,7 @@ class _Disk:
         self._db = self._open()
 
     def _open(self) -> sqlite3.Connection:
-        db = sqlite3.connect(self.path, timeout=60, isolation_level=None, check_same_thread=False)
+        db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S, isolation_level=None, check_same_thread=False)
         try:
             db.execute("PRAGMA journal_mode=WAL")
             db.execute("PRAGMA synchronous=NORMAL")
@@ -136,10 +140,20 @@ class TextVectors:
                         "to a writable directory)", root)
             return
         path = root / f"{encoder_identity(self.encoder)}-{self.kind}.sqlite"
-        try:
-            self._disk = _Disk(path, int(self.encoder.dim))
-        except sqlite3.DatabaseError as exc:
-            self._disk = self._start_again(path, exc)
+        for attempt in range(OPEN_TRIES):
+            try:
+                self._disk = _Disk(path, int(self.encoder.dim))
+                return
+            except sqlite3.OperationalError as exc:  # locked by another process (two workers creating the file
+                # at once switch it to WAL together): the file is not damaged, so it is never set aside
+                if attempt == OPEN_TRIES - 1:
+                    log.warning("memora: %s is locked by another process (%s); text vectors are kept in memory "
+                                "only this time", path, exc)
+                    return
+                time.sleep(0.05 * 2 ** attempt)
+            except sqlite3.DatabaseError as exc:
+                self._disk = self._start_again(path, exc)
+                return
 
     def _start_again(self, path: Path, exc: Exception) -> _Disk | None:
         """A damaged file is set aside (`.damaged-<time>`) and a new one started."""

@@ -118,3 +118,29 @@ def test_a_busy_file_is_not_taken_for_damaged(query_encoder, tmp_path, monkeypat
     assert np.array_equal(got, want) and later.encoded == len(TEXTS) and later.path is not None
     assert "could not read" in caplog.text and "damaged" not in caplog.text
     assert not any(".damaged-" in p.name for p in (tmp_path / "vectors").iterdir())
+
+
+def test_a_file_locked_while_it_is_opened_is_left_alone(query_encoder, tmp_path, monkeypatch, caplog):
+    """Two evaluation workers creating the file at once: one finds it locked while it switches the
+    file to WAL. That lock is another process at work, not damage: the file is never set aside (the
+    other worker is using it), and the vectors are computed in memory."""
+    from memora_graph import vector_store
+
+    tv = TextVectors(query_encoder, root=tmp_path)
+    want = tv.encode(TEXTS)
+    path = tv.path
+    tv.close()
+    other = sqlite3.connect(path, isolation_level=None)
+    other.execute("BEGIN EXCLUSIVE")  # another process holds the file
+    monkeypatch.setattr(vector_store, "BUSY_TIMEOUT_S", 0.05)
+    try:
+        with caplog.at_level(logging.WARNING, logger="memora_graph"):
+            later = TextVectors(query_encoder, root=tmp_path)
+            got = later.encode(TEXTS)
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+    assert np.array_equal(got, want) and later.path is None and later.encoded == len(TEXTS)
+    assert "locked by another process" in caplog.text and "damaged" not in caplog.text
+    assert not any(".damaged-" in p.name for p in (tmp_path / "vectors").iterdir())
+    assert TextVectors(query_encoder, root=tmp_path).encode(TEXTS[:1]).shape[0] == 1  # the file still opens
