@@ -164,6 +164,11 @@ def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None,
     rows = [{"kind": k, **v} for k, v in summary["per_kind"].items()] + \
         [{"kind": f"{k} wording", **v} for k, v in summary["per_split"].items()] + [{"kind": "ALL", **summary["overall"]}]
     click.echo(render(pl.DataFrame(rows), "table"))
+    cells = [{"operation x scope": k, **v} for k, v in summary["per_cell"].items()]
+    click.echo(render(pl.DataFrame(cells), "table"))
+    cf = summary["counterfactual"]
+    click.echo(f"counterfactual check: {cf['changed']} of {cf['pairs']} answers changed with their scope where the gold "
+               f"did ({cf['rate']})")
     sel = summary["selective"]
     click.echo(f"not-in-memory reason right: {summary['nim_reason_accuracy']}; ECE {summary['ece']:.3f}; accuracy at "
                f"100% / 80% / 50% coverage: {sel['100%']} / {sel['80%']} / {sel['50%']}")

@@ -79,7 +79,8 @@ _FUNCTION = frozenset("""a an the of to in on at for with by from into onto out 
     moment point timestamp minute minutes second seconds hour hours can could will would should may might shall
     must does did done doing has had having was were are am been being get got
     go goes went going typically generally overall exist exists existed evidence sign trace instance
-    instances case cases mention mentioned able use used using uses""".split())
+    instances case cases mention mentioned able use used using uses now currently today yesterday tonight
+    earlier lately moment right one ones""".split())
 
 
 @dataclass
