@@ -133,11 +133,11 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         i = rng.randrange(len(pool[person]))
         return pool[person][i], f"{kind}/{person}/{i}", person
 
-    def text(t: str, a: ActionClass | None, noun: str = "", typo: bool = False, **kw) -> str:
+    def text(t: str, act: ActionClass | None, noun: str = "", typo: bool = False, **kw) -> str:
         q = fill(t.replace("{V}", "{{V}}").replace("{a}", "{{a}}").replace("{z}", "{{z}}").replace("{e}", "{{e}}")
-                 .replace("{N}", "{{N}}"), pid, a, noun)
+                 .replace("{N}", "{{N}}"), pid, act, noun)
         if typo:
-            name = noun_text(noun or (a.noun if a else ""))
+            name = noun_text(noun or (act.noun if act else ""))
             words = name.split()
             longest = max(words, key=len) if words else ""
             if len(longest) >= 6:

@@ -553,7 +553,9 @@ def _count(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
 
 
 def _yesno(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q, loose=True)]
+    hits = [s for s in log if _matches(s, q)]
+    if not hits and q.query.scope.empty():  # over all memory, a put of any kind answers "did P put X"
+        hits = [s for s in log if _matches(s, q, loose=True)]
     if not hits:
         return _never(q, base)
     if q.widened:  # "has P22 ever used a wok?": no row says wok; the class (pan) is the widened reading

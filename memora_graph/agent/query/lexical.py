@@ -100,6 +100,7 @@ class OpenQuestion:
     about_person: bool = False  # names or refers to the person whose memory is asked
     unknown: list[str] = field(default_factory=list)  # content words no EPIC class knows ("chainsaw")
     unit: str = "times"  # count: times | videos
+    asked: str = ""  # the kind asked, when the question was then read as general knowledge
 
     @property
     def verb(self) -> str | None:
@@ -218,7 +219,7 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     oq = OpenQuestion(text=text, kind=kind, verbs=verbs, nouns=nouns, place=place, order=order, source=source,
                       videos=videos, time=time, persons=persons, about_person=about, unknown=unknown, unit=unit)
     if _general(oq, toks, words):
-        oq.kind = "general"
+        oq.asked, oq.kind = oq.kind, "general"
     return oq
 
 

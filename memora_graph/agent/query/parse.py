@@ -80,18 +80,23 @@ def _clock(text: str) -> float | None:
     return _seconds(text)
 
 
+_VIDEO_PHRASE = re.compile(r"(?:\b(?:in|during|from|of|on|within|throughout|for)\s+)?(?:the\s+)?(?:(?:video|recording|"
+                           r"session|clip|footage|episode)\s+)?\bP\d{2}_\d{2,3}\b(?:'s)?", re.I)
+
+
 def _scope(text: str) -> tuple[Scope, str]:
-    """The scope phrases of a question, and the question without them."""
+    """The scope phrases of a question, and the question without them (with their prepositions:
+    "put the lid in P01_105" is no "put in")."""
     videos = list(dict.fromkeys(v.upper() for v in _VIDEO.findall(text)))
     start = end = at = None
     session = None
-    rest = text
+    rest = _VIDEO_PHRASE.sub(" ", text)
     m = _BETWEEN.search(rest) or _FROM_TO.search(rest)
     if m:
         start, end = _clock(m.group(1)), _clock(m.group(2))
         rest = rest[:m.start()] + " " + rest[m.end():]
     m = _FIRST_N.search(rest)
-    if m and videos:
+    if m:
         n = float(_NUMBERS.get(m.group(2).lower(), 0) or m.group(2)) if not m.group(2).isdigit() else float(m.group(2))
         n *= 60 if m.group(3).lower().startswith("m") else 1
         if m.group(1).lower() == "first":
@@ -158,18 +163,19 @@ def parse(question: str, lex: Lexicon | None = None) -> Query:
     lex = lex or Lexicon.load()
     scope, rest = _scope(text)
     rel, anchor, main = _anchor(rest, lex)
-    # the whole question (less a session phrase, which is scope): its head, person and unknown words
-    base = parse_open(_SESSION.sub(" ", text) if scope.session is not None else text, lex)
+    # the question less its scope phrases: its head, person, action and objects, unknown words
+    base = parse_open(re.sub(r"\s+", " ", rest).strip(), lex)
     body = parse_open(main, lex) if anchor is not None else base
     own = bool(body.verbs or body.nouns) and not (body.kind == "next")
     asks_action = bool(_ASKS_ACTION.search(main)) or body.kind in ("actions", "next", "routine", "activity")
-    op = _OPERATION[base.kind]
-    if base.kind == "time":
+    kind = base.asked if base.kind == "general" and base.asked and _scoped(scope) else base.kind
+    op = _OPERATION[kind]
+    if kind == "time":
         op = "which_video" if re.search(r"\b(which|what)\s+(\w+\s+){0,2}(video|recording|session|clip|footage)\b|"
                                         r"name the video", text, re.I) else "when"
     if _HOW_LONG.search(text):
         op = "duration"
-    selector = {"last": "last", "first": "first"}.get(base.order, "usual")
+    selector = _selector(rest)
     nth = None
     m = _NTH_TIME.search(text)
     if m:
@@ -192,6 +198,10 @@ def parse(question: str, lex: Lexicon | None = None) -> Query:
     elif base.kind == "next":
         relation = "after"
         anchor = Action(verb=base.verb, objects=list(base.nouns), words=_words(text, base, lex))
+    scoped = _scoped(scope)
+    if scoped and base.kind in ("general", "actions", "routine", "activity") and not (base.verbs or base.nouns) \
+            and anchor is None and op not in ("duration",):
+        op = "list"  # "what happened in P30_107", "what did I do first in my third session"
     if m and op in ("list", "next", "steps", "exists") and anchor is None:
         op, selector = "list", m.group(1).lower().replace("final", "last").replace("latest", "last").replace(
             "earliest", "first")
@@ -215,7 +225,7 @@ def parse(question: str, lex: Lexicon | None = None) -> Query:
         anchor = Action(verb=base.verb, objects=list(base.nouns))
         relation = "after"
     person = base.persons[0] if base.persons else None
-    world = base.kind == "general"
+    world = base.kind == "general" and not scoped
     if world and _memory_anyway(text, base, scope):
         world = False
         op = _OPERATION.get(_rekind(text, base), op)
@@ -229,6 +239,29 @@ def parse(question: str, lex: Lexicon | None = None) -> Query:
 _LIGHT = re.compile(r"\b(make|makes|making|made|prepare|prepares|preparing|prepared|do|does|doing|cook|cooks|"
                     r"cooking|get|gets|go about|set up|sets up)\b\s+(?:a |an |the |some |my |their |his |her |your )?"
                     r"([a-z][a-z0-9 ]{1,40}?)\s*(?:[?.!,]|$|\bin\b|\bat\b|\bon\b|\bfor\b|\bwith\b)", re.I)
+
+
+_FIRST_WORDS = re.compile(r"\b(first|earliest|initially|originally|to begin|to start|at the start|at the beginning)\b", re.I)
+_LAST_WORDS = re.compile(r"\b(last|latest|most recent|most recently|final|finally|lately|previous|now|currently|at the "
+                         r"end)\b", re.I)
+_USUAL_WORDS = re.compile(r"\b(usually|typically|normally|generally|often|always|tends?|habitually|regularly|commonly|"
+                          r"mostly|usual|customarily|routinely)\b", re.I)
+
+
+def _scoped(scope: Scope) -> bool:
+    return bool(scope.videos or scope.start is not None or scope.end is not None or scope.at is not None
+                or scope.session is not None)
+
+
+def _selector(text: str) -> str:
+    """first | last | usual, from the question's own words (nth is read apart)."""
+    last = _LAST_WORDS.search(text)
+    first = _FIRST_WORDS.search(text)
+    if _USUAL_WORDS.search(text) and not (first or last):
+        return "usual"
+    if first and last:
+        return "first" if first.start() > last.start() else "last"
+    return "first" if first else "last" if last else "usual"
 
 
 def _goal(text: str) -> tuple[str, bool]:
