@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 from memora_graph.agent.query.log import LogStep, _runs, action_log, clock, noun_words
 from memora_graph.agent.query.model import (
-    ActionShare, LogLine, MomentValue, ObjectStateEvent, OpenAnswer, PlaceValue, Query, RoutineStep,
+    Action, ActionShare, LogLine, MomentValue, ObjectStateEvent, OpenAnswer, PlaceValue, Query, RoutineStep, Subject,
 )
 from memora_graph.agent.query.vocabulary import Vocabulary, class_words
 from memora_graph.perceive.lexicon import Lexicon
@@ -292,7 +292,7 @@ def recall(view, participant: str, query: Query | dict, lex: Lexicon | None = No
     """Answer a typed query from `view` (a `MemoryView` of `participant`): no words are parsed."""
     global _NAMES
     lex = lex or Lexicon.load()
-    q = query if isinstance(query, Query) else Query.model_validate(query)
+    q = _normal(query if isinstance(query, Query) else Query.model_validate(query))
     log = action_log(view, lex)
     vocab = Vocabulary.of(view, lex, log)
     ask = _compile(q, view, participant, vocab, lex, log)
@@ -326,6 +326,19 @@ def recall(view, participant: str, query: Query | dict, lex: Lexicon | None = No
 
     answer.confidence = calibrate(answer)
     return answer
+
+
+def _normal(q: Query) -> Query:
+    """A typed query as the parser would have written it: next / previous of a subject read as the
+    actions after / before it (the subject is the anchor)."""
+    if q.operation in ("next", "previous") and q.anchor is None and not q.subject.empty():
+        a = q.subject
+        return q.model_copy(update={"anchor": Action(verb=a.verb, objects=a.objects, words=a.words),
+                                    "relation": "after" if q.operation == "next" else "before",
+                                    "subject": Subject()})
+    if q.operation in ("next", "previous") and q.anchor is not None and q.relation is None:
+        return q.model_copy(update={"relation": "after" if q.operation == "next" else "before"})
+    return q
 
 
 def _dispatch(view, q: Query, ask: _Ask, anchor: _Ask | None, log: list[LogStep], whole: list[LogStep], lex: Lexicon,
