@@ -253,19 +253,38 @@ def noun_classes(lex: Lexicon, text: str) -> list[str]:
 def _pairs(lex: Lexicon, text: str, classes: list[str]) -> list[tuple[str, str]]:
     """Each class with the key word it should read as ('' to keep it): a one-word class key
     standing alone, not inside a compound ("the top" is the top; "plastic wrap" stays a compound)."""
-    toks = lex.lemmas(text)
-    fix = _KEY_FIX(lex)
-    out = []
-    for n in classes:
-        hit = ""
-        for i, w in enumerate(toks):
-            if w in fix.get(n, {}):
-                prev = toks[i - 1] if i else ""
-                if not (prev.isalpha() and prev not in _FUNCTION and lex.noun_classes(f"{prev} {w}") == [n]):
-                    hit = w
-                    break
-        out.append((n, hit))
-    return out
+    hits = _key_hits(lex, lex.lemmas(text))
+    return [(n, hits.get(n, "")) for n in classes]
+
+
+def _key_hits(lex: Lexicon, toks: list[str]) -> dict[str, str]:
+    """class -> the first key word in `toks` that names it standing alone; one pass over the words
+    (a class per word looked up, not a pass over the words per class: linear in the question)."""
+    words = _KEY_WORDS(lex)
+    hits: dict[str, str] = {}
+    for i, w in enumerate(toks):
+        for n in words.get(w, ()):
+            if n in hits:
+                continue
+            prev = toks[i - 1] if i else ""
+            if not (prev.isalpha() and prev not in _FUNCTION and lex.noun_classes(f"{prev} {w}") == [n]):
+                hits[n] = w
+    return hits
+
+
+_WORDS_CACHE: dict[int, dict[str, list[str]]] = {}
+
+
+def _KEY_WORDS(lex: Lexicon) -> dict[str, list[str]]:
+    """word -> the classes `_KEY_FIX` reads it for."""
+    got = _WORDS_CACHE.get(id(lex))
+    if got is None:
+        got = {}
+        for n, words in _KEY_FIX(lex).items():
+            for w in words:
+                got.setdefault(w, []).append(n)
+        _WORDS_CACHE[id(lex)] = got
+    return got
 
 
 def fix_keys(lex: Lexicon, text: str, classes) -> list[str]:
@@ -321,10 +340,12 @@ def _clauses(body: list[str], lex: Lexicon, passive: bool = False):
                 again = lex.parse(" ".join(body[i:]))
                 if any(c.verb for c in again):
                     return again
+    hits = _key_hits(lex, lex.lemmas(" ".join(body)))  # once for the body, not once per clause
+    fix = _KEY_FIX(lex)
     for c in clauses:
-        c.nouns = fix_keys(lex, " ".join(body), c.nouns)
+        c.nouns = [fix.get(n, {}).get(hits.get(n, ""), n) for n in c.nouns]
         if c.place:
-            c.place = fix_keys(lex, " ".join(body), [c.place])[0]
+            c.place = fix.get(c.place, {}).get(hits.get(c.place, ""), c.place)
     return clauses
 
 

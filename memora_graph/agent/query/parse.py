@@ -146,9 +146,10 @@ def _anchor(text: str, lex: Lexicon) -> tuple[str | None, Action | None, str]:
 def _words(text: str, reading: OpenQuestion, lex: Lexicon) -> list[str]:
     """The question's own words for its objects (kept so answers and vocabulary use them)."""
     out = []
+    unknown = set(reading.unknown)
     for tok in re.findall(r"[A-Za-z][A-Za-z0-9]*", text):
         low = tok.lower()
-        if low in reading.unknown or (lex.noun_classes(low) and not lex.verb_class(low)):
+        if low in unknown or (lex.noun_classes(low) and not lex.verb_class(low)):
             out.append(low)
     return list(dict.fromkeys(out))
 
