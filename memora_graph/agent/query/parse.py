@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import re
 
-from memora_graph.agent.query.lexical import OpenQuestion, parse_open, _seconds
+from memora_graph.agent.query.lexical import _FUNCTION, _PERSON_WORDS, OpenQuestion, _seconds, parse_open
 from memora_graph.agent.query.model import MAX_QUESTION, Action, Query, Scope, Subject
 from memora_graph.errors import MemoraError
 from memora_graph.perceive.lexicon import Lexicon
@@ -149,7 +149,10 @@ def _words(text: str, reading: OpenQuestion, lex: Lexicon) -> list[str]:
     unknown = set(reading.unknown)
     for tok in re.findall(r"[A-Za-z][A-Za-z0-9]*", text):
         low = tok.lower()
-        if low in unknown or (lex.noun_classes(low) and not lex.verb_class(low)):
+        if re.fullmatch(r"p\d+", low) or low in _FUNCTION or low in _PERSON_WORDS:
+            continue
+        if low in unknown or (lex.noun_classes(low) and not lex.verb_class(low)) or \
+                (not low.isalpha() and low not in lex.known):  # a name like 'v60'
             out.append(low)
     return list(dict.fromkeys(out))
 

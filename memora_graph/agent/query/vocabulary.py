@@ -89,6 +89,10 @@ class Vocabulary:
         classes = lex.noun_classes(w)
         if classes:
             return Resolved(w, "class", classes, 0, word)
+        if len(w) >= 4 and " " not in w:  # a misspelling of a word the lexicon knows ("chpping" -> chopping)
+            close = difflib.get_close_matches(w, sorted(lex.known), n=1, cutoff=FUZZY_CUTOFF)
+            if close:
+                return Resolved(close[0], "fuzzy", lex.noun_classes(close[0]), self.words.get(close[0], 0), word)
         return Resolved(w, "unknown", [], 0, word)
 
     def name(self, noun: str) -> str | None:
