@@ -28,6 +28,7 @@ from collections import Counter
 
 from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text
 
+SCOPED_SPLITS = ("third", "me")  # the wording's person: "P04 ..." or "I ..." (the memory's owner)
 SCOPED_KINDS = ("count_video", "yes_video", "no_video", "place_video", "last_in_video", "first_in_video",
                 "first_in_session", "count_window", "count_after", "previous", "time_nth")
 PER_SCOPED = {"count_video": 6, "yes_video": 6, "no_video": 6, "place_video": 6, "last_in_video": 6,
@@ -153,11 +154,11 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         t, tid, person = word("count_video")
         pair = f"{pid}/count_video/{k}"
         add("count_video", text(t, a, V=v1, typo=k % 3 == 2), tid, person, {"count": n1},
-            {"video": v1, "pair": pair, "cell": CELLS["count_video"]})
+            {"video": v1, "pair": pair, "action": list(a), "cell": CELLS["count_video"]})
         if others:
             v2 = rng.choice(others)
             add("count_video", text(t, a, V=v2, typo=k % 3 == 2), tid, person, {"count": c.get(v2, 0)},
-                {"video": v2, "pair": pair, "cell": CELLS["count_video"]})
+                {"video": v2, "pair": pair, "action": list(a), "cell": CELLS["count_video"]})
     # did it happen in V (yes), and in a video where it did not (no): one pair
     for k, a in enumerate(rng.sample(multi, min(per["yes_video"], len(multi)))):
         c = counts[a]

@@ -16,6 +16,7 @@ from memora_graph.agent.query.answer import answer_open
 from memora_graph.agent.open_calibration import CALIBRATION_FILE, ece, fit, load, probability
 from memora_graph.agent.query.lexical import parse_open
 from memora_graph.bench.behaviour import PUT_VERB_KEYS, build_behaviours
+from memora_graph.bench.generate_scoped import SCOPED_SPLITS
 from memora_graph.bench.generate_open import (
     GENERAL, OPEN_KINDS, SPLITS, TEMPLATES, OpenItem, count_ok, generate_open, score_item,
 )
@@ -176,7 +177,7 @@ def test_the_generator_gives_every_kind_with_gold_from_the_annotations(cohort):
     b = cohort["P01"]
     steps = [s for v in b.videos for s in b.steps_by_video[v]]
     for it in items:
-        assert it.split in SPLITS and it.question.endswith((".", "?")) and "{" not in it.question
+        assert it.split in SPLITS + SCOPED_SPLITS and it.question.endswith((".", "?")) and "{" not in it.question
         if it.kind == "count":
             assert it.gold["count"] >= 2
         if it.kind == "place_last":

@@ -175,7 +175,7 @@ def parse(question: str, lex: Lexicon | None = None) -> Query:
     kind = base.asked if base.kind == "general" and base.asked and _scoped(scope) else base.kind
     op = _OPERATION[kind]
     if kind == "time":
-        op = "which_video" if re.search(r"\b(which|what)\s+(\w+\s+){0,2}(video|recording|session|clip|footage)\b|"
+        op = "which_video" if re.search(r"\b(which|what)\s+(\w+\s+){0,2}(videos?|recordings?|sessions?|clips?|footage)\b|"
                                         r"name the video", text, re.I) else "when"
     if _HOW_LONG.search(text):
         op = "duration"
