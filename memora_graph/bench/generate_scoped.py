@@ -16,7 +16,8 @@ Kinds (operation x scope):
 - time_nth         the video of the second / third time an action happened (which_video x all, selector nth)
 
 Wordings vary in person (third person "P04", first person "I" for the memory's owner), voice
-(passive) and spelling (a letter dropped from the object's name). Items of one template that
+(passive), spelling (a letter dropped from the object's name) and ellipsis (a second question
+that only changes the scope: "... in P01_102? And in P01_103?"). Items of one template that
 differ only in their scope share a `pair` id: the counterfactual check (`open_eval`) asks that
 their answers differ wherever their gold does.
 """
@@ -157,7 +158,9 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
             {"video": v1, "pair": pair, "action": list(a), "cell": CELLS["count_video"]})
         if others:
             v2 = rng.choice(others)
-            add("count_video", text(t, a, V=v2, typo=k % 3 == 2), tid, person, {"count": c.get(v2, 0)},
+            # every other pair asks the second as an ellipsis: "...in P01_102? And in P01_103?"
+            q2 = text(t, a, V=v1, typo=k % 3 == 2) + f" And in {v2}?" if k % 2 else text(t, a, V=v2, typo=k % 3 == 2)
+            add("count_video", q2, tid + ("/ellipsis" if k % 2 else ""), person, {"count": c.get(v2, 0)},
                 {"video": v2, "pair": pair, "action": list(a), "cell": CELLS["count_video"]})
     # did it happen in V (yes), and in a video where it did not (no): one pair
     for k, a in enumerate(rng.sample(multi, min(per["yes_video"], len(multi)))):
@@ -170,7 +173,8 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         absent = [v for v in videos if v not in c]
         if absent and k < per["no_video"]:
             v2 = rng.choice(absent)
-            add("no_video", text(t, a, V=v2), tid, person, {"yes": False}, {"video": v2, "pair": pair,
+            q2 = text(t, a, V=v1) + f" What about {v2}?" if k % 2 else text(t, a, V=v2)
+            add("no_video", q2, tid + ("/ellipsis" if k % 2 else ""), person, {"yes": False}, {"video": v2, "pair": pair,
                                                                                "cell": CELLS["no_video"]})
     # where last put in V (a pair when another video's last place differs)
     puts: dict[str, dict[str, list]] = {}

@@ -161,10 +161,32 @@ _OPERATION = {"time": "when", "count": "count", "place": "where", "yesno": "exis
               "next": "next", "routine": "steps", "actions": "list", "general": "list"}
 
 
+_ELLIPSIS = re.compile(r"^\s*(?:and|what about|how about|and what about|and how about|same for|now)\b", re.I)
+_LEFT = re.compile(r"\b(and|what|how|about|same|for|now|then|the|in|on|during|video|recording|session|please)\b|[^\w]",
+                   re.I)
+
+
+def _ellipsis(text: str, lex: Lexicon) -> Query | None:
+    """"How many times did I open the fridge in P01_102? And in P01_103?": the last sentence only
+    changes the scope, so the question is the one before it with that scope."""
+    parts = [p.strip() for p in re.findall(r"[^.?!]+[.?!]?", text) if p.strip(" .?!")]
+    if len(parts) < 2 or not _ELLIPSIS.match(parts[-1]):
+        return None
+    scope, rest = _scope(parts[-1])
+    if scope.empty() or _LEFT.sub("", rest).strip():
+        return None
+    prev = parse(" ".join(parts[:-1]), lex)
+    return prev.model_copy(update={"scope": scope.model_copy(update={"after": prev.scope.after,
+                                                                     "before": prev.scope.before}), "text": text})
+
+
 def parse(question: str, lex: Lexicon | None = None) -> Query:
     """The question as a typed `Query` (see the module docstring)."""
     text = check(question)
     lex = lex or Lexicon.load()
+    follow = _ellipsis(text, lex)
+    if follow is not None:
+        return follow
     scope, rest = _scope(text)
     rel, anchor, main = _anchor(rest, lex)
     # the question less its scope phrases: its head, person, action and objects, unknown words
