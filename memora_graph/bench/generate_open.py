@@ -391,7 +391,7 @@ def generate_open(b: Behaviour, others: dict[str, Behaviour], seed: int = 42, sp
     for s, i, q in ctx.rng.sample(pool, min(per_kind["general"], len(pool))):
         add("general", q, f"general/{s}/{i}", s, {"not_in_memory": "general_knowledge"})
     if scoped:  # scope x selector x relation kinds (generate_scoped), from a generator of their own
-        generate_scoped(b, add, random.Random(f"{seed}:{b.participant_id}:scoped"), _fill)
+        generate_scoped(b, add, random.Random(f"{seed}:{b.participant_id}:scoped"), _fill, tag=str(seed))
     return items
 
 

@@ -117,11 +117,13 @@ def _phrasable(a: ActionClass) -> bool:
     return a.phrasable and a.noun not in ("hand", "") and a.verb not in ("let-go",) and ":" not in a.verb
 
 
-def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[str, int] | None = None) -> None:
+def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[str, int] | None = None,
+                    tag: str = "") -> None:
     """Add the scoped kinds' items for one participant through `add(kind, question, template, split,
     gold, evidence)`; `fill(template, pid, action, noun)` words a template (generate_open._fill)."""
     per = per_kind or PER_SCOPED
     pid = b.participant_id
+    key = f"{tag}:{pid}" if tag else pid  # pair ids: one seed's questions pair only with each other
     videos = b.videos
     by_video: dict[str, list] = {v: list(b.steps_by_video[v]) for v in videos}
     counts: dict[ActionClass, Counter] = {}
@@ -153,7 +155,7 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         (v1, n1), *rest = c.most_common()
         others = [v for v in videos if v != v1 and c.get(v, 0) != n1]
         t, tid, person = word("count_video")
-        pair = f"{pid}/count_video/{k}"
+        pair = f"{key}/count_video/{k}"
         add("count_video", text(t, a, V=v1, typo=k % 3 == 2), tid, person, {"count": n1},
             {"video": v1, "pair": pair, "action": list(a), "cell": CELLS["count_video"]})
         if others:
@@ -167,7 +169,7 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         c = counts[a]
         v1 = rng.choice(sorted(c))
         t, tid, person = word("yes_video")
-        pair = f"{pid}/yes_video/{k}"
+        pair = f"{key}/yes_video/{k}"
         add("yes_video", text(t, a, V=v1), tid, person, {"yes": True}, {"video": v1, "pair": pair,
                                                                           "cell": CELLS["yes_video"]})
         absent = [v for v in videos if v not in c]
@@ -188,7 +190,7 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         vids = sorted(d)
         v1 = rng.choice(vids)
         t, tid, person = word("place_video")
-        pair = f"{pid}/place_video/{k}"
+        pair = f"{key}/place_video/{k}"
         add("place_video", text(t, None, noun, typo=k % 3 == 1, V=v1), tid, person, {"place": d[v1][-1].place},
             {"video": v1, "pair": pair, "cell": CELLS["place_video"]})
         diff = [v for v in vids if d[v][-1].place != d[v1][-1].place]
@@ -202,7 +204,7 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         chosen = rng.sample(ok, min(per[kind], len(ok)))
         t, tid, person = word(kind)
         for k in range(0, len(chosen), 2):
-            pair = f"{pid}/{kind}/{k}"
+            pair = f"{key}/{kind}/{k}"
             for v in chosen[k:k + 2]:
                 a = by_video[v][pick].action
                 add(kind, text(t, None, V=v), tid, person, {"verb": a.verb, "noun": a.noun},
@@ -224,7 +226,7 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
         lo, hi = int(times[len(times) // 2]) // 60 * 60, int(times[-1]) // 60 * 60 + 60
         inside = sum(1 for x in times if lo <= x <= hi)
         t, tid, person = word("count_window")
-        pair = f"{pid}/count_window/{k}"
+        pair = f"{key}/count_window/{k}"
         add("count_window", text(t, a, V=v, a=_clock(lo), z=_clock(hi)), tid, person, {"count": inside},
             {"video": v, "pair": pair, "window": [lo, hi], "cell": CELLS["count_window"]})
         if lo > 0:
