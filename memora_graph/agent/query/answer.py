@@ -207,6 +207,12 @@ def _subject(q: _Ask) -> list[str]:
     return [n for n in q.nouns if n != q.place] or list(q.nouns)
 
 
+def _label(q: _Ask) -> str | None:
+    """What the answer calls the subject: its class in the person's words, or their own word."""
+    s = _subject(q)
+    return s[0] if s else (q.surface[0] if q.surface else None)
+
+
 GENERIC_VERBS = frozenset({"use"})  # "does P use the kettle": any action with it
 
 
@@ -545,7 +551,7 @@ def _time(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAn
 
 
 def _never(q: _Ask, base: dict) -> OpenAnswer:
-    asked = _text(q.verb, _subject(q)[0] if _subject(q) else None)
+    asked = _text(q.verb, _label(q))
     return OpenAnswer(**base, kind=q.kind, answer=f"never recorded: {asked}",
                       in_memory=True, yes=False if q.kind == "yesno" else None, count=0 if q.kind == "count" else None,
                       detail=f"its objects are in memory, never with this action ({asked})",
@@ -559,7 +565,7 @@ def _count(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
     videos = list(dict.fromkeys(h.video for h in hits))
     n = len(videos) if q.unit == "videos" else len(hits)
     unit = "videos" if q.unit == "videos" else "times"
-    asked = _text(q.verb, _subject(q)[0] if _subject(q) else None)
+    asked = _text(q.verb, _label(q))
     return OpenAnswer(**base, kind="count", answer=f"{n} {unit} ({asked}; {len(hits)} records in {len(videos)} videos)",
                       in_memory=True, count=n, evidence=_ids(hits), support=len(hits),
                       detail=f"counted {len(hits)} records of '{asked}'", features=_features(len(hits), 1.0, 1.0))

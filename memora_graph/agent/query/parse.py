@@ -257,6 +257,8 @@ def parse(question: str, lex: Lexicon | None = None) -> Query:
         op = _OPERATION.get(_rekind(text, base), op)
         if op == "state" and selector == "usual":
             selector = "last"
+    if op == "where" and selector == "usual" and _WHERE_NOW.match(text) and not _KEPT.search(text):
+        selector = "last"  # "where are the plates?": where they are now, not where they usually go
     return Query(operation=op, subject=subj, scope=scope, selector=selector, nth=nth, relation=relation,
                  anchor=anchor if relation else None, unit="videos" if base.unit == "videos" else "times",
                  person=person, world=world, unknown=list(base.unknown), text=text)
@@ -272,6 +274,11 @@ _LAST_WORDS = re.compile(r"\b(last|latest|most recent|most recently|final|finall
                          r"end)\b", re.I)
 _USUAL_WORDS = re.compile(r"\b(usually|typically|normally|generally|often|always|tends?|habitually|regularly|commonly|"
                           r"mostly|usual|customarily|routinely)\b", re.I)
+
+
+_WHERE_NOW = re.compile(r"\s*where\s+(is|are|'s)\b", re.I)
+_KEPT = re.compile(r"\b(kept|keep|stored|store|go|goes|belong|belongs|live|lives|usually|normally|typically|generally|"
+                   r"often|always|tend)\b", re.I)
 
 
 def _scoped(scope: Scope) -> bool:
