@@ -33,7 +33,7 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
-from memora_graph.agent.query.log import LogStep, _runs, action_log, clock, noun_words
+from memora_graph.agent.query.log import LogStep, action_runs, action_log, clock, noun_words
 from memora_graph.agent.query.model import (
     Action, ActionShare, LogLine, MomentValue, ObjectStateEvent, OpenAnswer, PlaceValue, Query, RoutineStep, Subject,
 )
@@ -605,7 +605,7 @@ def _trigger(s: LogStep, t: _Ask) -> bool:
 
 def _around(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base: dict, after: bool) -> OpenAnswer:
     """The actions right after (or before) the anchor event, by how often they follow (precede) it."""
-    runs = _runs(log)
+    runs = action_runs(log)
     counts: Counter = Counter()
     ids: dict = {}
     seen: dict = {}
@@ -642,7 +642,7 @@ WHILE_SLACK = 5.0  # seconds either side of the anchor's run that count as "whil
 
 def _while(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
     """The actions done during the anchor event (its runs, a few seconds either side)."""
-    runs = _runs(log)
+    runs = action_runs(log)
     spans = [(r[0].video, r[0].t - WHILE_SLACK, r[-1].t + WHILE_SLACK) for r in runs if _trigger(r[0], anchor)]
     if not spans and anchor.verb and _subject(anchor):  # "while the kettle boils": the kettle's events
         anchor = _Ask(query=anchor.query, kind=anchor.kind, nouns=anchor.nouns, surface=anchor.surface)
@@ -672,7 +672,7 @@ def _instead(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base
     obj = (_subject(anchor) or [None])[0]
     if obj and (not anchor.verb or anchor.verb in GENERIC_VERBS):
         return _instead_object(view, q, anchor, obj, log, lex, base)
-    runs = _runs(log)
+    runs = action_runs(log)
     before = Counter((a[0].verb, a[0].objects[:1]) for a, b in zip(runs, runs[1:])
                      if a[0].video == b[0].video and _trigger(b[0], anchor))
     contexts = {k for k, _ in before.most_common(3)}
@@ -868,7 +868,7 @@ def _routine(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> Ope
                           detail=f"the consolidated routine '{best.goal}' (get_routine_skill)",
                           features=_features(n, float(best.confidence or 0.5), 1.0, exact=False))
     # no routine: the steps that most often surround the goal action in the episodes
-    runs = _runs(log)
+    runs = action_runs(log)
     windows: Counter = Counter()
     for i, run in enumerate(runs):
         s = run[0]

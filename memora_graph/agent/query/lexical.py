@@ -83,6 +83,10 @@ _FUNCTION = frozenset("""a an the of to in on at for with by from into onto out 
     earlier lately moment right one ones""".split())
 
 
+FUNCTION_WORDS = _FUNCTION  # words a question is made of that name neither an action nor an object
+PERSON_WORDS = _PERSON_WORDS  # words that refer to the person asked about
+
+
 @dataclass
 class OpenQuestion:
     """One open question as what it asks (`kind`) and the action and objects it is about."""
@@ -109,6 +113,11 @@ class OpenQuestion:
     @property
     def has_subject(self) -> bool:
         return bool(self.verbs or self.nouns)
+
+
+def seconds_in(text: str) -> float | None:
+    """The first time a text names ("01:05", "1:02:03", "90 seconds", "2 minutes"), in seconds."""
+    return _seconds(text)
 
 
 def _seconds(text: str) -> float | None:

@@ -115,7 +115,7 @@ def action_log(view, lex: Lexicon) -> list[LogStep]:
     return out
 
 
-def _runs(log: list[LogStep]) -> list[list[LogStep]]:
+def action_runs(log: list[LogStep]) -> list[list[LogStep]]:
     """Consecutive steps of one video with the same action, collapsed (a run is one event)."""
     runs: list[list[LogStep]] = []
     for s in log:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import re
 
-from memora_graph.agent.query.lexical import _FUNCTION, _PERSON_WORDS, OpenQuestion, _seconds, parse_open
+from memora_graph.agent.query.lexical import FUNCTION_WORDS, PERSON_WORDS, OpenQuestion, parse_open, seconds_in
 from memora_graph.agent.query.model import MAX_QUESTION, Action, Query, Scope, Subject
 from memora_graph.errors import MemoraError
 from memora_graph.perceive.lexicon import Lexicon
@@ -77,7 +77,7 @@ def check(question: str) -> str:
 
 
 def _clock(text: str) -> float | None:
-    return _seconds(text)
+    return seconds_in(text)
 
 
 _VIDEO_PHRASE = re.compile(r"(?:\b(?:in|during|from|of|on|within|throughout|for)\s+)?(?:the\s+)?(?:(?:video|recording|"
@@ -149,7 +149,7 @@ def _words(text: str, reading: OpenQuestion, lex: Lexicon) -> list[str]:
     unknown = set(reading.unknown)
     for tok in re.findall(r"[A-Za-z][A-Za-z0-9]*", text):
         low = tok.lower()
-        if re.fullmatch(r"p\d+", low) or low in _FUNCTION or low in _PERSON_WORDS:
+        if re.fullmatch(r"p\d+", low) or low in FUNCTION_WORDS or low in PERSON_WORDS:
             continue
         if low in unknown or (lex.noun_classes(low) and not lex.verb_class(low)) or \
                 (not low.isalpha() and low not in lex.known):  # a name like 'v60'
