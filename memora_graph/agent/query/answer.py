@@ -284,7 +284,7 @@ def answer_question(view, participant: str, question: str, lex: Lexicon | None =
         fixed = question
         for w in q.unknown:
             r = vocab.resolve(w, lex)
-            if r.how == "fuzzy":
+            if r.how == "fuzzy" and (r.count or r.word in lex.known):  # a slip for a word of theirs or the lexicon
                 fixed = re.sub(rf"\b{re.escape(w)}\b", r.word, fixed, flags=re.I)
         if fixed != question:
             q = parse(fixed, lex)

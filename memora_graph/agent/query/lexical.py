@@ -80,11 +80,13 @@ _FUNCTION = frozenset("""a an the of to in on at for with by from into onto out 
     must does did done doing has had having was were are am been being get got
     go goes went going typically generally overall exist exists existed evidence sign trace instance
     instances case cases mention mentioned able use used using uses now currently today yesterday tonight
-    earlier lately moment right one ones""".split())
+    earlier lately moment right one ones long spend spent spending""".split())
 
 
 FUNCTION_WORDS = _FUNCTION  # words a question is made of that name neither an action nor an object
 PERSON_WORDS = _PERSON_WORDS  # words that refer to the person asked about
+SCAFFOLD_WORDS = _SCAFFOLD | _LAST | _FIRST | _USUAL | _NEXT_WORDS | frozenset(
+    "action actions activity activities name thing things final previous".split())  # words that frame a question
 
 
 @dataclass
@@ -192,7 +194,8 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     body = [t for t in toks if not (t in _SCAFFOLD or re.fullmatch(r"p\d+", t)
                                     or (t.endswith("ly") and len(t) > 4 and not lex.noun_classes(t)
                                         and not lex.verb_class(t)))]
-    last = [w for w in raw if not re.fullmatch(r"p\d+", w) and w not in ("by",) and w not in _PERSON_WORDS][-1:]
+    tail = [w for w in raw if not re.fullmatch(r"p\d+", w) and w not in ("by",) and w not in _PERSON_WORDS]
+    last = tail[-2:-1] if len(tail) > 1 and tail[-1] in _PARTICLES else tail[-1:]  # "was the tap turned on"
     participle = bool(last) and (last[0].endswith(("ed", "en", "wn")) or last[0] in ("put", "cut", "set", "shut"))
     clauses = _clauses(body, lex, passive=participle and bool(set(raw) & {"was", "were", "been", "being"}))
     nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
@@ -326,6 +329,12 @@ def _clauses(body: list[str], lex: Lexicon, passive: bool = False):
     onion") found by its position."""
     clauses = lex.parse(" ".join(body))
     words = [t for t in body if t.isalpha()]
+    if passive and len(words) > 2 and words[-1] in _PARTICLES and lex.verb_class(" ".join(words[-2:])):
+        nouns = noun_classes(lex, " ".join(words[:-2]))  # "how many times was the tap turned on"
+        if nouns:
+            from memora_graph.perceive.lexicon import Clause
+
+            return [Clause(lex.verb_class(" ".join(words[-2:])), nouns)]
     if passive and len(words) > 1 and words[-1] != "by" and lex.verb_class(words[-1]):
         nouns = noun_classes(lex, " ".join(words[:-1]))
         if nouns:

@@ -28,7 +28,9 @@ from __future__ import annotations
 
 import re
 
-from memora_graph.agent.query.lexical import FUNCTION_WORDS, PERSON_WORDS, OpenQuestion, parse_open, seconds_in
+from memora_graph.agent.query.lexical import (
+    FUNCTION_WORDS, PERSON_WORDS, SCAFFOLD_WORDS, OpenQuestion, parse_open, seconds_in,
+)
 from memora_graph.agent.query.model import MAX_QUESTION, Action, Query, Scope, Subject
 from memora_graph.errors import MemoraError
 from memora_graph.perceive.lexicon import Lexicon
@@ -146,15 +148,20 @@ def _anchor(text: str, lex: Lexicon) -> tuple[str | None, Action | None, str]:
 def _words(text: str, reading: OpenQuestion, lex: Lexicon) -> list[str]:
     """The question's own words for its objects (kept so answers and vocabulary use them)."""
     out = []
-    unknown = set(reading.unknown)
+    prev = ""
     for tok in re.findall(r"[A-Za-z][A-Za-z0-9]*", text):
         low = tok.lower()
+        before, prev = prev, low
         if re.fullmatch(r"p\d+", low) or low in FUNCTION_WORDS or low in PERSON_WORDS:
             continue
-        if low in unknown or (lex.noun_classes(low) and not lex.verb_class(low)) or \
-                (not low.isalpha() and low not in lex.known):  # a name like 'v60'
+        if lex.noun_classes(low) and not lex.verb_class(low):
             out.append(low)
+        elif low not in lex.known and low not in SCAFFOLD_WORDS and (before in _DETERMINERS or not low.isalpha()):
+            out.append(low)  # a name no class knows, where a noun goes: "the v60", "my aeropress"
     return list(dict.fromkeys(out))
+
+
+_DETERMINERS = frozenset("the a an my our your their his her this that these those some any".split())
 
 
 _OPERATION = {"time": "when", "count": "count", "place": "where", "yesno": "exists", "state": "state", "activity": "list",
