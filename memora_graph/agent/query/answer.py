@@ -867,6 +867,10 @@ def _routine(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> Ope
                           evidence=[best.routine_id, *best.supporting_episodes[:5]], support=n,
                           detail=f"the consolidated routine '{best.goal}' (get_routine_skill)",
                           features=_features(n, float(best.confidence or 0.5), 1.0, exact=False))
+    if q.query.subject.goal and (subject or q.surface) and not q.verb:
+        episode = _episode(q, log)  # "how does P09 make tea": the episode that makes it, step by step
+        if episode is not None:
+            return _episode_answer(q, episode, base)
     # no routine: the steps that most often surround the goal action in the episodes
     runs = action_runs(log)
     windows: Counter = Counter()
@@ -884,6 +888,44 @@ def _routine(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> Ope
     return OpenAnswer(**base, kind="routine", answer=" -> ".join(s.text for s in steps) + f" (seen {n} times)",
                       in_memory=True, steps=steps, support=n, detail="the most common sequence around it in the episodes",
                       features=_features(n, n / sum(windows.values()), 0.0, True, False))
+
+
+MAX_STEPS = 12
+LEAD, TRAIL = 6, 3  # steps before the goal object's first mention and after its last
+
+
+def _episode(q: _Ask, log: list[LogStep]) -> list[LogStep] | None:
+    """The steps of the video that names the goal's object most, from its first mention to its last."""
+    subject = set(_subject(q))
+    hits = [s for s in log if subject & set(s.nouns) or any(_says(s.text, w) for w in q.surface)]
+    if not hits:
+        return None
+    video = Counter(h.video for h in hits).most_common(1)[0][0]
+    mine = [h for h in hits if h.video == video]
+    steps = [s for s in log if s.video == video]
+    first = next(i for i, s in enumerate(steps) if s is mine[0])
+    last = next(i for i, s in enumerate(steps) if s is mine[-1])
+    # with what leads up to it (the kettle filled before the teabag goes in) and what closes it
+    return steps[max(0, first - LEAD):last + 1 + TRAIL]
+
+
+def _episode_answer(q: _Ask, episode: list[LogStep], base: dict) -> OpenAnswer:
+    runs = action_runs(episode)
+    seq = [(r[0].verb, r[0].objects[0] if r[0].objects else "", r[0]) for r in runs]
+    shown = seq[:MAX_STEPS]
+    steps = [RoutineStep(order=i + 1, verb=v or "", noun=o, text=st.text) for i, (v, o, st) in enumerate(shown)]
+    video = episode[0].video
+    cut = ""
+    if len(seq) > len(shown):
+        t = shown[-1][2].t
+        cut = (f"cut: {len(shown)} of {len(seq)} steps shown; ask what happened in {video} between {clock(t)} and "
+               f"{clock(episode[-1].t)} for the rest")
+    return OpenAnswer(**base, kind="routine", answer=" -> ".join(x.text for x in steps) +
+                      f" ({video}, {clock(episode[0].t)}-{clock(episode[-1].t)}; no consolidated routine)" +
+                      (f" ({cut})" if cut else ""), in_memory=True, steps=steps, cut=cut, support=1,
+                      evidence=_ids(episode), records=[_line(x[2]) for x in shown],
+                      detail=f"the episode of {video} that names it most, no routine consolidated for it",
+                      features=_features(1, 0.5, 0.0, True, False))
 
 
 def _state(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
