@@ -308,8 +308,9 @@ def recall(view, participant: str, query: Query | dict, lex: Lexicon | None = No
     _NAMES = {c: n for c, cnt in vocab.names.items() for n in [cnt.most_common(1)[0][0]] if cnt}
     for w in [*q.subject.words, *(q.anchor.words if q.anchor else [])]:  # the question's word, when it is theirs
         for c in lex.noun_classes(w)[:1]:
-            if vocab.says(w):
-                _NAMES[c] = w
+            r = vocab.resolve(w, lex)
+            if r.how == "exact" and c in r.classes:  # "mugs": their word is "mug"
+                _NAMES[c] = r.word
     try:
         why = q.why_not()
         if why:
