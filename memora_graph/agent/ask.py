@@ -163,7 +163,7 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
 
 
 def _open(view, participant: str, question: str, lex: Lexicon) -> AskResult:
-    """Without choices: the answer in the type the question asks for (`open_answer`)."""
+    """Without choices: the answer in the type the question asks for (`agent.query`)."""
     typed = answer_open(view, participant, question, lex)
     said: dict[str, list[str]] = {}
     for r in typed.records:

@@ -16,7 +16,7 @@ names, and who it is about. The kind comes from the question's structure, not fr
 - actions  anything else about an object or action ("what does P do with X") -> actions, shares
 - general  nothing about a person and no memory cue ("what is the capital of France?")
 
-Whether the subject is in this person's memory is the answerer's business (`open_answer`): the
+Whether the subject is in this person's memory is the answerer's business (`query.answer`): the
 parser says what is asked, not whether memory holds it.
 """
 
