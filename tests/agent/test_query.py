@@ -190,3 +190,24 @@ def test_scoped_generator_gold_and_the_counterfactual_check(small_bank):
     cf = counterfactual(records)
     assert cf["pairs"] >= 3 and cf["rate"] == 1.0, cf
     assert sum(r["correct"] for r in records) >= 0.8 * len(records)
+
+
+def test_vocabulary_takes_remembered_steps_in_as_a_fresh_read_would(small_bank, lex):
+    """A live view's vocabulary grows with the steps remembered since (no re-read), and equals the
+    vocabulary of the whole log read at once."""
+    from memora_graph.agent.query.log import action_log
+    from memora_graph.agent.query.vocabulary import Vocabulary
+
+    with MemoryView.open(small_bank[0], "P37") as view:
+        log = action_log(view, lex)
+        whole = Vocabulary.of(view, lex, log)
+        words, names = dict(whole.words), {c: dict(n) for c, n in whole.names.items()}
+        view.__dict__["_query_vocabulary"] = None  # start again from half the log ...
+        half = log[: len(log) // 2]
+        rest = log[len(log) // 2:]
+        view.__dict__.pop("_query_vocab_log", None)
+        grown = Vocabulary.of(view, lex, half)
+        view.__dict__["_open_log_added"].extend(rest)  # ... as a live view notes remembered steps
+        view.__dict__["_query_vocab_log"] = log
+        grown = Vocabulary.of(view, lex, log)
+        assert dict(grown.words) == words and {c: dict(n) for c, n in grown.names.items()} == names

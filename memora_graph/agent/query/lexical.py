@@ -1,4 +1,5 @@
-"""What an open question (one without answer choices) asks for, read at the level of EPIC classes.
+"""What an open question (one without answer choices) asks for, read at the level of EPIC classes:
+the word-level reading the typed query's parser (`query.parse`) builds its `Query` from.
 
 `parse_open` turns a question into an `OpenQuestion`: the kind of answer it wants and the action
 it is about, as verb and noun classes (`perceive.lexicon`, so "chopping board", "cutting board"

@@ -104,6 +104,9 @@ def action_log(view, lex: Lexicon) -> list[LogStep]:
             for seg in view.by_id("_tool_segment", pending):
                 for step in _segment_steps(seg, lex, view.__dict__.setdefault("_open_log_words", {})):
                     bisect.insort_right(cached, step, key=lambda s: (s.video, s.t))
+                    added = view.__dict__.get("_open_log_added")
+                    if added is not None:  # the vocabulary takes the new steps in (query.vocabulary)
+                        added.append(step)
         return cached
     view.__dict__.pop("_open_log_pending", None)
     out: list[LogStep] = []

@@ -41,34 +41,41 @@ class Vocabulary:
 
     @classmethod
     def of(cls, view, lex: Lexicon, log=None) -> Vocabulary:
-        """The vocabulary of the person `view` holds (cached on the view, rebuilt when the log grows)."""
+        """The vocabulary of the person `view` holds, cached on the view; a live view's remembered
+        steps (`log.action_log` notes them) are added as they come, not read again with the rest."""
         from memora_graph.agent.query.log import action_log
 
         log = action_log(view, lex) if log is None else log
         cached = view.__dict__.get("_query_vocabulary")
-        if cached is not None and cached[0] == len(log):
-            return cached[1]
-        words: Counter = Counter()
-        names: dict[str, Counter] = {}
-        segments: dict[str, list[str]] = {}
-        seen: dict[str, list[tuple[str, str | None]]] = view.__dict__.setdefault("_query_vocab_text", {})
-        for s in log:
+        added = view.__dict__.get("_open_log_added")
+        if cached is not None and added is not None and view.__dict__.get("_query_vocab_log") is log:
+            # the same log, grown by a live view's remembered steps: only those are read
+            if added:
+                cached._add(added, lex, view.__dict__.setdefault("_query_vocab_text", {}))
+                added.clear()
+            return cached
+        vocab = cls(Counter(), {}, {})
+        vocab._add(log, lex, view.__dict__.setdefault("_query_vocab_text", {}))
+        view.__dict__["_query_vocabulary"] = vocab
+        view.__dict__["_query_vocab_log"] = log
+        view.__dict__["_open_log_added"] = []
+        return vocab
+
+    def _add(self, steps, lex: Lexicon, seen: dict) -> None:
+        """Count the words and names of these narrated steps (`seen` keeps each wording's reading)."""
+        for s in steps:
             text = s.text.lower()
             parsed = seen.get(text)
             if parsed is None:
-                parsed = _phrases(lex, _WORD.findall(text))
-                seen[text] = parsed
+                parsed = seen[text] = _phrases(lex, _WORD.findall(text))
             for w, c in parsed:
                 if c is None or " " in w:
-                    words[w] += 1
-                segs = segments.setdefault(w, [])
+                    self.words[w] += 1
+                segs = self.segments.setdefault(w, [])
                 if len(segs) < 20 and (not segs or segs[-1] != s.segment):
                     segs.append(s.segment)
                 if c is not None and c in s.nouns:
-                    names.setdefault(c, Counter())[w] += 1
-        vocab = cls(words, names, segments)
-        view.__dict__["_query_vocabulary"] = (len(log), vocab)
-        return vocab
+                    self.names.setdefault(c, Counter())[w] += 1
 
     def says(self, word: str) -> int:
         return self.words.get(word.lower(), 0)
