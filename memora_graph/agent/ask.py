@@ -7,7 +7,7 @@
 The same lookups and reader as the `offline` answer policy (`agent.reading`): the tools are
 called directly, not through the agent loop. With choices it picks one (or "not in memory").
 Without choices, over MEMORA's typed stores, the answer takes the type the question asks for
-(`agent.open_answer`): a place, a video and time, a number, yes/no, the next actions with their
+(`agent.query`): a place, a video and time, a number, yes/no, the next actions with their
 share, a routine's steps, a state or an activity log, or "not in memory" with the reason
 (general knowledge, or a subject absent from this person's memory), with a confidence; the
 typed answer is `result.typed`. Over a baseline's representation (flat1d, graph2d) it answers
@@ -22,7 +22,8 @@ from pathlib import Path
 
 from memora_graph.agent import lookups
 from memora_graph.agent.confidence import load_calibration
-from memora_graph.agent.open_answer import OpenAnswer, answer_open
+from memora_graph.agent.query import OpenAnswer
+from memora_graph.agent.query.answer import answer_open
 from memora_graph.agent.evidence import events_of
 from memora_graph.agent.reading import (
     OPTION_E, Event, Intent, context_windows, habit_windows, parse_question, score,
@@ -105,6 +106,9 @@ def ask(bank: str | Path, participant: str, question: str, choices: list[str] | 
         memory: str = "memora", embed=None) -> AskResult:
     """Answer `question` from `participant`'s memory in `bank` (see the module docstring).
     `memory` picks the representation the tools read (memora, flat1d, graph2d)."""
+    from memora_graph.agent.query.parse import check
+
+    question = check(question)
     store = get_family(memory).open(Path(bank), participant)
     try:
         return ask_memory(store, participant, question, choices, memory, embed)
@@ -117,7 +121,11 @@ def ask(bank: str | Path, participant: str, question: str, choices: list[str] | 
 def ask_memory(store, participant: str, question: str, choices: list[str] | None = None, memory: str = "memora",
                embed=None) -> AskResult:
     """`ask` over a memory already open (a `MemoryView` for "memora"), which stays open: a server
-    answers many questions from one open bank."""
+    answers many questions from one open bank. An empty or over-long question raises
+    `query.QuestionError`."""
+    from memora_graph.agent.query.parse import check
+
+    question = check(question)
     lex = Lexicon.load()
     if not choices and memory == "memora":
         return _open(store, participant, question, lex)
@@ -155,7 +163,7 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
 
 
 def _open(view, participant: str, question: str, lex: Lexicon) -> AskResult:
-    """Without choices: the answer in the type the question asks for (`open_answer`)."""
+    """Without choices: the answer in the type the question asks for (`agent.query`)."""
     typed = answer_open(view, participant, question, lex)
     said: dict[str, list[str]] = {}
     for r in typed.records:
@@ -165,5 +173,5 @@ def _open(view, participant: str, question: str, lex: Lexicon) -> AskResult:
         reason = f"{typed.reason.replace('_', ' ')}: {typed.detail}" if typed.reason else typed.detail
         return AskResult(question, participant, NOT_IN_MEMORY, None, typed.kind, reason, typed=typed)
     return AskResult(question, participant, typed.answer, None, typed.kind, typed.detail or "supported", [],
-                     evidence, [{"tool": "open_answer", "arguments": {"asked": typed.asked, **typed.subject}}],
+                     evidence, [{"tool": "recall", "arguments": typed.query}],
                      typed=typed)

@@ -31,8 +31,10 @@ from typing import Any
 from pydantic import BaseModel, Field
 
 from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text, verb_phrase
+from memora_graph.bench.generate_scoped import CELLS, SCOPED_KINDS, generate_scoped
 
-OPEN_KINDS = ("place_last", "place_usual", "time_last", "time_first", "count", "yes", "no", "next", "absent", "general")
+BASE_KINDS = ("place_last", "place_usual", "time_last", "time_first", "count", "yes", "no", "next", "absent", "general")
+OPEN_KINDS = BASE_KINDS + SCOPED_KINDS
 PER_KIND = {"place_last": 6, "place_usual": 6, "time_last": 5, "time_first": 5, "count": 8, "yes": 6, "no": 5,
             "next": 8, "absent": 8, "general": 8}
 COUNT_TOLERANCE = 0.2
@@ -237,7 +239,8 @@ class OpenItem(BaseModel):
     kind: str = Field(description="One of " + ", ".join(OPEN_KINDS))
     question: str
     template: str
-    split: str = Field(description="dev, heldout or fresh (see SPLITS)")
+    split: str = Field(description="dev, heldout, fresh or final (see SPLITS); scoped kinds: third or me (the "
+                                   "wording's person)")
     gold: dict[str, Any]
     evidence: dict[str, Any] = Field(default_factory=dict)
 
@@ -275,7 +278,7 @@ def _phrasable(a: ActionClass) -> bool:
 
 
 def generate_open(b: Behaviour, others: dict[str, Behaviour], seed: int = 42, split: str | None = None,
-                  per_kind: dict[str, int] | None = None) -> list[OpenItem]:
+                  per_kind: dict[str, int] | None = None, scoped: bool = True) -> list[OpenItem]:
     """Open questions for one participant (see the module docstring); `others` are the rest of
     the cohort (absent objects come from what they use)."""
     per_kind = per_kind or PER_KIND
@@ -387,6 +390,8 @@ def generate_open(b: Behaviour, others: dict[str, Behaviour], seed: int = 42, sp
     pool = [(s, i, q) for s in ([split] if split else list(SPLITS)) for i, q in enumerate(GENERAL[s])]
     for s, i, q in ctx.rng.sample(pool, min(per_kind["general"], len(pool))):
         add("general", q, f"general/{s}/{i}", s, {"not_in_memory": "general_knowledge"})
+    if scoped:  # scope x selector x relation kinds (generate_scoped), from a generator of their own
+        generate_scoped(b, add, random.Random(f"{seed}:{b.participant_id}:scoped"), _fill, tag=str(seed))
     return items
 
 

@@ -20,9 +20,12 @@ from memora_graph.output import render
                    "'not in memory'; without, an answer in words.")
 @click.option("--memory", "family", default="memora", show_default=True, metavar="FAMILY",
               help="The memory the lookups read: memora, or a baseline's representation (flat1d, graph2d).")
+@click.option("--explain", is_flag=True, help="Print the typed query the question was read as (operation, subject, "
+                                               "scope, selector, relation) before the answer; with --json, under "
+                                               "\"query\".")
 @output_options(json_help="One JSON object: the answer, its letter, the reason, each choice's score by letter, the "
                           "evidence and the lookups made.")
-def ask_cmd(bank, question, participant, choices, family, fmt):
+def ask_cmd(bank, question, participant, choices, family, explain, fmt):
     """Ask one person's memory a question, answered by the typed reader (deterministic, no model).
 
     With choices, the reader picks one (or "not in memory"). Without, the answer takes the type
@@ -40,15 +43,30 @@ def ask_cmd(bank, question, participant, choices, family, fmt):
       memora ask banks/epic "In video P01_108, what did P01 do with the purse?" --participant P01 --json
       memora ask banks/epic "Where did P01 last put the chopping board?" --participant P01
       memora ask banks/epic "How many times did P01 open the fridge?" --participant P01 --json
+      memora ask banks/epic "What was the last thing I did in P01_103?" --participant P01 --explain
     """
     from memora_graph.agent.ask import ask
+    from memora_graph.agent.query import QuestionError, parse
 
     if len(choices) > 4:
         raise click.BadParameter("at most four choices (A-D); the reader adds 'not in memory' itself",
                                  param_hint="'--choice'")
-    result = ask(bank, participant, question, list(choices) or None, memory=family)
+    try:
+        query = parse(question) if explain else None
+    except QuestionError as exc:
+        raise click.BadParameter(str(exc), param_hint="'QUESTION'") from None
+    if query is not None and fmt != "json":
+        click.echo(f"query: {query.brief()}")
+        click.echo(query.model_dump_json(exclude_defaults=True, exclude={"text"}))
+    try:
+        result = ask(bank, participant, question, list(choices) or None, memory=family)
+    except QuestionError as exc:
+        raise click.BadParameter(str(exc), param_hint="'QUESTION'") from None
     if fmt == "json":
-        click.echo(json.dumps(result.as_dict(), indent=2, ensure_ascii=False))
+        out = result.as_dict()
+        if query is not None:
+            out["query"] = query.model_dump(mode="json", exclude_defaults=True)
+        click.echo(json.dumps(out, indent=2, ensure_ascii=False))
         return
     if fmt == "table" and result.typed is not None:
         t = result.typed

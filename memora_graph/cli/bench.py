@@ -117,8 +117,10 @@ def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None,
     Answers every open question of the participants from BANK (`memora ask` without choices) and
     scores it by type: the place class, the video id, the count within max(1, 20%), yes/no, the
     next action at verb + noun class, "not in memory" for absent subjects and general knowledge.
-    Prints accuracy per kind and per wording split (dev / heldout), the expected calibration error
-    of the confidence, and accuracy at 80% and 50% coverage. Develop on P01-P03; score others once.
+    Prints accuracy per kind and per wording split (dev / heldout), per operation x scope cell,
+    the counterfactual check (questions that differ only in scope: did the answer change where the
+    gold did), the expected calibration error of the confidence, and accuracy at 80% and 50%
+    coverage. Develop on P01-P03; score others once.
 
     \b
     Examples:
@@ -164,6 +166,11 @@ def open_cmd(bank: Path, participants: list[str] | None, questions: Path | None,
     rows = [{"kind": k, **v} for k, v in summary["per_kind"].items()] + \
         [{"kind": f"{k} wording", **v} for k, v in summary["per_split"].items()] + [{"kind": "ALL", **summary["overall"]}]
     click.echo(render(pl.DataFrame(rows), "table"))
+    cells = [{"operation x scope": k, **v} for k, v in summary["per_cell"].items()]
+    click.echo(render(pl.DataFrame(cells), "table"))
+    cf = summary["counterfactual"]
+    click.echo(f"counterfactual check: {cf['changed']} of {cf['pairs']} answers changed with their scope where the gold "
+               f"did ({cf['rate']})")
     sel = summary["selective"]
     click.echo(f"not-in-memory reason right: {summary['nim_reason_accuracy']}; ECE {summary['ece']:.3f}; accuracy at "
                f"100% / 80% / 50% coverage: {sel['100%']} / {sel['80%']} / {sel['50%']}")

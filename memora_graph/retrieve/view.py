@@ -561,7 +561,7 @@ class MemoryView:
             bm25.pop("place", None)
             self._changed("place")
         loaded.pop("videos", None)
-        if "_open_action_log" in loaded:  # the typed reader's action log (agent/open_answer.py) takes it in
+        if "_open_action_log" in loaded:  # the typed reader's action log (agent/query/log.py) takes it in
             loaded.setdefault("_open_log_pending", []).append(sid)
         self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack

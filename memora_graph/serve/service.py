@@ -65,7 +65,7 @@ class Endpoint:
     args: type[BaseModel]  # validates the arguments (participant aside)
     input_schema: dict[str, Any]
     output_schema: dict[str, Any] | None
-    kind: str  # retrieval, ask, plan, cypher, query
+    kind: str  # retrieval, ask, recall, plan, cypher, query
     run: Callable[[str, dict[str, Any]], dict[str, Any]]  # (participant, validated arguments) -> JSON result
 
 
@@ -356,6 +356,7 @@ class MemoryService:
                    "count, yes/no, next actions with their share, routine steps, a state) under `typed`, with a "
                    "confidence; 'not in memory' says why (general knowledge, or a subject absent from this memory).",
             AskArgs, AskAnswer.model_json_schema(mode="serialization"), "ask", self._ask))
+        out.append(self._recall_endpoint())
         out.append(self._endpoint(
             "plan", "Plan a goal from the person's memory with the offline planner (deterministic, no model): "
                     "remembered procedures used or transferred to the goal's objects, chained, with the person's "
@@ -403,6 +404,30 @@ class MemoryService:
         with self._lock:
             result = ask_memory(self._view(participant), participant, arguments["question"], arguments["choices"])
         return AskAnswer.model_validate(result.as_dict()).model_dump(mode="json")
+
+    def _recall_endpoint(self) -> Endpoint:
+        """`recall`: the typed query (agent/query/model.py) answered directly, no words parsed."""
+        from memora_graph.agent.query import OpenAnswer, Query
+
+        return self._endpoint(
+            "recall", "Recall from the person's memory with a typed query instead of words (deterministic, no model): "
+                      "an operation (where, when, which_video, count, exists, list, next, previous, steps, state, "
+                      "duration) on a subject (verb and objects, in EPIC classes or the person's own words), inside a "
+                      "scope (videos, a time window, before / after an event, the nth or last session), picked by a "
+                      "selector (first, last, nth, usual, all), optionally related to an anchor event (before, after, "
+                      "while, instead_of). The answer is typed (a place, a video and time, a count, yes/no, actions "
+                      "with shares, steps, states, a log, seconds) with evidence ids and a confidence; a combination "
+                      "that makes no sense is answered with reason 'invalid_query' and why. Example: "
+                      '{"operation": "count", "subject": {"verb": "open", "objects": ["fridge"]}, '
+                      '"scope": {"videos": ["P01_103"]}}.',
+            Query, OpenAnswer.model_json_schema(mode="serialization"), "recall", self._recall)
+
+    def _recall(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        from memora_graph.agent.query import recall
+
+        with self._lock:
+            answer = recall(self._view(participant), participant, arguments)
+        return answer.model_dump(mode="json")
 
     def _plan(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.planner import plan_memory

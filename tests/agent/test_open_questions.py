@@ -12,10 +12,12 @@ import pytest
 from click.testing import CliRunner
 
 from memora_graph.agent.ask import ask
-from memora_graph.agent.open_answer import OpenAnswer, answer_open
+from memora_graph.agent.query import OpenAnswer
+from memora_graph.agent.query.answer import answer_open
 from memora_graph.agent.open_calibration import CALIBRATION_FILE, ece, fit, load, probability
-from memora_graph.agent.open_parse import parse_open
+from memora_graph.agent.query.lexical import parse_open
 from memora_graph.bench.behaviour import PUT_VERB_KEYS, build_behaviours
+from memora_graph.bench.generate_scoped import SCOPED_SPLITS
 from memora_graph.bench.generate_open import (
     GENERAL, OPEN_KINDS, SPLITS, TEMPLATES, OpenItem, count_ok, generate_open, score_item,
 )
@@ -174,7 +176,7 @@ def test_not_in_memory_says_why(small_bank, lex):
 
 
 def _log(bank, pid, lex):
-    from memora_graph.agent.open_answer import action_log
+    from memora_graph.agent.query.log import action_log
 
     with MemoryView.open(bank, pid) as view:
         return action_log(view, lex)
@@ -205,7 +207,7 @@ def test_the_generator_gives_every_kind_with_gold_from_the_annotations(cohort):
     b = cohort["P01"]
     steps = [s for v in b.videos for s in b.steps_by_video[v]]
     for it in items:
-        assert it.split in SPLITS and it.question.endswith((".", "?")) and "{" not in it.question
+        assert it.split in SPLITS + SCOPED_SPLITS and it.question.endswith((".", "?")) and "{" not in it.question
         if it.kind == "count":
             assert it.gold["count"] >= 2
         if it.kind == "place_last":
@@ -290,7 +292,7 @@ def test_the_served_ask_tool_returns_the_typed_answer(small_bank):
 def test_the_action_log_reads_each_step_by_its_own_words_when_wordings_repeat(lex):
     """The log parses each distinct step wording once: steps that share a narration but not their
     object or action still get their own classes, as parsing every step afresh gives them."""
-    from memora_graph.agent.open_answer import _segment_steps
+    from memora_graph.agent.query.log import _segment_steps
 
     def seg(i, steps):
         return {"id": f"P07_101#t{i:04d}", "video": "P07_101", "t_start": 10.0 * i, "action_breakdown": json.dumps(steps)}

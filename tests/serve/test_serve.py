@@ -38,6 +38,7 @@ CALLS = {
     "get_object_history": {"object_query": "carrot", "max_entries": 5},
     "get_state_at_time": {"time_seconds": 60, "video": "P37_101"},
     "ask": {"question": "After P37 takes the chicken, what do they usually do next?"},
+    "recall": {"operation": "count", "subject": {"verb": "take", "objects": ["chicken"]}},
     "plan": {"goal": "wash the chicken"},
     "cypher": {"query": "MATCH (e:Entity) WHERE e.participant = $participant RETURN e.object_id AS id ORDER BY id "
                         "LIMIT 3"},
@@ -48,7 +49,7 @@ NAMED_VALUES = {"object": "carrot", "video": "P37_101"}
 def expected_tools() -> list[str]:
     named = [f"query_{q.name}" for q in load_queries().values()
              if not q.name.startswith("_") and not q.writes and "participant" in q.params]
-    return [s.name for s in specs("memora")] + ["ask", "plan", "cypher"] + named
+    return [s.name for s in specs("memora")] + ["ask", "recall", "plan", "cypher"] + named
 
 
 def stdio(bank: Path, *extra: str) -> StdioServerParameters:

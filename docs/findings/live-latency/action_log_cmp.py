@@ -7,7 +7,7 @@ import importlib.util
 import sys
 import time
 
-from memora_graph.agent import open_answer as new
+from memora_graph.agent.query import log as new  # the action log moved here from agent/open_answer.py
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve.view import MemoryView
 

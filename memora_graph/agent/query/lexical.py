@@ -1,4 +1,5 @@
-"""What an open question (one without answer choices) asks for, read at the level of EPIC classes.
+"""What an open question (one without answer choices) asks for, read at the level of EPIC classes:
+the word-level reading the typed query's parser (`query.parse`) builds its `Query` from.
 
 `parse_open` turns a question into an `OpenQuestion`: the kind of answer it wants and the action
 it is about, as verb and noun classes (`perceive.lexicon`, so "chopping board", "cutting board"
@@ -16,7 +17,7 @@ names, and who it is about. The kind comes from the question's structure, not fr
 - actions  anything else about an object or action ("what does P do with X") -> actions, shares
 - general  nothing about a person and no memory cue ("what is the capital of France?")
 
-Whether the subject is in this person's memory is the answerer's business (`open_answer`): the
+Whether the subject is in this person's memory is the answerer's business (`query.answer`): the
 parser says what is asked, not whether memory holds it.
 """
 
@@ -79,7 +80,14 @@ _FUNCTION = frozenset("""a an the of to in on at for with by from into onto out 
     moment point timestamp minute minutes second seconds hour hours can could will would should may might shall
     must does did done doing has had having was were are am been being get got
     go goes went going typically generally overall exist exists existed evidence sign trace instance
-    instances case cases mention mentioned able use used using uses""".split())
+    instances case cases mention mentioned able use used using uses now currently today yesterday tonight
+    earlier lately moment right one ones long spend spent spending""".split())
+
+
+FUNCTION_WORDS = _FUNCTION  # words a question is made of that name neither an action nor an object
+PERSON_WORDS = _PERSON_WORDS  # words that refer to the person asked about
+SCAFFOLD_WORDS = _SCAFFOLD | _LAST | _FIRST | _USUAL | _NEXT_WORDS | frozenset(
+    "action actions activity activities name thing things final previous".split())  # words that frame a question
 
 
 @dataclass
@@ -99,6 +107,7 @@ class OpenQuestion:
     about_person: bool = False  # names or refers to the person whose memory is asked
     unknown: list[str] = field(default_factory=list)  # content words no EPIC class knows ("chainsaw")
     unit: str = "times"  # count: times | videos
+    asked: str = ""  # the kind asked, when the question was then read as general knowledge
 
     @property
     def verb(self) -> str | None:
@@ -107,6 +116,11 @@ class OpenQuestion:
     @property
     def has_subject(self) -> bool:
         return bool(self.verbs or self.nouns)
+
+
+def seconds_in(text: str) -> float | None:
+    """The first time a text names ("01:05", "1:02:03", "90 seconds", "2 minutes"), in seconds."""
+    return _seconds(text)
 
 
 def _seconds(text: str) -> float | None:
@@ -181,7 +195,8 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     body = [t for t in toks if not (t in _SCAFFOLD or re.fullmatch(r"p\d+", t)
                                     or (t.endswith("ly") and len(t) > 4 and not lex.noun_classes(t)
                                         and not lex.verb_class(t)))]
-    last = [w for w in raw if not re.fullmatch(r"p\d+", w) and w not in ("by",) and w not in _PERSON_WORDS][-1:]
+    tail = [w for w in raw if not re.fullmatch(r"p\d+", w) and w not in ("by",) and w not in _PERSON_WORDS]
+    last = tail[-2:-1] if len(tail) > 1 and tail[-1] in _PARTICLES else tail[-1:]  # "was the tap turned on"
     participle = bool(last) and (last[0].endswith(("ed", "en", "wn")) or last[0] in ("put", "cut", "set", "shut"))
     clauses = _clauses(body, lex, passive=participle and bool(set(raw) & {"was", "were", "been", "being"}))
     nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
@@ -217,7 +232,7 @@ def parse_open(question: str, lex: Lexicon, participant: str | None = None) -> O
     oq = OpenQuestion(text=text, kind=kind, verbs=verbs, nouns=nouns, place=place, order=order, source=source,
                       videos=videos, time=time, persons=persons, about_person=about, unknown=unknown, unit=unit)
     if _general(oq, toks, words):
-        oq.kind = "general"
+        oq.asked, oq.kind = oq.kind, "general"
     return oq
 
 
@@ -251,19 +266,38 @@ def noun_classes(lex: Lexicon, text: str) -> list[str]:
 def _pairs(lex: Lexicon, text: str, classes: list[str]) -> list[tuple[str, str]]:
     """Each class with the key word it should read as ('' to keep it): a one-word class key
     standing alone, not inside a compound ("the top" is the top; "plastic wrap" stays a compound)."""
-    toks = lex.lemmas(text)
-    fix = _KEY_FIX(lex)
-    out = []
-    for n in classes:
-        hit = ""
-        for i, w in enumerate(toks):
-            if w in fix.get(n, {}):
-                prev = toks[i - 1] if i else ""
-                if not (prev.isalpha() and prev not in _FUNCTION and lex.noun_classes(f"{prev} {w}") == [n]):
-                    hit = w
-                    break
-        out.append((n, hit))
-    return out
+    hits = _key_hits(lex, lex.lemmas(text))
+    return [(n, hits.get(n, "")) for n in classes]
+
+
+def _key_hits(lex: Lexicon, toks: list[str]) -> dict[str, str]:
+    """class -> the first key word in `toks` that names it standing alone; one pass over the words
+    (a class per word looked up, not a pass over the words per class: linear in the question)."""
+    words = _KEY_WORDS(lex)
+    hits: dict[str, str] = {}
+    for i, w in enumerate(toks):
+        for n in words.get(w, ()):
+            if n in hits:
+                continue
+            prev = toks[i - 1] if i else ""
+            if not (prev.isalpha() and prev not in _FUNCTION and lex.noun_classes(f"{prev} {w}") == [n]):
+                hits[n] = w
+    return hits
+
+
+_WORDS_CACHE: dict[int, dict[str, list[str]]] = {}
+
+
+def _KEY_WORDS(lex: Lexicon) -> dict[str, list[str]]:
+    """word -> the classes `_KEY_FIX` reads it for."""
+    got = _WORDS_CACHE.get(id(lex))
+    if got is None:
+        got = {}
+        for n, words in _KEY_FIX(lex).items():
+            for w in words:
+                got.setdefault(w, []).append(n)
+        _WORDS_CACHE[id(lex)] = got
+    return got
 
 
 def fix_keys(lex: Lexicon, text: str, classes) -> list[str]:
@@ -296,6 +330,12 @@ def _clauses(body: list[str], lex: Lexicon, passive: bool = False):
     onion") found by its position."""
     clauses = lex.parse(" ".join(body))
     words = [t for t in body if t.isalpha()]
+    if passive and len(words) > 2 and words[-1] in _PARTICLES and lex.verb_class(" ".join(words[-2:])):
+        nouns = noun_classes(lex, " ".join(words[:-2]))  # "how many times was the tap turned on"
+        if nouns:
+            from memora_graph.perceive.lexicon import Clause
+
+            return [Clause(lex.verb_class(" ".join(words[-2:])), nouns)]
     if passive and len(words) > 1 and words[-1] != "by" and lex.verb_class(words[-1]):
         nouns = noun_classes(lex, " ".join(words[:-1]))
         if nouns:
@@ -319,10 +359,12 @@ def _clauses(body: list[str], lex: Lexicon, passive: bool = False):
                 again = lex.parse(" ".join(body[i:]))
                 if any(c.verb for c in again):
                     return again
+    hits = _key_hits(lex, lex.lemmas(" ".join(body)))  # once for the body, not once per clause
+    fix = _KEY_FIX(lex)
     for c in clauses:
-        c.nouns = fix_keys(lex, " ".join(body), c.nouns)
+        c.nouns = [fix.get(n, {}).get(hits.get(n, ""), n) for n in c.nouns]
         if c.place:
-            c.place = fix_keys(lex, " ".join(body), [c.place])[0]
+            c.place = fix.get(c.place, {}).get(hits.get(c.place, ""), c.place)
     return clauses
 
 

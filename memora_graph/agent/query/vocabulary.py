@@ -1,0 +1,141 @@
+"""A person's own words: every surface name their narrations use, tied to its class and evidence.
+
+    vocab = Vocabulary.of(view, lex)
+    vocab.resolve("v60")        # Resolved(word='v60', how='exact', classes=[...], count=52)
+    vocab.resolve("chpping")    # how='fuzzy', word='chopping'
+    vocab.resolve("wok")        # how='class' (no narration of theirs says wok; the pan class does)
+    vocab.name("sausage")       # 'chorizo', when that is what they call it
+
+A subject word resolves exact (a word of theirs), then fuzzy (a misspelling of one of their words,
+difflib), then by class (the lexicon's class of the word: the answer then says that it widened).
+Answers name classes in the person's most used word for them (`name`).
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+
+from memora_graph.perceive.lexicon import Lexicon
+
+_WORD = re.compile(r"[a-z][a-z0-9]*")
+FUZZY_CUTOFF = 0.8
+
+
+@dataclass
+class Resolved:
+    word: str  # the word as the person says it (corrected when fuzzy)
+    how: str  # exact | fuzzy | class | unknown
+    classes: list[str] = field(default_factory=list)
+    count: int = 0  # narrated steps that say the word
+    asked: str = ""  # the word as asked
+
+
+@dataclass
+class Vocabulary:
+    words: Counter  # word (and two-word name) -> narrated steps that say it
+    names: dict[str, Counter]  # class -> Counter of the surface names that read as it
+    segments: dict[str, list[str]]  # word -> the segments that say it (first 20)
+
+    @classmethod
+    def of(cls, view, lex: Lexicon, log=None) -> Vocabulary:
+        """The vocabulary of the person `view` holds, cached on the view; a live view's remembered
+        steps (`log.action_log` notes them) are added as they come, not read again with the rest."""
+        from memora_graph.agent.query.log import action_log
+
+        log = action_log(view, lex) if log is None else log
+        cached = view.__dict__.get("_query_vocabulary")
+        added = view.__dict__.get("_open_log_added")
+        if cached is not None and added is not None and view.__dict__.get("_query_vocab_log") is log:
+            # the same log, grown by a live view's remembered steps: only those are read
+            if added:
+                cached._add(added, lex, view.__dict__.setdefault("_query_vocab_text", {}))
+                added.clear()
+            return cached
+        vocab = cls(Counter(), {}, {})
+        vocab._add(log, lex, view.__dict__.setdefault("_query_vocab_text", {}))
+        view.__dict__["_query_vocabulary"] = vocab
+        view.__dict__["_query_vocab_log"] = log
+        view.__dict__["_open_log_added"] = []
+        return vocab
+
+    def _add(self, steps, lex: Lexicon, seen: dict) -> None:
+        """Count the words and names of these narrated steps (`seen` keeps each wording's reading)."""
+        for s in steps:
+            text = s.text.lower()
+            parsed = seen.get(text)
+            if parsed is None:
+                parsed = seen[text] = _phrases(lex, _WORD.findall(text))
+            for w, c in parsed:
+                if c is None or " " in w:
+                    self.words[w] += 1
+                segs = self.segments.setdefault(w, [])
+                if len(segs) < 20 and (not segs or segs[-1] != s.segment):
+                    segs.append(s.segment)
+                if c is not None and c in s.nouns:
+                    self.names.setdefault(c, Counter())[w] += 1
+
+    def says(self, word: str) -> int:
+        return self.words.get(word.lower(), 0)
+
+    def resolve(self, word: str, lex: Lexicon) -> Resolved:
+        w = word.lower().strip()
+        forms = [w, *(x for x in lex.lemmas(w) if x != w)]
+        if w.endswith("s") and len(w) > 3:
+            forms.append(w[:-1])
+        for f in forms:
+            if self.words.get(f):
+                return Resolved(f, "exact", lex.noun_classes(f), self.words[f], word)
+        if len(w) >= 4 and " " not in w:
+            close = difflib.get_close_matches(w, [k for k in self.words if " " not in k and len(k) >= 3], n=1,
+                                              cutoff=FUZZY_CUTOFF)
+            if close:
+                return Resolved(close[0], "fuzzy", lex.noun_classes(close[0]), self.words[close[0]], word)
+        classes = lex.noun_classes(w)
+        if classes:
+            return Resolved(w, "class", classes, 0, word)
+        if len(w) >= 4 and " " not in w:  # a misspelling of a word the lexicon knows ("chpping" -> chopping)
+            close = difflib.get_close_matches(w, sorted(lex.known), n=1, cutoff=FUZZY_CUTOFF)
+            if close:
+                return Resolved(close[0], "fuzzy", lex.noun_classes(close[0]), self.words.get(close[0], 0), word)
+        return Resolved(w, "unknown", [], 0, word)
+
+    def name(self, noun: str) -> str | None:
+        """The person's most used word for a class (None when they never name it)."""
+        c = self.names.get(noun)
+        if not c:
+            return None
+        return c.most_common(1)[0][0]
+
+
+def _phrases(lex: Lexicon, toks: list[str]) -> list[tuple[str, str | None]]:
+    """Each word of a narration, and each name of a class in it, read as the lexicon's phrases,
+    longest first ("drying rack", "washing up liquid" before "rack", "liquid"): (word or name, its
+    class or None)."""
+    out: list[tuple[str, str | None]] = [(w, None) for w in toks]
+    lem = [(lex.lemmas(w) or [w])[0] for w in toks]
+    i = 0
+    while i < len(toks):
+        for n in (3, 2, 1):
+            c = lex.noun_phrases.get(tuple(lem[i:i + n])) if i + n <= len(toks) else None
+            if c is not None and n > 1 and lex.verb_class(toks[i]) and \
+                    lex.noun_phrases.get(tuple(lem[i + 1:i + n])) == c:
+                c = None  # "open drawer" is opening the drawer: the name is "drawer"
+                out.append((" ".join(toks[i:i + n]), c))
+                i += n
+                break
+        else:
+            i += 1
+    return out
+
+
+def _one(lex: Lexicon, text: str) -> str | None:
+    got = lex.noun_classes(text)
+    return got[0] if len(got) == 1 else None
+
+
+def class_words(noun: str) -> set[str]:
+    """The words of a class key ('board:chopping' -> {'board', 'chopping'})."""
+    return {p for part in noun.replace("_", " ").split(":") for p in part.split() if p}
