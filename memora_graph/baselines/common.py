@@ -44,7 +44,7 @@ def cache_dir(bank: Bank) -> Path:
 
 def participant_key(bank: Bank, participant: str, version: str) -> str:
     """Changes whenever the participant is rebuilt (its manifest entry) or the code version moves."""
-    entry = bank.manifest()["participants"][participant]
+    entry = {k: v for k, v in bank.manifest()["participants"][participant].items() if k != "derived"}
     blob = json.dumps({"entry": entry, "mode": bank.manifest().get("mode"), "v": version}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

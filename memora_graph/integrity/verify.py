@@ -169,19 +169,24 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
 
 
 def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str]) -> str:
-    """The stores persisted for one-shot tools (memora_graph/retrieve/persist.py): stale ones
-    (from an earlier version of the database) are expected after a write and never read; a
-    damaged one is reported (never read either; written again on the next open)."""
-    from memora_graph.retrieve.persist import PersistedStores, StaleStores, store_dir
+    """The stores persisted for one-shot tools (memora_graph/retrieve/persist.py), every file
+    hashed against the record of them in the manifest (not against their own meta.json): stale
+    ones (from an earlier version of the database) or ones the manifest has no record of are
+    expected after a write and never read; a damaged one is reported, by file (never read
+    either; written again on the next open)."""
+    from memora_graph.retrieve.persist import RECORD, PersistedStores, StaleStores, store_dir
 
     if not store_dir(bank.path, p).exists():
         return "none (computed on first use)"
     try:
-        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"), trust_stamps=False)
+        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"), trust_stamps=False,
+                             record=bank.derived.get(p, RECORD, data))
     except StaleStores as why:
         if why.damaged:
             problems.append(f"{why}; never read (the next open reads the database and writes them again)")
             return "damaged"
+        if "not recorded" in str(why):
+            return "not recorded (never read; written again on the next open)"
         return "stale (written again on the next open)"
     return "ok"
 
