@@ -220,6 +220,28 @@ def test_incremental_consolidation_equals_batch_at_every_point_with_merges(tmp_p
             assert again.recomputed == 0 and again.reused == len(state.folds)
 
 
+def test_kept_folds_are_read_only_as_recorded_in_the_manifest(tmp_path):
+    """The folds an incremental consolidation keeps (BANK/.cache/consolidate-PXX.json) feed the
+    records it writes into the database: a file not as the bank's manifest recorded it when it was
+    saved (edited, even into valid folds) is recomputed, never read."""
+    bank = tmp_path / "bank"
+    with LiveWriter(bank, "P01") as memory:
+        for m in moments(30, video="day-0"):
+            memory.remember(m)
+        state = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=memory.bank, participant="P01")
+        consolidate_incremental(memory.store, memory.store, "P01", memory.embedder, state)
+        state.save()
+        assert Bank(bank).manifest()["participants"]["P01"]["derived"]["consolidate"]["sha256"]
+        kept = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=memory.bank, participant="P01")
+        assert kept.folds and not kept.unsaved, "read back as recorded"
+        path = consolidation_cache(bank, "P01")
+        data = json.loads(path.read_text())
+        data["merged"] = {"P01:cup": "P01:forged"}
+        path.write_text(json.dumps(data))
+        edited = IncrementalConsolidation(path, bank=memory.bank, participant="P01")
+        assert not edited.folds and edited.unsaved, "the edited folds were read"
+
+
 def test_background_consolidation_in_the_writable_server(tmp_path):
     bank = tmp_path / "bank"
     service = MemoryService(bank, "P01", writable=True, consolidate_every=25)
