@@ -14,7 +14,6 @@ many and which, never dropping any silently. `memora remember` reads its text th
 from __future__ import annotations
 
 import json
-import math
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ import polars as pl
 
 from memora_graph.errors import DataError
 from memora_graph.perceive.annotations import ACTION_SCHEMA, ClassTables, load_class_tables
+from memora_graph.perceive.bounds import seconds_problem
 from memora_graph.perceive.lexicon import Lexicon, lemma
 
 REQUIRED = ("video_id", "start", "end", "text")
@@ -157,13 +157,10 @@ def check_moment(where: str, video_id: object, start: object, end: object, text:
         raise fail("video_id", video_id, "must be one line without '#' (at most 200 characters)")
     times = []
     for fld, value in (("start", start), ("end", end)):
-        try:
-            t = float(value) if not isinstance(value, bool) else math.nan
-        except (TypeError, ValueError):
-            t = math.nan
-        if not math.isfinite(t) or t < 0:
-            raise fail(fld, value, "expected seconds from the start of the video (a number >= 0)")
-        times.append(t)
+        why = seconds_problem(value)  # finite, 0 to 24 h (perceive/bounds.py)
+        if why:
+            raise fail(fld, value, why)
+        times.append(float(value))
     if times[1] < times[0]:
         raise fail("end", end, f"ends before start {times[0]:g}")
     if not isinstance(text, str) or not text.strip():
