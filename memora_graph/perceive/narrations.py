@@ -52,6 +52,11 @@ class Reading:
     noun_classes: list[int]
     unknown: list[str] = field(default_factory=list)
 
+    @property
+    def text_only(self) -> bool:
+        """No word a class covers and no object read: the moment is kept as its text alone."""
+        return self.verb_class == -1 and not self.nouns
+
 
 @dataclass
 class Unknown:
@@ -76,6 +81,11 @@ class Unknown:
     def as_dict(self) -> dict:
         return {"rows": self.rows, "total": sum(self.words.values()), "distinct": len(self.words),
                 "words": dict(self.words.most_common())}
+
+
+def inflected_unknown(found: list[tuple[str, str]]) -> list[str]:
+    """The unknown words (lemma, as written) inflected as a verb is ("grasps", "welded", "holding")."""
+    return [w for w, said in found if re.search(r"(?<!s)s$|ed$|ing$", said)]
 
 
 class NarrationReader:
@@ -113,17 +123,18 @@ class NarrationReader:
             verb_class = self._verb_id.get(verb_key, -1)
         else:  # no verb class: the first word inflected as a verb ("grasps", "welded"), else the first
             # word no class covers, is the action word, kept as written ("robot grasps ..." -> grasp)
-            inflected = [w for w, said in found if re.search(r"(?<!s)s$|ed$|ing$", said)]
-            verb_key = (inflected or unknown or ["do"])[0]
+            verb_key = (inflected_unknown(found) or unknown or ["do"])[0]
             verb_class = -1
         nouns = list(dict.fromkeys(main.nouns if main is not None else []))
         if not nouns:
             nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
         classes = [self._noun_id.get(n, -1) for n in nouns]
-        if not nouns:
+        if not nouns and (verb_class != -1 or verb_key in inflected_unknown(found)):
             objects = [w for w in unknown if w != verb_key]
-            if objects:  # an object no class covers: its own kind, never dropped
+            if objects:  # an object no class covers, of a narrated action: its own kind, never dropped
                 nouns, classes = [objects[-1]], [-1]
+        # no word any class covers and none that reads as a verb ("flibber the zorp quux"): nothing
+        # tells an action from an object, so no word becomes an object; the text is kept as written
         return Reading(text=cleaned or text.strip(), verb=verb_key, verb_key=verb_key, verb_class=verb_class,
                        nouns=nouns, noun_classes=classes, unknown=unknown)
 

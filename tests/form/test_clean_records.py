@@ -53,3 +53,69 @@ def test_a_narrations_file_with_a_time_out_of_range_names_row_and_field(tmp_path
     ok = tmp_path / "ok.csv"
     ok.write_text(f"video_id,start,end,text\nv1,0,{MAX_VIDEO_SECONDS:.0f},open the fridge\n")
     assert load_narrations(ok, participant="P01")[0].height == 1, "the end of the range is in it"
+
+
+def test_a_moment_of_unknown_words_is_kept_as_text_with_no_new_entity_and_the_answer_says_so(tmp_path):
+    bank = tmp_path / "bank"
+    with LiveWriter(bank, "P01") as memory:
+        memory.remember(Moment("v", 0.0, 1.0, "take the cup"))
+        done = memory.remember(Moment("v", 5.0, 6.0, "flibber the zorp quux"))
+        assert not [o for o in done.ops if o["op"] == "ADD"], done.ops
+        assert done.unknown_words == ["flibber", "zorp", "quux"]
+        assert "remembered as its text" in done.as_dict()["note"] and "flibber" in done.as_dict()["note"]
+        known = memory.remember(Moment("v", 9.0, 10.0, "robot grasps the screwdriver"))  # a verb form: kept
+        assert any(o["op"] == "ADD" and o["object"] == "screwdriver" for o in known.ops)
+        assert "note" not in known.as_dict()
+    names = {r["name"] for r in _rows(bank, "P01", "MATCH (e:Entity) WHERE e.participant = $p RETURN e.name AS name")}
+    assert names == {"cup", "screwdriver"}
+    seg = _rows(bank, "P01", "MATCH (g:Segment) WHERE g.participant = $p AND g.t_start = 5.0 RETURN g.summary AS s")
+    assert seg == [{"s": "flibber the zorp quux"}], "the text is remembered as written"
+
+
+@pytest.mark.parametrize("setup,text,place,state", [
+    ("close the cupboard", "put the cup in the cupboard", "cupboard", "closed"),
+    ("close the cupboard", "take the cup from the cupboard", "cupboard", "closed"),
+    ("close the drawer", "take the knife out of the drawer", "drawer", "closed"),
+    ("wash the sink", "put the plate into the sink", "sink", "washed"),
+    ("wash the plate", "put the bowl on the plate", "plate", "washed")])
+def test_a_place_or_container_named_as_destination_or_source_keeps_its_state(tmp_path, setup, text, place, state):
+    bank = tmp_path / "bank"
+    with LiveWriter(bank, "P01") as memory:
+        memory.remember(Moment("v", 0.0, 1.0, f"open the {place}"))
+        before = {o["object"]: o for o in memory.remember(Moment("v", 2.0, 3.0, setup)).ops}
+        assert before[place]["changes"]["state"] == state
+        done = memory.remember(Moment("v", 5.0, 6.0, text))
+        ops = {o["object"]: o for o in done.ops}
+        assert "state" not in ops[place]["changes"], ops[place]
+        obj = next(o for o in ops if o != place)
+        assert ops[obj]["changes"].get("state") in ("inserted", "held", "placed", "removed"), ops[obj]
+    states = {r["name"]: r["state"] for r in _rows(
+        bank, "P01", "MATCH (e:Entity) WHERE e.participant = $p RETURN e.name AS name, e.state AS state")}
+    assert states[place] == state
+
+
+def test_a_destination_seen_first_is_observed_not_given_the_verbs_state(tmp_path):
+    with LiveWriter(tmp_path / "bank", "P01") as memory:
+        ops = {o["object"]: o for o in memory.remember(Moment("v", 0.0, 1.0, "put the cup in the cupboard")).ops}
+    assert ops["cupboard"]["changes"]["state"] == "observed" and ops["cup"]["changes"]["state"] == "inserted"
+
+
+@pytest.mark.parametrize("surface,key,name", [("breast:chicken", "chicken", "chicken breast"),
+                                              ("liquid:washing:up", "liquid:washing", "washing up liquid"),
+                                              ("chicken", "chicken", "chicken"),
+                                              ("spoon:wooden", "spoon", "wooden spoon"),
+                                              ("stock:chicken", "stock", "chicken stock")])
+def test_entity_names_are_the_persons_words_without_doubled_words(surface, key, name):
+    from memora_graph.perceive.narration import object_name, split_noun
+
+    props, extra = split_noun(surface)
+    adjectives = [v for v in (props.color, props.size, props.material) if v]
+    assert object_name(surface, key, adjectives, extra) == name
+
+
+def test_no_entity_of_a_built_bank_doubles_a_word(small_bank):
+    bank, _ = small_bank
+    for p in ("P09", "P37"):
+        names = [r["name"] for r in _rows(bank, p, "MATCH (e:Entity) WHERE e.participant = $p RETURN e.name AS name")]
+        doubled = [n for n in names if len(set(n.split())) != len(n.split())]
+        assert names and doubled == [], (p, doubled)
