@@ -49,6 +49,10 @@ class DerivedFiles:
         got = self._records(data, participant).get(name)
         return got if isinstance(got, dict) else None
 
+    def get_all(self, participant: str | None, data: dict | None = None) -> dict:
+        """Every record of `participant` (None: of the bank), by name."""
+        return dict(self._records(data if data is not None else self.manifest.read(), participant))
+
     def put(self, participant: str | None, name: str, record: dict, db_sha256: str | None = None) -> bool:
         """Record `record` as `name`, under the manifest lock. With `db_sha256`: only while the
         participant's database is still recorded with that sha256 (else nothing is written and

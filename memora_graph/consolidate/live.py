@@ -146,8 +146,8 @@ class IncrementalConsolidation:
             try:
                 raw = cache_path.read_bytes()
                 if bank is not None:
-                    record = bank.derived.get(participant, CACHE_RECORD) or {}
-                    if record.get("sha256") != sha256_bytes(raw):
+                    files = (bank.derived.get(participant, CACHE_RECORD) or {}).get("files")
+                    if not isinstance(files, dict) or files.get(cache_path.name) != sha256_bytes(raw):
                         raise ValueError(f"{cache_path}: not as recorded in the bank's manifest")
                 self._load(json.loads(raw))
                 self.unsaved = False
@@ -214,7 +214,8 @@ class IncrementalConsolidation:
         self.saved = True
         if self.bank is not None:
             try:
-                self.bank.derived.put(self.participant, CACHE_RECORD, {"sha256": sha256_bytes(text.encode())})
+                self.bank.derived.put(self.participant, CACHE_RECORD,
+                                      {"files": {self.cache_path.name: sha256_bytes(text.encode())}})
             except (OSError, BankError):
                 pass  # unrecorded: recomputed next time
 

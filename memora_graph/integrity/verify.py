@@ -17,6 +17,7 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, pid_alive
+from memora_graph.bank.derived import sha256_file
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
 from memora_graph.files import file_kind, file_sha256, probe, side_files
@@ -52,6 +53,7 @@ def verify_bank(path: str | Path, participants: list[str] | None = None) -> Repo
     for p in participants or everyone:
         report.rows.append(_participant(bank, data, p))
     if not participants:
+        _caches(bank, bank.derived.get_all(None, data), report.bank)
         for f in sorted(bank.path.iterdir()):
             if f.name not in KNOWN and not _DB.match(f.name) and not f.name.startswith(VERIFIED + "."):
                 report.bank.append(f"{f}: not a file of a memora bank (foreign)")
@@ -163,6 +165,7 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         for f in foreign:
             problems.append(f"{f}: not a staged video (never opened by a build; remove it)")
     row["tool_stores"] = _tool_stores(bank, data, p, integ, problems)
+    row["caches"] = _caches(bank, bank.derived.get_all(p, data), problems)
     row["status"] = "ok" if not problems else "problem"
     row["problems"] = problems
     return row
@@ -189,6 +192,28 @@ def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str
             return "not recorded (never read; written again on the next open)"
         return "stale (written again on the next open)"
     return "ok"
+
+
+def _caches(bank: Bank, records: dict, problems: list[str]) -> str:
+    """The other files derived from a database (baseline caches, kept consolidation folds) or from
+    the whole bank (the embedding cache), each hashed against its record in the manifest
+    (bank/derived.py). A file that is not as recorded is reported by name (readers never use
+    it: they build it again); a recorded file since removed is not a problem."""
+    checked = bad = 0
+    for name, record in sorted(records.items()):
+        files = record.get("files") if isinstance(record, dict) else None
+        if name == "tools" or not isinstance(files, dict):
+            continue
+        for fname, digest in sorted(files.items()):
+            path = bank.path / ".cache" / fname
+            if "/" in fname or not path.is_file():
+                continue
+            checked += 1
+            if sha256_file(path) != digest:
+                bad += 1
+                problems.append(f"{path}: not as recorded in {MANIFEST} (edited or damaged); never read (built again "
+                                "on next use)")
+    return "none" if not checked else (f"{bad} of {checked} damaged" if bad else f"ok ({checked} files)")
 
 
 def accept(path: str | Path, participant: str) -> dict:

@@ -231,7 +231,7 @@ def test_kept_folds_are_read_only_as_recorded_in_the_manifest(tmp_path):
         state = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=memory.bank, participant="P01")
         consolidate_incremental(memory.store, memory.store, "P01", memory.embedder, state)
         state.save()
-        assert Bank(bank).manifest()["participants"]["P01"]["derived"]["consolidate"]["sha256"]
+        assert Bank(bank).manifest()["participants"]["P01"]["derived"]["consolidate"]["files"]["consolidate-P01.json"]
         kept = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=memory.bank, participant="P01")
         assert kept.folds and not kept.unsaved, "read back as recorded"
         path = consolidation_cache(bank, "P01")
@@ -240,6 +240,8 @@ def test_kept_folds_are_read_only_as_recorded_in_the_manifest(tmp_path):
         path.write_text(json.dumps(data))
         edited = IncrementalConsolidation(path, bank=memory.bank, participant="P01")
         assert not edited.folds and edited.unsaved, "the edited folds were read"
+    report = verify_bank(bank)
+    assert not report.ok and any("consolidate-P01.json: not as recorded" in line for line in report.rows[0]["problems"])
 
 
 def test_background_consolidation_in_the_writable_server(tmp_path):
