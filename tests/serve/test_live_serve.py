@@ -120,7 +120,8 @@ def test_incremental_consolidation_equals_a_batch_run(tmp_path):
     from memora_graph.embed import get_embedder
 
     bank = tmp_path / "bank"
-    state = IncrementalConsolidation(consolidation_cache(bank, "P01"))  # where the CLI keeps it
+    # where the CLI keeps it, recorded in the bank's manifest as a server's consolidation records it
+    state = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=Bank(bank), participant="P01")
     stream = [moments(40, video=f"day-{d}", offset=0.0) for d in range(3)]
     with LiveWriter(bank, "P01") as memory:
         for day in stream:
