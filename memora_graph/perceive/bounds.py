@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import math
 
-MAX_VIDEO_SECONDS = 24 * 3600.0
+from memora_graph.records import MAX_VIDEO_SECONDS  # the segment records' own bound (records.py)
+
+__all__ = ["MAX_VIDEO_SECONDS", "seconds_problem"]
 
 
 def seconds_problem(value: object) -> str | None:

@@ -119,3 +119,14 @@ def test_no_entity_of_a_built_bank_doubles_a_word(small_bank):
         names = [r["name"] for r in _rows(bank, p, "MATCH (e:Entity) WHERE e.participant = $p RETURN e.name AS name")]
         doubled = [n for n in names if len(set(n.split())) != len(n.split())]
         assert names and doubled == [], (p, doubled)
+
+
+@pytest.mark.parametrize("field,value", [("t_end", float("nan")), ("t_end", 1e308), ("t_start", float("inf"))])
+def test_a_segment_record_refuses_times_out_of_range(field, value):
+    from pydantic import ValidationError
+
+    from memora_graph.records import LayeredSegment
+
+    record = {"participant_id": "P01", "video_id": "v", "turn_id": 0, "t_start": 0.0, "t_end": 10.0, field: value}
+    with pytest.raises(ValidationError, match=field):
+        LayeredSegment.model_validate(record)

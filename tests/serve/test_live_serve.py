@@ -98,6 +98,8 @@ def test_remember_over_http_needs_the_token(tmp_path):
                 assert "ego-1" in json.dumps(found.structured_content)
                 with pytest.raises(MCPError, match="start"):  # invalid params, naming the field
                     await client.call_tool("remember", {"text": "open the fridge", "video": "ego-1", "start": -2})
+                with pytest.raises(MCPError, match="start"):  # out of the stated range (24 h)
+                    await client.call_tool("remember", {"text": "open the fridge", "video": "ego-1", "start": 1e308})
 
         anyio.run(main_)
     finally:
