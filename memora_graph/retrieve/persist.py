@@ -183,7 +183,7 @@ class PersistedStores:
             pass
 
     def _path(self, name: str) -> Path:
-        """A file of the stores, after checking its sha256 against meta.json (once per process)."""
+        """A file of the stores, after checking its sha256 against the manifest's record (once per process)."""
         files = self.record["files"]
         if name not in files:
             raise StaleStores(f"{self.root / name}: not recorded in {MANIFEST}")
