@@ -21,6 +21,7 @@ from memora_graph.queries import load_queries
 from memora_graph.retrieve import specs
 from memora_graph.serve import ArgumentError, MemoryService
 from memora_graph.cli.perf.serve import ServerProcess
+from support.bankfiles import without_derived
 
 ROOT = Path(__file__).resolve().parents[2]
 INVALID_PARAMS = -32602
@@ -157,11 +158,7 @@ def test_stdio_lists_and_calls_every_tool(small_bank):
 
 def _without_derived(bank) -> dict:
     """The manifest less the records of derived files (bank/derived.py): what serving must not change."""
-    data = json.loads((bank / "manifest.json").read_text())
-    data.pop("derived", None)
-    for entry in data["participants"].values():
-        entry.pop("derived", None)
-    return data
+    return without_derived(json.loads((bank / "manifest.json").read_text()))
 
 
 def test_http_bound_to_one_participant_shows_nothing_of_another(small_bank):
