@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -101,6 +102,12 @@ def build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, e
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch / Kùzu threads
+    # workers stopped at once are killed (below): the semaphores they held are unlinked by
+    # multiprocessing's resource tracker, which then warns of each at exit; that is expected here,
+    # so the tracker (started with this interpreter's -W options) is told not to say so
+    quiet = "ignore:resource_tracker:UserWarning"
+    if quiet not in sys.warnoptions:
+        sys.warnoptions.append(quiet)
     events = ctx.Queue()
 
     def drain() -> None:
