@@ -16,6 +16,10 @@ SPATIAL_RELATIONS = (
 EditKind = Literal["ADD", "UPDATE", "DELETE", "NOOP"]
 
 
+MAX_VIDEO_SECONDS = 24 * 3600.0  # the stated range of a time in a video (perceive/bounds.py)
+_SECONDS = dict(ge=0, le=MAX_VIDEO_SECONDS + 10.0, allow_inf_nan=False)  # a last turn may end 10 s past it
+
+
 class _Record(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -54,7 +58,7 @@ class EnvironmentLayer(_Record):
 
 class ActionStep(_Record):
     timestamp: float = Field(ge=0, le=10, description="seconds from the start of the turn")
-    end: float = Field(ge=0, description="seconds from the start of the turn; may run past 10")
+    end: float = Field(description="seconds from the start of the turn; may run past 10", **_SECONDS)
     action: str  # verb
     object: str = ""
     narration: str = ""
@@ -112,8 +116,8 @@ class LayeredSegment(_Record):
     participant_id: str
     video_id: str
     turn_id: int = Field(ge=0)
-    t_start: float = Field(ge=0)
-    t_end: float
+    t_start: float = Field(**_SECONDS)
+    t_end: float = Field(**_SECONDS)
     environment: EnvironmentLayer = Field(default_factory=EnvironmentLayer)
     activity: ActivityLayer = Field(default_factory=ActivityLayer)
     objects: list[ObjectObservation] = Field(default_factory=list)

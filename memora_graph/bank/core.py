@@ -15,6 +15,7 @@ from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from memora_graph.bank.derived import DerivedFiles
 from memora_graph.bank.integrity import Integrity, verify_default
 from memora_graph.bank.locks import WriteMarks, manifest_lock, participant_lock
 from memora_graph.bank.manifest import MANIFEST, ManifestFile
@@ -33,6 +34,7 @@ class Bank:
         # the marks are written through `update_manifest`, like every other change of the manifest
         self.marks = WriteMarks(lambda change: self.update_manifest(change), self.exists)
         self.integrity = Integrity(self.manifest_file)
+        self.derived = DerivedFiles(self.manifest_file)  # the records of files derived from each database
 
     # -- manifest (manifest.ManifestFile) ----------------------------------------------
     @property

@@ -3,13 +3,17 @@ store (a text is embedded once per bank, whichever representation needs it), and
 with the paper's near-duplicate collapse (cosine >= 0.95 keeps the higher-scoring record).
 
 Representations are cached under `BANK/.cache/`, keyed by the participant's manifest entry, so
-a rebuilt participant invalidates its cache and nothing else.
+a rebuilt participant invalidates its cache and nothing else. Each cache file's sha256 is recorded
+in the manifest (bank/derived.py: `baseline-<name>` of the participant, the embedding cache
+bank-wide): a file not as recorded is built again, never read.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
+import logging
 import os
 import re
 from collections.abc import Callable
@@ -18,10 +22,13 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from memora_graph.bank import Bank
+from memora_graph.bank import MANIFEST, Bank
+from memora_graph.bank.derived import sha256_bytes, sha256_file
+from memora_graph.errors import BankError
 from memora_graph.embed import get_embedder, single_thread_blas, torch_threads
 
 CACHE_DIR = ".cache"
+log = logging.getLogger("memora_graph.integrity")
 M = TypeVar("M")  # a baseline memory
 DEDUP_COSINE = 0.95
 DEFAULT_TOP_K = 10
@@ -44,7 +51,7 @@ def cache_dir(bank: Bank) -> Path:
 
 def participant_key(bank: Bank, participant: str, version: str) -> str:
     """Changes whenever the participant is rebuilt (its manifest entry) or the code version moves."""
-    entry = bank.manifest()["participants"][participant]
+    entry = {k: v for k, v in bank.manifest()["participants"][participant].items() if k != "derived"}
     blob = json.dumps({"entry": entry, "mode": bank.manifest().get("mode"), "v": version}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -68,9 +75,14 @@ def cache_or_build(bank_path: str | Path, participant: str, name: str, version: 
     key = participant_key(bank, participant, version)
     base = cache_dir(bank) / f"{name}-{participant}-{key}"
     path, npy = base.with_suffix(".json"), base.with_suffix(".npy")
+    record_name = f"baseline-{name}"
     if path.exists() and npy.exists():
         try:
-            return read(mode, json.loads(path.read_text()), np.load(npy, allow_pickle=False))
+            raw, npy_raw = path.read_bytes(), npy.read_bytes()
+            if _recorded(bank.derived.get(participant, record_name), key, {path.name: raw, npy.name: npy_raw}):
+                return read(mode, json.loads(raw), np.load(io.BytesIO(npy_raw), allow_pickle=False))
+            log.warning(f"{base}.json/.npy: not as recorded in {MANIFEST} (edited, damaged, or written before "
+                        "caches were recorded there); built again from the bank")
         except (OSError, ValueError, KeyError, TypeError, *damaged):
             pass
     built, data, texts = build(load_records(bank, participant), mode)
@@ -78,10 +90,23 @@ def cache_or_build(bank_path: str | Path, participant: str, name: str, version: 
     vectors = store.encode(texts)
     store.save()
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data))
+    text = json.dumps(data)
+    tmp.write_text(text)
     np.save(npy, vectors)
     os.replace(tmp, path)
+    try:  # the files are trusted by a later read only as recorded in the manifest (bank/derived.py)
+        bank.derived.put(participant, record_name, {"of": key, "files": {
+            path.name: sha256_bytes(text.encode()), npy.name: sha256_file(npy)}})
+    except (OSError, BankError) as exc:
+        log.warning(f"{bank.path}: could not record {base.name} in {MANIFEST} ({exc}); it is built again next time")
     return make(mode, built, vectors)
+
+
+def _recorded(record: dict | None, key: str, files: dict[str, bytes]) -> bool:
+    """Whether the bytes of `files` (name -> bytes) are those the manifest's `record` holds for `key`."""
+    if not isinstance(record, dict) or record.get("of") != key or not isinstance(record.get("files"), dict):
+        return False
+    return all(record["files"].get(n) == sha256_bytes(b) for n, b in files.items())
 
 
 def load_records(bank: Bank, participant: str) -> dict[str, list[dict]]:
@@ -99,16 +124,22 @@ class EmbeddingStore:
     def __init__(self, bank: Bank, model: str | None = None):
         self.embedder = get_embedder(model)
         safe = re.sub(r"[^A-Za-z0-9._-]+", "_", self.embedder.name)
+        self.bank = bank
         self.path = cache_dir(bank) / f"embeddings-{safe}.npz"
         self._vectors: dict[str, np.ndarray] = {}
         if self.path.exists():
             try:
-                with np.load(self.path) as data:
+                raw = self.path.read_bytes()
+                if not _recorded(bank.derived.get(None, self.path.name), self.path.name, {self.path.name: raw}):
+                    raise ValueError(f"not as recorded in {MANIFEST}")
+                with np.load(io.BytesIO(raw)) as data:
                     keys, mat = data["keys"], data["vectors"]
                 self._vectors = {str(k): mat[i] for i, k in enumerate(keys)}
-            except Exception:  # a damaged cache is rebuilt, never trusted
+            except Exception as exc:  # a damaged or unrecorded cache is rebuilt, never trusted
+                log.warning(f"{self.path}: {exc}; its texts are embedded again")
                 self._vectors = {}
-        self._dirty = False
+                self._dirty = True
+        self._dirty = self.__dict__.get("_dirty", False)
 
     @staticmethod
     def _key(text: str) -> str:
@@ -136,8 +167,13 @@ class EmbeddingStore:
         mat = np.stack(list(self._vectors.values())).astype(np.float32)
         tmp = self.path.with_name(f"{self.path.stem}.{os.getpid()}.tmp.npz")  # parallel bench workers share the bank
         np.savez(tmp, keys=keys, vectors=mat)
+        digest = sha256_file(tmp)
         os.replace(tmp, self.path)
         self._dirty = False
+        try:  # (two workers saving at once: the record may name the other's file, which is then embedded again)
+            self.bank.derived.put(None, self.path.name, {"of": self.path.name, "files": {self.path.name: digest}})
+        except (OSError, BankError) as exc:
+            log.warning(f"{self.bank.path}: could not record {self.path.name} in {MANIFEST} ({exc})")
 
 
 def embed_query(text: str, model: str | None = None) -> np.ndarray:

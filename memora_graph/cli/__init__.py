@@ -11,6 +11,7 @@ in `perf/`, what they share in `options` and `executors`, and the reference page
 
 from __future__ import annotations
 
+import shlex
 import statistics
 
 import click
@@ -229,11 +230,6 @@ def build(bank, participants, annotations, narrations, mode, backend, video, par
     if backend != "offline":
         raise click.UsageError(f"--backend {backend} applies to --video builds; annotation builds use the offline processors")
 
-    from memora_graph.pipeline import build_bank
-    from memora_graph.retrieve.view import persist_bank
-    from memora_graph.stats import build_summary
-    from memora_graph.text import counted
-
     progress = progress_bar(quiet)
     task = {}
 
@@ -243,12 +239,26 @@ def build(bank, participants, annotations, narrations, mode, backend, video, par
     def on_video(p, video, n):
         progress.update(task["id"], advance=1, description=f"{p} {video}")
 
-    with progress:
-        result = build_bank(bank, participants, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan, on_video=on_video,
-                            episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None, isolate=True,
-                            on_notice=lambda text: click.echo(text, err=True), executor=ex, narrations=narrations,
-                            participant=narration_participant)
-    stores = persist_bank(bank, [r.participant for r in result.participants])
+    try:  # a Ctrl-C at any moment: one line, and the bank as a killed build leaves it (resumable)
+        from memora_graph.pipeline import build_bank
+        from memora_graph.retrieve.view import persist_bank
+
+        with progress:
+            result = build_bank(bank, participants, annotations, mode=mode, embed_model=embed_model, on_plan=on_plan,
+                                on_video=on_video, episodic=episodic, fts=fts, jobs=jobs, rebuild=rebuild or None,
+                                isolate=True, on_notice=lambda text: click.echo(text, err=True), executor=ex,
+                                narrations=narrations, participant=narration_participant)
+        stores = persist_bank(bank, [r.participant for r in result.participants])
+    except KeyboardInterrupt:
+        again = " ".join(["memora build", shlex.quote(str(bank)), *(["--participants", ",".join(participants)]
+                                                                   if participants else []),
+                          *(["--narrations", shlex.quote(str(narrations))] if narrations else []),
+                          *(["--participant", narration_participant] if narration_participant else [])])
+        click.echo(f"memora build: interrupted; what was built is kept, and `{again}` resumes it", err=True)
+        raise click.exceptions.Exit(130) from None
+    from memora_graph.stats import build_summary
+    from memora_graph.text import counted
+
     frame, lines = build_summary(result, bank, episodic=episodic, mode=mode, fts=fts)
     click.echo(render(frame))
     for line in lines:

@@ -81,6 +81,9 @@ class LazyGroup(click.Group):
             return super().invoke(ctx)
         except MemoraError as exc:
             raise click.ClickException(str(exc)) from exc
+        except KeyboardInterrupt:  # Ctrl-C before a command says more (`build` says how to resume): one line
+            click.echo(f"memora{' ' + ctx.invoked_subcommand if ctx.invoked_subcommand else ''}: interrupted", err=True)
+            raise click.exceptions.Exit(130) from None
 
 
 # -- choices from the registries ---------------------------------------------------------------

@@ -42,13 +42,16 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from memora_graph.bank.derived import sha256_bytes
 from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
 from memora_graph.consolidate.records import Enrichment, VideoConsolidation
 from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
+from memora_graph.errors import BankError
 
 log = logging.getLogger("memora_graph.consolidate")
 CACHE_FORMAT = 3
+CACHE_RECORD = "consolidate"  # the kept folds' record in the manifest (bank/derived.py)
 # The folds are kept on disk (JSON) only up to this size: reading a larger file back costs more
 # time and memory than recomputing every video (format 2, records as JSON: 231 MB at 100 h took
 # ~70 CPU-s and ~2 GB to read; format 3, compact: 41 MB at 100 h, 7.4 CPU-s). Above it a later
@@ -120,8 +123,11 @@ class IncrementalConsolidation:
     """Per-video folds of the deterministic consolidation, kept between runs (in memory, and in
     `cache_path` when given), so that a run reads and recomputes only the videos that changed."""
 
-    def __init__(self, cache_path: Path | None = None):
+    def __init__(self, cache_path: Path | None = None, bank=None, participant: str | None = None):
         self.cache_path = cache_path
+        # with a bank: the kept folds are read only when their sha256 is the one recorded in its
+        # manifest when they were saved (bank/derived.py); others are recomputed, never trusted
+        self.bank, self.participant = bank, participant
         self.rules, self.enricher = RuleConsolidator(), RuleEnricher()
         self.stamp: str | None = None
         self.merged: dict[str, str] = {}
@@ -138,10 +144,15 @@ class IncrementalConsolidation:
         self.resequenced = 0  # unchanged videos whose action sequences were recounted
         if cache_path is not None and cache_path.exists():
             try:
-                self._load(json.loads(cache_path.read_text()))
+                raw = cache_path.read_bytes()
+                if bank is not None:
+                    files = (bank.derived.get(participant, CACHE_RECORD) or {}).get("files")
+                    if not isinstance(files, dict) or files.get(cache_path.name) != sha256_bytes(raw):
+                        raise ValueError(f"{cache_path}: not as recorded in the bank's manifest")
+                self._load(json.loads(raw))
                 self.unsaved = False
             except (OSError, ValueError, KeyError, TypeError):
-                self._reset()  # a damaged cache is recomputed, never trusted
+                self._reset()  # a damaged or unrecorded cache is recomputed, never trusted
 
     def _reset(self) -> None:
         self.unsaved = True
@@ -201,6 +212,12 @@ class IncrementalConsolidation:
         tmp.replace(self.cache_path)
         self.unsaved = False
         self.saved = True
+        if self.bank is not None:
+            try:
+                self.bank.derived.put(self.participant, CACHE_RECORD,
+                                      {"files": {self.cache_path.name: sha256_bytes(text.encode())}})
+            except (OSError, BankError):
+                pass  # unrecorded: recomputed next time
 
     # -- a run -----------------------------------------------------------------------------
     def changed(self, marks: dict[str, tuple], merged: dict[str, str]) -> list[str]:
@@ -367,7 +384,8 @@ class BackgroundConsolidation:
         if every < 1:
             raise ValueError("consolidate every N segments: N must be at least 1")
         self.writer, self.every, self.lock, self.on_done = writer, every, lock, on_done
-        self.state = IncrementalConsolidation(consolidation_cache(writer.bank.path, writer.participant))
+        self.state = IncrementalConsolidation(consolidation_cache(writer.bank.path, writer.participant),
+                                              bank=writer.bank, participant=writer.participant)
         self.pending = 0
         self.runs: list[dict] = []  # seconds of each run (perf live reads them)
         self.error: BaseException | None = None
@@ -447,7 +465,7 @@ def consolidate_bank_incremental(bank, participants: list[str], embedder=None, o
         store = bank.open(p, read_only=False)
         try:
             store.apply_schema()
-            state = IncrementalConsolidation(consolidation_cache(bank.path, p))
+            state = IncrementalConsolidation(consolidation_cache(bank.path, p), bank=bank, participant=p)
             knowledge = consolidate_incremental(store, store, p, embedder, state, stamp=bank_stamp(bank, p))
             counts = store.fetch("_inferred_counts", participant=p)[0]
         finally:

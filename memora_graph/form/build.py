@@ -113,12 +113,16 @@ class ParticipantBuilder:
             bank.mark_writing(participant, "build")  # resuming an unfinished write: this build finishes it
         if self.db.exists():
             with Store(self.db, read_only=True) as store:
-                self.in_db = set(store.run("videos", participant=participant)["video"].to_list())
-                entities = [self._entity_from_row(r["entity"]) for r in store.fetch("_registry_entities", participant=participant)]
-                places = [PlaceState(**_pick(r["place"], schema.columns("Place", emb=False)))
-                          for r in store.fetch("_registry_places", participant=participant)]
-                next_ord = int(store.run("_max_state_ord", participant=participant)["max_ord"][0] or 0)
-                self._op_seq = int(store.run("_edit_op_count", participant=participant)["n"][0] or 0)
+                # a write interrupted before the schema's first file committed (a Ctrl-C, a kill)
+                # left a file that holds nothing yet: the write applies the schema and loads all
+                if not (self._resuming and "Video" not in store.tables()):
+                    self.in_db = set(store.run("videos", participant=participant)["video"].to_list())
+                    entities = [self._entity_from_row(r["entity"])
+                                for r in store.fetch("_registry_entities", participant=participant)]
+                    places = [PlaceState(**_pick(r["place"], schema.columns("Place", emb=False)))
+                              for r in store.fetch("_registry_places", participant=participant)]
+                    next_ord = int(store.run("_max_state_ord", participant=participant)["max_ord"][0] or 0)
+                    self._op_seq = int(store.run("_edit_op_count", participant=participant)["n"][0] or 0)
         self.db_entities = {e.id: (e.status, e.location) for e in entities}
         self.db_entity_rows = {e.id: entity_row(e) for e in entities}
         self.db_places = {p.location_id: p.turn_count for p in places}

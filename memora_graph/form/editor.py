@@ -15,7 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
-from memora_graph.perceive.vocab import RETRACTING_VERBS
+from memora_graph.perceive.vocab import KEPT_STATE, NEW_STATE, RETRACTING_VERBS
 from memora_graph.records import EditOp, LayeredSegment, ObjectObservation
 
 ATTRS = ("color", "material", "size")
@@ -176,7 +176,7 @@ register_editor_policy("raw", RawPolicy)
 def update_or_noop(entity: EntityState, obs: ObjectObservation) -> EditOp:
     """UPDATE with the fields that changed, or NOOP when the observation repeats the record."""
     changes = {}
-    if obs.state != entity.state:
+    if obs.state != KEPT_STATE and obs.state != entity.state:  # KEPT_STATE: the observation says nothing of it
         changes["state"] = obs.state
     if obs.location != entity.location:
         changes["location"] = obs.location
@@ -192,7 +192,7 @@ def update_or_noop(entity: EntityState, obs: ObjectObservation) -> EditOp:
 
 
 def add_fields(obs: ObjectObservation) -> dict[str, str]:
-    return {"state": obs.state, "location": obs.location, "held_by": obs.held_by or "", **obs.attributes()}
+    return {"state": obs.state or NEW_STATE, "location": obs.location, "held_by": obs.held_by or "", **obs.attributes()}
 
 
 @dataclass
@@ -307,7 +307,7 @@ class EntityEditor:
             e = EntityState(
                 id=eid, participant=self.participant, object_id=obs.object_id, kind=obs.kind,
                 name=obs.name, category=obs.category, is_fixture=obs.is_fixture,
-                state=obs.state, location=obs.location, held_by=obs.held_by or "",
+                state=obs.state or NEW_STATE, location=obs.location, held_by=obs.held_by or "",
                 first_seen=t, first_video=seg.video_id, first_turn=seg.turn_id,
                 **{k: props.get(k, "") for k in ATTRS},
             )
@@ -346,7 +346,7 @@ class EntityEditor:
         result.events.append({
             "id": f"{e.id}@{self._ord}", "participant": self.participant, "entity": e.id,
             "video": seg.video_id, "turn": seg.turn_id, "t": round(t, 3), "ord": self._ord,
-            "state": obs.state, "location": obs.location, "prev_state": prev_state,
+            "state": obs.state or e.state, "location": obs.location, "prev_state": prev_state,
             "prev_location": prev_loc, "zone": obs.zone, "held_by": obs.held_by or "",
             "relative_to": obs.relative_to, "relation": obs.relation, "action": obs.action,
             "narration": obs.narration, "op": op.op, "segment": seg.segment_id,

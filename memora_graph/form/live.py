@@ -139,12 +139,14 @@ class Remembered:
     ops: list[dict]
     duplicate: bool = False  # the key was acknowledged before: nothing was written now
     unknown_words: list[str] = field(default_factory=list)
+    note: str = ""  # said when the moment was kept as text alone (no word any class covers)
     seconds: float = 0.0
     delta: dict = field(default_factory=dict, repr=False)  # what changed, for readers' caches
 
     def as_dict(self) -> dict:
         return {"key": self.key, "participant": self.participant, "segment": self.segment, "video": self.video,
-                "turn": self.turn, "ops": self.ops, "duplicate": self.duplicate, "unknown_words": self.unknown_words}
+                "turn": self.turn, "ops": self.ops, "duplicate": self.duplicate, "unknown_words": self.unknown_words,
+                **({"note": self.note} if self.note else {})}
 
 
 @dataclass
@@ -374,7 +376,9 @@ class LiveWriter:
         reading = self.reader.read(moment.text)
         action = self.reader.action(reading, self.participant, moment.video, moment.start, moment.end,
                                     narration_id=moment.client_key())
-        return self._commit(moment.client_key(), moment.video, action=action, unknown=reading.unknown)
+        note = (f"no word of this moment is one memory knows ({', '.join(reading.unknown)}): it is remembered as its "
+                "text, with no new object or place" if reading.text_only and reading.unknown else "")
+        return self._commit(moment.client_key(), moment.video, action=action, unknown=reading.unknown, note=note)
 
     def remember_segment(self, segment: LayeredSegment | dict, key: str | None = None) -> Remembered:
         """Commit a segment record perceived elsewhere (the project's LayeredSegment schema, e.g.
@@ -385,7 +389,7 @@ class LiveWriter:
         return self._commit(key or f"{seg.video_id}@{seg.t_start:.3f}", seg.video_id, segment=seg)
 
     def _commit(self, key: str, video: str, action: dict | None = None, segment: LayeredSegment | None = None,
-                unknown: list[str] | None = None) -> Remembered:
+                unknown: list[str] | None = None, note: str = "") -> Remembered:
         t0 = time.perf_counter()
         with self._lock:
             if self.store is None:
@@ -422,7 +426,7 @@ class LiveWriter:
             self.videos[video] = v
             self.since_consolidation += 1
             answer = Remembered(key=key, participant=p, segment=segment.segment_id, video=video, turn=turn,
-                                ops=result, unknown_words=list(unknown or []), delta=rows)
+                                ops=result, unknown_words=list(unknown or []), note=note, delta=rows)
             answer.seconds = time.perf_counter() - t0
             return answer
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, pid_alive
+from memora_graph.bank.derived import sha256_file
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
 from memora_graph.files import file_kind, file_sha256, probe, side_files
@@ -52,6 +53,7 @@ def verify_bank(path: str | Path, participants: list[str] | None = None) -> Repo
     for p in participants or everyone:
         report.rows.append(_participant(bank, data, p))
     if not participants:
+        _caches(bank, bank.derived.get_all(None, data), report.bank)
         for f in sorted(bank.path.iterdir()):
             if f.name not in KNOWN and not _DB.match(f.name) and not f.name.startswith(VERIFIED + "."):
                 report.bank.append(f"{f}: not a file of a memora bank (foreign)")
@@ -163,27 +165,55 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         for f in foreign:
             problems.append(f"{f}: not a staged video (never opened by a build; remove it)")
     row["tool_stores"] = _tool_stores(bank, data, p, integ, problems)
+    row["caches"] = _caches(bank, bank.derived.get_all(p, data), problems)
     row["status"] = "ok" if not problems else "problem"
     row["problems"] = problems
     return row
 
 
 def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str]) -> str:
-    """The stores persisted for one-shot tools (memora_graph/retrieve/persist.py): stale ones
-    (from an earlier version of the database) are expected after a write and never read; a
-    damaged one is reported (never read either; written again on the next open)."""
-    from memora_graph.retrieve.persist import PersistedStores, StaleStores, store_dir
+    """The stores persisted for one-shot tools (memora_graph/retrieve/persist.py), every file
+    hashed against the record of them in the manifest (not against their own meta.json): stale
+    ones (from an earlier version of the database) or ones the manifest has no record of are
+    expected after a write and never read; a damaged one is reported, by file (never read
+    either; written again on the next open)."""
+    from memora_graph.retrieve.persist import RECORD, PersistedStores, StaleStores, store_dir
 
     if not store_dir(bank.path, p).exists():
         return "none (computed on first use)"
     try:
-        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"), trust_stamps=False)
+        PersistedStores.open(bank.path, p, integ.get("sha256"), data.get("embed_model"), trust_stamps=False,
+                             record=bank.derived.get(p, RECORD, data))
     except StaleStores as why:
         if why.damaged:
             problems.append(f"{why}; never read (the next open reads the database and writes them again)")
             return "damaged"
+        if "not recorded" in str(why):
+            return "not recorded (never read; written again on the next open)"
         return "stale (written again on the next open)"
     return "ok"
+
+
+def _caches(bank: Bank, records: dict, problems: list[str]) -> str:
+    """The other files derived from a database (baseline caches, kept consolidation folds) or from
+    the whole bank (the embedding cache), each hashed against its record in the manifest
+    (bank/derived.py). A file that is not as recorded is reported by name (readers never use
+    it: they build it again); a recorded file since removed is not a problem."""
+    checked = bad = 0
+    for name, record in sorted(records.items()):
+        files = record.get("files") if isinstance(record, dict) else None
+        if name == "tools" or not isinstance(files, dict):
+            continue
+        for fname, digest in sorted(files.items()):
+            path = bank.path / ".cache" / fname
+            if "/" in fname or not path.is_file():
+                continue
+            checked += 1
+            if sha256_file(path) != digest:
+                bad += 1
+                problems.append(f"{path}: not as recorded in {MANIFEST} (edited or damaged); never read (built again "
+                                "on next use)")
+    return "none" if not checked else (f"{bad} of {checked} damaged" if bad else f"ok ({checked} files)")
 
 
 def accept(path: str | Path, participant: str) -> dict:

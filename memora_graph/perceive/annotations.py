@@ -20,6 +20,7 @@ import polars as pl
 
 from memora_graph.errors import DataError
 from memora_graph.paths import default_annotations
+from memora_graph.perceive.bounds import MAX_VIDEO_SECONDS
 
 REQUIRED_COLUMNS = [
     "narration_id", "participant_id", "video_id", "narration_timestamp", "start_timestamp",
@@ -29,7 +30,6 @@ REQUIRED_COLUMNS = [
 _TS = re.compile(r"^(\d{1,6}):(\d{2}):(\d{2}(?:\.\d+)?)$")
 _VIDEO = re.compile(r"^P\d{2}_\d{2,3}$")
 MAX_PROBLEMS = 20  # problems listed in one error (all are counted)
-MAX_VIDEO_SECONDS = 24 * 3600.0  # longer is a mistake in video_info.csv (EPIC's longest video: 1.5 h)
 MAX_FPS = 1000.0
 TOLERANCE_SECONDS = 1.0  # an action may end this much after the video's recorded duration (rounding)
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 
 from memora_graph.perceive.annotations import ClassTables, noun_phrase
 from memora_graph.perceive.vocab import (
-    COLORS, DEFAULT_PLACE, DEFAULT_STATE, HOLDING_VERBS, MATERIALS, NON_OBJECTS, PLACE_NAMES,
-    PLACE_NOUNS, PREPOSITIONS, RELEASING_VERBS, SIZES, VERB_PLACE, VERB_STATE,
+    COLORS, DEFAULT_PLACE, DEFAULT_STATE, HOLDING_VERBS, KEPT_STATE, MATERIALS, NON_OBJECTS, PLACE_NAMES,
+    PLACE_NOUNS, PREPOSITIONS, RELEASING_VERBS, SIZES, SOURCE_WORDS, VERB_PLACE, VERB_STATE,
 )
 from memora_graph.records import (
     ActionStep, ActivityLayer, EnvironmentLayer, LayeredSegment, ObjectObservation,
@@ -29,6 +29,8 @@ TURN_SECONDS = 10.0
 SUMMARY_LIMIT = 300  # characters of working summary carried to the next turn
 HELD_CARRY_TURNS = 2  # an object taken and never put down is assumed in hand this long
 _PREP_RE = [(re.compile(rf"\b{re.escape(p)}\b"), rel) for p, rel in PREPOSITIONS]
+_NAMED_AFTER = re.compile(r"\b(?:" + "|".join(re.escape(w) for w, _ in sorted(
+    [(p, 0) for p, _ in PREPOSITIONS] + [(w, 0) for w in SOURCE_WORDS], key=lambda x: -len(x[0]))) + r")\b")
 
 
 def slug(text: str) -> str:
@@ -81,12 +83,45 @@ def _relation(narration: str, surfaces: list[str]) -> tuple[str, int] | None:
             best = (m.start(), m.end(), rel)
     if best is None:
         return None
-    for i, surface in enumerate(surfaces):
-        head = surface.split(":")[0].replace("_", " ")
-        pos = text.find(head, best[1])
-        if pos >= 0:
-            return best[2], i
-    return None
+    # the noun named first after it, as a whole word ("cup" is not found inside "cupboard")
+    found = [(pos, i) for i, surface in enumerate(surfaces) if (pos := _word_at(text, surface, best[1])) is not None]
+    return (best[2], min(found)[1]) if found else None
+
+
+def _word_at(text: str, surface: str, start: int) -> int | None:
+    """Where the head word of a noun (`surface`, EPIC style) is first named in `text` from `start`."""
+    head = surface.split(":")[0].replace("_", " ")
+    m = re.compile(rf"\b{re.escape(head)}\b").search(text, start)
+    return m.start() if m else None
+
+
+def _named_as_place(narration: str, surfaces: list[str]) -> set[int]:
+    """The nouns (by index, never the first: the action's object) named only after a preposition or
+    a source word ("in the cupboard", "from the drawer"): where something goes or comes from,
+    whose own state the action does not change."""
+    text = narration.lower()
+    first = _word_at(text, surfaces[0], 0) if surfaces else None
+    if first is None:
+        return set()
+    words = [m for m in _NAMED_AFTER.finditer(text) if m.start() > first]
+    out = set()
+    for i, surface in enumerate(surfaces[1:], start=1):
+        pos = _word_at(text, surface, first + 1)
+        if pos is not None and any(m.end() <= pos for m in words):  # a preposition between the object and it
+            out.add(i)
+    return out
+
+
+def object_name(surface: str, key: str, adjectives: list[str], extra: list[str]) -> str:
+    """An object's name in the person's words: its attributes, the words EPIC adds to its class
+    ('washing up' of 'liquid:washing:up') and the class's noun phrase; where those repeat a word
+    ('breast:chicken' of class chicken: "chicken chicken"), the noun as said ("chicken breast")."""
+    words = " ".join(adjectives + extra + [noun_phrase(key)]).split()
+    if len(set(words)) == len(words):
+        return " ".join(words)
+    parts = [p for p in surface.replace("_", " ").split(":") if p]
+    said = [w for p in parts[1:] for w in p.split() if w not in adjectives] + parts[0].split()
+    return " ".join(dict.fromkeys(adjectives + said))
 
 
 def _observe_action(action: dict, t0: float, ctx: _Context, classes: ClassTables) -> tuple[list[ObjectObservation], str, list[SpatialRelation]]:
@@ -96,6 +131,7 @@ def _observe_action(action: dict, t0: float, ctx: _Context, classes: ClassTables
     keys = [classes.nouns.get(c, s) for s, c in pairs]
     rel = _relation(action["narration"], [s for s, _ in pairs])
     target = rel[1] if rel else None
+    kept = _named_as_place(action["narration"], [s for s, _ in pairs])
     place_idx = [i for i, k in enumerate(keys) if k in PLACE_NOUNS]
     if place_idx:
         place = PLACE_NOUNS[keys[place_idx[-1] if target in place_idx else place_idx[0]]][0]
@@ -108,12 +144,12 @@ def _observe_action(action: dict, t0: float, ctx: _Context, classes: ClassTables
     for i, ((surface, cls), key) in enumerate(zip(pairs, keys)):
         props, extra = split_noun(surface)
         adjectives = [v for v in (props.color, props.size, props.material) if v]
-        name = " ".join(adjectives + extra + [noun_phrase(key)])
+        name = object_name(surface, key, adjectives, extra)
         object_id = slug(" ".join(adjectives + [noun_phrase(key)]))
         ids.append(object_id)
         fixture = key in PLACE_NOUNS
-        is_target = i == target and i != 0
-        state = "in use" if is_target else VERB_STATE.get(verb, DEFAULT_STATE)
+        is_target = (i == target or i in kept) and i != 0
+        state = KEPT_STATE if is_target else VERB_STATE.get(verb, DEFAULT_STATE)
         held = None
         if not fixture and not is_target:
             if verb in HOLDING_VERBS:

@@ -14,7 +14,6 @@ many and which, never dropping any silently. `memora remember` reads its text th
 from __future__ import annotations
 
 import json
-import math
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ import polars as pl
 
 from memora_graph.errors import DataError
 from memora_graph.perceive.annotations import ACTION_SCHEMA, ClassTables, load_class_tables
+from memora_graph.perceive.bounds import seconds_problem
 from memora_graph.perceive.lexicon import Lexicon, lemma
 
 REQUIRED = ("video_id", "start", "end", "text")
@@ -52,6 +52,11 @@ class Reading:
     noun_classes: list[int]
     unknown: list[str] = field(default_factory=list)
 
+    @property
+    def text_only(self) -> bool:
+        """No word a class covers and no object read: the moment is kept as its text alone."""
+        return self.verb_class == -1 and not self.nouns
+
 
 @dataclass
 class Unknown:
@@ -76,6 +81,11 @@ class Unknown:
     def as_dict(self) -> dict:
         return {"rows": self.rows, "total": sum(self.words.values()), "distinct": len(self.words),
                 "words": dict(self.words.most_common())}
+
+
+def inflected_unknown(found: list[tuple[str, str]]) -> list[str]:
+    """The unknown words (lemma, as written) inflected as a verb is ("grasps", "welded", "holding")."""
+    return [w for w, said in found if re.search(r"(?<!s)s$|ed$|ing$", said)]
 
 
 class NarrationReader:
@@ -113,17 +123,18 @@ class NarrationReader:
             verb_class = self._verb_id.get(verb_key, -1)
         else:  # no verb class: the first word inflected as a verb ("grasps", "welded"), else the first
             # word no class covers, is the action word, kept as written ("robot grasps ..." -> grasp)
-            inflected = [w for w, said in found if re.search(r"(?<!s)s$|ed$|ing$", said)]
-            verb_key = (inflected or unknown or ["do"])[0]
+            verb_key = (inflected_unknown(found) or unknown or ["do"])[0]
             verb_class = -1
         nouns = list(dict.fromkeys(main.nouns if main is not None else []))
         if not nouns:
             nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
         classes = [self._noun_id.get(n, -1) for n in nouns]
-        if not nouns:
+        if not nouns and (verb_class != -1 or verb_key in inflected_unknown(found)):
             objects = [w for w in unknown if w != verb_key]
-            if objects:  # an object no class covers: its own kind, never dropped
+            if objects:  # an object no class covers, of a narrated action: its own kind, never dropped
                 nouns, classes = [objects[-1]], [-1]
+        # no word any class covers and none that reads as a verb ("flibber the zorp quux"): nothing
+        # tells an action from an object, so no word becomes an object; the text is kept as written
         return Reading(text=cleaned or text.strip(), verb=verb_key, verb_key=verb_key, verb_class=verb_class,
                        nouns=nouns, noun_classes=classes, unknown=unknown)
 
@@ -157,13 +168,10 @@ def check_moment(where: str, video_id: object, start: object, end: object, text:
         raise fail("video_id", video_id, "must be one line without '#' (at most 200 characters)")
     times = []
     for fld, value in (("start", start), ("end", end)):
-        try:
-            t = float(value) if not isinstance(value, bool) else math.nan
-        except (TypeError, ValueError):
-            t = math.nan
-        if not math.isfinite(t) or t < 0:
-            raise fail(fld, value, "expected seconds from the start of the video (a number >= 0)")
-        times.append(t)
+        why = seconds_problem(value)  # finite, 0 to 24 h (perceive/bounds.py)
+        if why:
+            raise fail(fld, value, why)
+        times.append(float(value))
     if times[1] < times[0]:
         raise fail("end", end, f"ends before start {times[0]:g}")
     if not isinstance(text, str) or not text.strip():

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from memora_graph.errors import DataError
+from memora_graph.perceive.bounds import seconds_problem
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv", ".webm", ".avi", ".mpg", ".mpeg", ".ts", ".mts")
 _VIDEO_ID = re.compile(r"[^A-Za-z0-9_.-]+")
@@ -131,8 +132,11 @@ def probe_video(path: str | Path, video_id: str | None = None, scan: bool = True
             if first is None:
                 raise DataError(f"{path}: the video stream has no decodable frame (empty or truncated file)")
             duration = _duration(container, stream)
-            if duration <= 0:
+            if not duration > 0:  # (NaN too)
                 raise DataError(f"{path}: cannot tell the video's duration (damaged container?)")
+            if seconds_problem(duration):  # infinite, or longer than the stated range (perceive/bounds.py)
+                raise DataError(f"{path}: field 'duration': {seconds_problem(duration)} (the container says "
+                                f"{duration:g} s)")
             if scan:
                 _check_complete(container, stream, duration, path)
             rate = stream.average_rate or stream.guessed_rate

@@ -77,6 +77,13 @@ VERB_STATE: dict[str, str] = {
     "sharpen": "sharpened", "water": "watered", "unfreeze": "defrosting", "wear": "worn",
 }
 DEFAULT_STATE = "being used"
+# The state of an object a narration names only as where something goes or comes from (a place or
+# container after a preposition: "put the cup in the cupboard", "take the cup from the cupboard"):
+# nothing is said of its own state, so the editor keeps the one it has ("observed" for a new one).
+KEPT_STATE = ""
+NEW_STATE = "observed"
+# words that name where an object comes from (its destination is named by PREPOSITIONS)
+SOURCE_WORDS = ("from", "out of")
 
 # Verbs after which the object leaves the scene: the editor retracts it (DELETE).
 RETRACTING_VERBS = {"throw", "eat", "drink"}

@@ -5,7 +5,12 @@ process each with its own embedding model. The functions handed to the pool stay
 from __future__ import annotations
 
 import os
+import signal
+import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from memora_graph.bank import Bank
 from memora_graph.embed import ThreadGovernor, get_embedder
@@ -20,6 +25,23 @@ def auto_jobs(n_participants: int) -> int:
 
 
 _WORKER: dict = {}
+
+
+@contextmanager
+def interrupts_to_this_process() -> Iterator[None]:
+    """Start worker processes inside this block: they ignore SIGINT for life. A Ctrl-C goes to the
+    whole process group, and a worker still importing its modules would print a traceback of its
+    own; only this process acts on it (it kills the workers, leaves the bank resumable and says so
+    in one line). SIGINT ignored at exec stays ignored: Python installs its KeyboardInterrupt
+    handler only over the default one. A no-op off the main thread (signals are the main thread's)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _worker_init(embed_model: str | None, events, solo: bool = False) -> None:
@@ -80,6 +102,12 @@ def build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, e
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     ctx = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch / Kùzu threads
+    # workers stopped at once are killed (below): the semaphores they held are unlinked by
+    # multiprocessing's resource tracker, which then warns of each at exit; that is expected here,
+    # so the tracker (started with this interpreter's -W options) is told not to say so
+    quiet = "ignore:resource_tracker:UserWarning"
+    if quiet not in sys.warnoptions:
+        sys.warnoptions.append(quiet)
     events = ctx.Queue()
 
     def drain() -> None:
@@ -100,7 +128,8 @@ def build_parallel(bank: Bank, found: list[str], df, durations: dict, classes, e
     try:
         # every worker starts and loads its model at once; the model loads (or says why it
         # cannot) before the bank is touched
-        probes = [pool.submit(_worker_model) for _ in range(jobs)]
+        with interrupts_to_this_process():  # each submit starts a worker (spawn starts them on demand)
+            probes = [pool.submit(_worker_model) for _ in range(jobs)]
         name = probes[0].result()
         bank.init(mode=opts["mode"], embed_model=name, consolidated=False)
         futures = {}

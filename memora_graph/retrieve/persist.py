@@ -13,8 +13,12 @@ parsed or rebuilt whole at open: at 1,000 h the JSON postings and observation ro
 
 `meta.json` records the sha256 of every file and the sha256 of the database they were computed
 from, as the bank's manifest records it (memora_graph/integrity/): after any write to the database
-(a rebuild, `memora consolidate`, `memora index`) the files are stale and are not used. A file
-whose hash no longer matches its record is damaged: it is not used either, and a warning says so.
+(a rebuild, `memora consolidate`, `memora index`) the files are stale and are not used. The same
+hashes, with those of `meta.json` and `verified.json`, are recorded in the bank's manifest
+(`derived.tools` of the participant's entry, memora_graph/bank/derived.py), tied to the database's
+recorded sha256: the files are checked against that record, so editing a file and its meta.json
+(or its stamps) does not make it trusted. A file whose hash no longer matches its record is
+damaged: it is not used either, and a warning names it.
 Either way the view reads Kùzu instead and writes the files again (where the bank is writable).
 Hashing every file at each open cost 0.6 s at 1,000 h, so a process that hashed them all (or
 wrote them: `_stamp_written`) records each file's size, inode and change times in
@@ -40,6 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
+from memora_graph.bank import MANIFEST, Bank
+from memora_graph.errors import BankError
 from memora_graph.retrieve.graph import ObservationGraph
 from memora_graph.retrieve.history import ARRAYS as HISTORY_ARRAYS
 from memora_graph.retrieve.history import HistoryIndex
@@ -51,6 +57,7 @@ FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of l
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 STAMP_WAIT_BYTES = 64 << 20  # the writer waits out RACY_S for its young files when they hold this much
 DIRNAME = "tools-{participant}"
+RECORD = "tools"  # their record in the manifest (bank/derived.py)
 # named queries of one key whose every row is kept (retrieve/rows.py): the query giving them all, and
 # for a query giving a list of rows per key, the key column and the columns its rows are ordered by
 KEYED_QUERIES = {"_tool_segment": ("_tool_segment_rows", None, ()),
@@ -87,18 +94,23 @@ class PersistedStores:
     """One participant's persisted tool stores, checked against the database's recorded sha256.
     Files are hashed when first read (each once), so a damaged one is never used."""
 
-    def __init__(self, root: Path, meta: dict):
+    def __init__(self, root: Path, meta: dict, record: dict | None = None, bank_path: Path | None = None):
         self.root, self.meta = root, meta
+        self.record = record or {"of": meta.get("db_sha256"), "files": meta.get("files", {})}
+        self.bank_path = bank_path
         self._checked: set[str] = set()
 
     @classmethod
     def open(cls, bank_path: str | Path, participant: str, db_sha256: str | None,
-             embed_model: str | None, trust_stamps: bool = True) -> PersistedStores:
+             embed_model: str | None, trust_stamps: bool = True, record: dict | None | bool = True) -> PersistedStores:
         """The stores of a participant, or StaleStores saying why they cannot be used. Every file
-        is hashed, except (`trust_stamps`) one whose stat is that recorded when it was last hashed."""
+        is hashed, except (`trust_stamps`) one whose stat is that recorded when it was last hashed.
+        The hashes are those of the manifest's record (`record`: True reads it from the bank's
+        manifest; a dict is that record): stores with none for this database are not used."""
         root = store_dir(bank_path, participant)
         try:
-            meta = json.loads((root / "meta.json").read_text())
+            raw = (root / "meta.json").read_bytes()
+            meta = json.loads(raw)
         except FileNotFoundError:
             raise StaleStores(f"{root}: none persisted") from None
         except (OSError, ValueError) as exc:
@@ -109,23 +121,38 @@ class PersistedStores:
             raise StaleStores(f"{root}: computed from another version of {participant}.kuzu (stale)")
         if meta.get("participant") != participant or meta.get("embed_model") != embed_model:
             raise StaleStores(f"{root}: computed for another participant or embedding model")
-        stores = cls(root, meta)
+        if record is True:
+            record = Bank(bank_path).derived.get(participant, RECORD)
+        if not isinstance(record, dict) or record.get("of") != db_sha256 or not isinstance(record.get("files"), dict):
+            raise StaleStores(f"{root}: not recorded in {MANIFEST} for this version of {participant}.kuzu "
+                              "(written before stores were recorded there, or by a write that did not finish)")
+        files = meta.get("files")
+        if _sha256_bytes(raw) != record.get("meta") or files != record["files"]:
+            named = sorted(n for n in set(record["files"]) | set(files if isinstance(files, dict) else {})
+                           if not isinstance(files, dict) or files.get(n) != record["files"].get(n))
+            what = f" (its sha256 of {', '.join(named)} differ from those recorded)" if named else ""
+            raise StaleStores(f"{root / 'meta.json'}: damaged: it does not match its record in {MANIFEST}{what}; "
+                              f"{', '.join(str(root / n) for n in named) or 'its files'} cannot be trusted")
+        stores = cls(root, meta, record, Path(bank_path))
         stores._opened_ns = time.time_ns()  # before any hashing: what a stamp recorded later may vouch for
         stamps = {} if not trust_stamps else stores._stamps()
-        for name in meta.get("files", {}):
+        for name in record["files"]:
             if name in stamps and stamps[name] == _stat_stamp(root / name):
                 stores._checked.add(name)  # unchanged since a process hashed it
             else:
                 stores._path(name)
-        if trust_stamps and len(stamps) < len(meta.get("files", {})):
+        if trust_stamps and len(stamps) < len(record["files"]):
             stores._record_stamps()
         return stores
 
     def _stamps(self) -> dict[str, list[int]]:
         """The stat stamps of the files a process hashed, those changed RACY_S before it only."""
         try:
-            data = json.loads((self.root / "verified.json").read_text())
+            raw = (self.root / "verified.json").read_bytes()
+            data = json.loads(raw)
         except (OSError, ValueError):
+            return {}
+        if _sha256_bytes(raw) != self.record.get("stamps"):  # not the stamps the manifest recorded
             return {}
         if not isinstance(data, dict) or data.get("db_sha256") != self.meta.get("db_sha256"):
             return {}
@@ -142,17 +169,24 @@ class PersistedStores:
         at = self.__dict__.get("_opened_ns") or time.time_ns()
         try:
             files = {n: _stat_stamp(self.root / n) for n in self._checked}
+            text = json.dumps({"db_sha256": self.meta.get("db_sha256"), "at_ns": at, "files": files})
+            if self.bank_path is not None:  # the manifest first: stamps it does not vouch for are ignored
+                record = {**self.record, "stamps": _sha256_bytes(text.encode())}
+                if not Bank(self.bank_path).derived.put(self.meta.get("participant"), RECORD, record,
+                                                        db_sha256=self.record.get("of")):
+                    return
+                self.record = record
             tmp = self.root / f".verified.{os.getpid()}.tmp"
-            tmp.write_text(json.dumps({"db_sha256": self.meta.get("db_sha256"), "at_ns": at, "files": files}))
+            tmp.write_text(text)
             os.replace(tmp, self.root / "verified.json")
-        except OSError:
+        except (OSError, BankError):
             pass
 
     def _path(self, name: str) -> Path:
-        """A file of the stores, after checking its sha256 against meta.json (once per process)."""
-        files = self.meta.get("files", {})
+        """A file of the stores, after checking its sha256 against the manifest's record (once per process)."""
+        files = self.record["files"]
         if name not in files:
-            raise StaleStores(f"{self.root / name}: not recorded in meta.json")
+            raise StaleStores(f"{self.root / name}: not recorded in {MANIFEST}")
         path = self.root / name
         if name not in self._checked:
             try:
@@ -160,7 +194,7 @@ class PersistedStores:
             except OSError as exc:
                 raise StaleStores(f"{path}: unreadable ({exc})") from None
             if digest != files[name]:
-                raise StaleStores(f"{path}: damaged (its sha256 does not match the record in meta.json)")
+                raise StaleStores(f"{path}: damaged (its sha256 does not match its record in {MANIFEST})")
             self._checked.add(name)
         return path
 
@@ -231,12 +265,16 @@ class PersistedStores:
             raise StaleStores(f"{path}: damaged (it does not read: {type(exc).__name__}: {exc})") from None
 
 
+def _sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
 def _stat_stamp(path: Path) -> list[int]:
     st = path.stat()
     return [st.st_size, st.st_ino, st.st_mtime_ns, st.st_ctime_ns]
 
 
-def _stamp_written(root: Path, files: dict[str, str], db_sha256: str) -> None:
+def _stamp_written(root: Path, files: dict[str, str], db_sha256: str) -> str | None:
     """Record, as a reader that hashed them would (`verified.json`), the stat of the files this
     process just wrote and hashed, so that the first open in another process reads their stat
     instead of hashing them all (1.5 GB, 2.2 CPU-s at 1,000 h). The files are in a directory of
@@ -244,7 +282,7 @@ def _stamp_written(root: Path, files: dict[str, str], db_sha256: str) -> None:
     bytes are the hashed ones when the stamp is taken; a stamp counts only for a file changed
     RACY_S before it, as for a reader's. Where the files still that young hold STAMP_WAIT_BYTES
     or more, the writer waits until they are old enough (at most RACY_S); smaller young files
-    are left to the first open to hash."""
+    are left to the first open to hash. Returns the sha256 of the stamps written, if any."""
     racy_ns = int(RACY_S * 1e9)
     stats = {n: _stat_stamp(root / n) for n in files}
     now = time.time_ns()
@@ -258,7 +296,10 @@ def _stamp_written(root: Path, files: dict[str, str], db_sha256: str) -> None:
         if max(st[2], st[3]) < at - racy_ns:
             stamps[n] = st
     if stamps:
-        (root / "verified.json").write_text(json.dumps({"db_sha256": db_sha256, "at_ns": at, "files": stamps}))
+        text = json.dumps({"db_sha256": db_sha256, "at_ns": at, "files": stamps})
+        (root / "verified.json").write_text(text)
+        return _sha256_bytes(text.encode())
+    return None
 
 
 def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, release: bool = False) -> Path:
@@ -311,8 +352,10 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, 
             del rows
         meta = {"format": FORMAT, "participant": view.participant, "db_sha256": db_sha256,
                 "embed_model": embed_model, "files": files}
-        (tmp / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
-        _stamp_written(tmp, files, db_sha256)
+        meta_text = json.dumps(meta, indent=1, sort_keys=True)
+        (tmp / "meta.json").write_text(meta_text)
+        stamps = _stamp_written(tmp, files, db_sha256)
+        record = {"of": db_sha256, "meta": _sha256_bytes(meta_text.encode()), "stamps": stamps, "files": files}
         if root.exists():
             old = root.with_name(f".{root.name}.{os.getpid()}.old")
             try:
@@ -329,4 +372,11 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, 
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    # recorded in the manifest last: files it has no record of are never read (a write of the
+    # database since, or a manifest that cannot be written, leaves them unused: computed again)
+    try:
+        Bank(bank_path).derived.put(view.participant, RECORD, record, db_sha256=db_sha256)
+    except (OSError, BankError) as exc:
+        log.warning(f"{bank_path}: could not record {view.participant}'s tool stores in {MANIFEST} ({exc}); "
+                    "they are not read until they are")
     return root

@@ -27,6 +27,7 @@ from memora_graph.bank import Bank
 from memora_graph.cypher_guard import check_participant
 from memora_graph.errors import BankError, MemoraError, QueryRefused
 from memora_graph.queries import load_queries
+from memora_graph.records import MAX_VIDEO_SECONDS
 from memora_graph.retrieve.registry import MEMORA, ToolSpec, specs
 from memora_graph.retrieve.search import DEFAULT_RECIPE
 from memora_graph.retrieve.view import MemoryView
@@ -155,8 +156,10 @@ class RememberArgs(_Args):
                                          "style '#C C takes a knife from the drawer'). Give this or `segment`.")
     video: str | None = Field(None, min_length=1, max_length=200,
                               description="The video, episode or session the moment belongs to (with `text`).")
-    start: float | None = Field(None, ge=0, allow_inf_nan=False, description="Seconds from the start of the video.")
-    end: float | None = Field(None, ge=0, allow_inf_nan=False, description="Seconds from the start (default: start).")
+    start: float | None = Field(None, ge=0, le=MAX_VIDEO_SECONDS, allow_inf_nan=False,
+                                description="Seconds from the start of the video (at most 86400: 24 h).")
+    end: float | None = Field(None, ge=0, le=MAX_VIDEO_SECONDS, allow_inf_nan=False,
+                              description="Seconds from the start (default: start).")
     id: str | None = Field(None, min_length=1, max_length=200,
                            description="Idempotency key: a retried call with the same key (default: video and start) "
                                        "returns its first answer and writes nothing.")

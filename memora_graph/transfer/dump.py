@@ -26,7 +26,8 @@ from memora_graph.errors import DataError
 FORMAT_KEY = "memora_export"
 FORMAT_VERSION = 1
 PARQUET_META = "export.json"
-BANK_LOCAL = ("integrity",)  # manifest fields about this bank's file, recorded anew by an import
+BANK_LOCAL = ("integrity", "derived")  # manifest fields about this bank's files (its hash, the records of files
+# derived from it: bank/derived.py), recorded anew by an import
 
 _SCALARS = {
     "STRING": pl.String, "INT64": pl.Int64, "INT32": pl.Int32, "INT16": pl.Int16, "INT8": pl.Int8,

@@ -267,3 +267,81 @@ def test_every_persisted_row_query_orders_its_rows():
 
     for name in ROW_QUERIES:
         assert "ORDER BY" in get_query(name).cypher.upper(), name
+
+
+def _forge(root, name: str, edit) -> None:
+    """Edit a store file, then rewrite its meta.json hash (and the stamps) to match, as an
+    attacker who reads persist.py would: only the manifest's record still tells."""
+    import hashlib
+    import os
+
+    path = root / name
+    edit(path)
+    meta = json.loads((root / "meta.json").read_text())
+    meta["files"][name] = hashlib.sha256(path.read_bytes()).hexdigest()
+    (root / "meta.json").write_text(json.dumps(meta, indent=1, sort_keys=True))
+    stamps_path = root / "verified.json"
+    if stamps_path.exists():
+        stamps = json.loads(stamps_path.read_text())
+        st = path.stat()
+        stamps["files"][name] = [st.st_size, st.st_ino, st.st_mtime_ns, st.st_ctime_ns]
+        stamps["at_ns"] = max(st.st_mtime_ns, st.st_ctime_ns) + 10**10
+        stamps_path.write_text(json.dumps(stamps))
+        os.utime(root / "meta.json")
+
+
+def test_a_store_file_edited_with_its_meta_updated_fails_verify_by_name_and_is_never_served(bank, embedder):
+    """The issue's attack: a persisted row and a .npy edited on disk, their hashes written into the
+    store's own meta.json (and its stamps): `memora verify` fails naming the files, and `memora
+    tool` serves the database's row, not the edited one; the stores are then written again."""
+    from memora_graph.integrity.verify import verify_bank
+
+    runner = CliRunner()
+    persist_bank(bank, [P])
+    before = runner.invoke(main, ["tool", str(bank), "search_objects", "knife", "--participant", P, "--json"])
+    assert before.exit_code == 0, before.output
+    first = json.loads(before.output)["results"][0]
+    root = store_dir(bank, P)
+    rows = json.loads((root / "rows_tool_entities.json").read_text())
+    assert any(r.get("id") == first["entity_id"] for r in rows)
+    forged = [{**r, "name": "forged name"} if r.get("id") == first["entity_id"] else r for r in rows]
+    _forge(root, "rows_tool_entities.json", lambda p: p.write_text(json.dumps(forged, ensure_ascii=False)))
+
+    def flip(p):
+        data = bytearray(p.read_bytes())
+        data[-3] ^= 0x01
+        p.write_bytes(bytes(data))
+
+    _forge(root, "vectors-entity.npy", flip)
+
+    report = verify_bank(bank, [P])
+    assert not report.ok and report.rows[0]["tool_stores"] == "damaged"
+    text = " ".join(report.rows[0]["problems"])
+    assert "rows_tool_entities.json" in text and "vectors-entity.npy" in text, text
+    r = runner.invoke(main, ["verify", str(bank)])
+    assert r.exit_code != 0 and "rows_tool_entities.json" in r.output, r.output
+
+    after = runner.invoke(main, ["tool", str(bank), "search_objects", "knife", "--participant", P, "--json"])
+    assert after.exit_code == 0, after.output
+    assert "forged name" not in after.output
+    assert "meta.json: damaged" in after.output, "the reader says why it read the database"
+    assert json.loads(after.stdout)["results"][0]["name"] == first["name"]
+    assert verify_bank(bank, [P]).ok, "the reader wrote them again, recorded"
+    assert "forged name" not in (root / "rows_tool_entities.json").read_text()
+
+
+def test_stores_are_recorded_in_the_manifest_and_unrecorded_ones_are_not_read(bank, embedder):
+    """The manifest's record ties the stores to the database's recorded sha256; stores it holds
+    no record of (an older bank's, or a record removed) are never read, and written again."""
+    persist_bank(bank, [P])
+    entry = Bank(bank).manifest()["participants"][P]
+    record = entry["derived"]["tools"]
+    meta = json.loads((store_dir(bank, P) / "meta.json").read_text())
+    assert record["of"] == entry["integrity"]["sha256"] and record["files"] == meta["files"]
+    Bank(bank).derived.drop(P, "tools")
+    with pytest.raises(StaleStores, match="not recorded"):
+        PersistedStores.open(bank, P, entry["integrity"]["sha256"], meta["embed_model"])
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is None and view.persisted_written == store_dir(bank, P)
+    with MemoryView.open(bank, P, embedder) as view:
+        assert view._persisted is not None

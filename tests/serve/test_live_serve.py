@@ -98,6 +98,8 @@ def test_remember_over_http_needs_the_token(tmp_path):
                 assert "ego-1" in json.dumps(found.structured_content)
                 with pytest.raises(MCPError, match="start"):  # invalid params, naming the field
                     await client.call_tool("remember", {"text": "open the fridge", "video": "ego-1", "start": -2})
+                with pytest.raises(MCPError, match="start"):  # out of the stated range (24 h)
+                    await client.call_tool("remember", {"text": "open the fridge", "video": "ego-1", "start": 1e308})
 
         anyio.run(main_)
     finally:
@@ -120,7 +122,8 @@ def test_incremental_consolidation_equals_a_batch_run(tmp_path):
     from memora_graph.embed import get_embedder
 
     bank = tmp_path / "bank"
-    state = IncrementalConsolidation(consolidation_cache(bank, "P01"))  # where the CLI keeps it
+    # where the CLI keeps it, recorded in the bank's manifest as a server's consolidation records it
+    state = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=Bank(bank), participant="P01")
     stream = [moments(40, video=f"day-{d}", offset=0.0) for d in range(3)]
     with LiveWriter(bank, "P01") as memory:
         for day in stream:
@@ -218,6 +221,30 @@ def test_incremental_consolidation_equals_batch_at_every_point_with_merges(tmp_p
             assert _rows(again.infer(memory.store, "P01", {r["id"] for r in memory.store.fetch(
                 "_consolidate_entity_ids", participant="P01")})) == _rows(got)
             assert again.recomputed == 0 and again.reused == len(state.folds)
+
+
+def test_kept_folds_are_read_only_as_recorded_in_the_manifest(tmp_path):
+    """The folds an incremental consolidation keeps (BANK/.cache/consolidate-PXX.json) feed the
+    records it writes into the database: a file not as the bank's manifest recorded it when it was
+    saved (edited, even into valid folds) is recomputed, never read."""
+    bank = tmp_path / "bank"
+    with LiveWriter(bank, "P01") as memory:
+        for m in moments(30, video="day-0"):
+            memory.remember(m)
+        state = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=memory.bank, participant="P01")
+        consolidate_incremental(memory.store, memory.store, "P01", memory.embedder, state)
+        state.save()
+        assert Bank(bank).manifest()["participants"]["P01"]["derived"]["consolidate"]["files"]["consolidate-P01.json"]
+        kept = IncrementalConsolidation(consolidation_cache(bank, "P01"), bank=memory.bank, participant="P01")
+        assert kept.folds and not kept.unsaved, "read back as recorded"
+        path = consolidation_cache(bank, "P01")
+        data = json.loads(path.read_text())
+        data["merged"] = {"P01:cup": "P01:forged"}
+        path.write_text(json.dumps(data))
+        edited = IncrementalConsolidation(path, bank=memory.bank, participant="P01")
+        assert not edited.folds and edited.unsaved, "the edited folds were read"
+    report = verify_bank(bank)
+    assert not report.ok and any("consolidate-P01.json: not as recorded" in line for line in report.rows[0]["problems"])
 
 
 def test_background_consolidation_in_the_writable_server(tmp_path):

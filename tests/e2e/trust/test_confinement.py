@@ -9,7 +9,6 @@ capped; the MCP tool runs at most 2 children at once. Where the kernel has no La
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -28,6 +27,7 @@ from memora_graph.cli import main
 from memora_graph.confine import NO_GUARD_ENV, NO_LANDLOCK_ENV, mode
 from memora_graph.errors import QueryRefused, StoreError
 from memora_graph.serve import MemoryService
+from support.bankfiles import file_sha256
 from memora_graph.cli.perf.serve import ServerProcess
 from memora_graph.serve.service import Busy
 
@@ -41,7 +41,7 @@ def invoke(*args, env=None):
 
 
 def digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+    return {str(p.relative_to(folder)): file_sha256(p)
             for p in sorted(folder.rglob("*"))
             if p.is_file() and p.name != ".verified.json" and ".cache" not in p.parts}  # caches a server writes
 

@@ -3,7 +3,6 @@ click's own usage errors), never a traceback, and the bank they name is left as 
 
 from __future__ import annotations
 
-import hashlib
 import shutil
 
 import pytest
@@ -13,6 +12,7 @@ from memora_graph.bank import Bank
 from memora_graph.cli import main
 from memora_graph.errors import BankError
 from e2e.trust.corpus import BAD_MANIFESTS, bad_cli_inputs
+from support.bankfiles import file_sha256
 
 
 def make_scratch(root, bank) -> None:
@@ -44,7 +44,7 @@ def test_bad_parameters_and_paths_are_clear_errors(small_bank, tmp_path):
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     make_scratch(scratch, bank)
-    before = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in bank.iterdir()
+    before = {p.name: file_sha256(p) for p in bank.iterdir()
               if p.is_file() and p.name != ".verified.json"}  # a read may refresh the integrity check's cache
     cases = bad_cli_inputs(str(bank), str(scratch))
     assert len(cases) >= 250
@@ -54,7 +54,7 @@ def test_bad_parameters_and_paths_are_clear_errors(small_bank, tmp_path):
         if problem:
             bad[what] = problem
     assert bad == {}
-    assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in bank.iterdir()
+    assert {p.name: file_sha256(p) for p in bank.iterdir()
             if p.is_file() and p.name != ".verified.json"} == before
     assert not (scratch / "never").exists()  # no build got as far as making its bank
 

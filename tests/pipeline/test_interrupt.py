@@ -1,0 +1,78 @@
+"""Ctrl-C at any moment of `memora build` (SIGINT to the whole process group, as a terminal or
+`timeout -s INT` sends it): one line, no worker traceback, and a bank that a second build resumes
+and `memora verify` passes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from memora_graph.form.staging import Staging
+from memora_graph.integrity.verify import verify_bank
+
+MEMORA = [sys.executable, "-m", "memora_graph.cli"]
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _interrupt_when(tmp_path, ready) -> tuple[subprocess.CompletedProcess, Path]:
+    bank = tmp_path / "bank"
+    proc = subprocess.Popen([*MEMORA, "build", str(bank), "--participants", "P37", "--quiet"], start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    deadline = time.time() + 300
+    while not ready(proc, bank) and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the build finished before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)  # the whole group: the parent and its workers
+    out, err = proc.communicate(timeout=300)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), bank
+
+
+def _resumes(bank: Path) -> None:
+    again = subprocess.run([*MEMORA, "build", str(bank), "--participants", "P37", "--quiet"], capture_output=True,
+                           text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    report = verify_bank(bank)
+    assert report.ok, [r["problems"] for r in report.rows] + report.bank
+
+
+def _one_line(r: subprocess.CompletedProcess) -> str:
+    lines = [x for x in (r.stdout + r.stderr).splitlines() if x.strip()]
+    assert "Traceback" not in r.stderr and len(lines) == 1, r.stdout + r.stderr
+    assert r.returncode == 130 and "interrupted" in lines[0]
+    return lines[0]
+
+
+def test_ctrl_c_while_the_worker_starts_prints_one_line_and_the_bank_resumes(tmp_path):
+    """The reported case: the worker is still importing its modules when the interrupt lands."""
+    r, bank = _interrupt_when(tmp_path, lambda proc, bank: bool(_children(proc.pid)))
+    line = _one_line(r)
+    assert "resumes it" in line or line.startswith("memora")
+    _resumes(bank)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("moment", ["bank created", "first video staged", "database written"])
+def test_ctrl_c_at_later_moments_leaves_a_resumable_bank(tmp_path, moment):
+    def ready(proc, bank):
+        if moment == "bank created":
+            return (bank / "manifest.json").exists()
+        if moment == "first video staged":
+            return bool(Staging(bank / ".staging" / "P37").entries())
+        return (bank / "P37.kuzu").exists() and len(Staging(bank / ".staging" / "P37").entries()) >= 3
+
+    r, bank = _interrupt_when(tmp_path, ready)
+    assert "resumes it" in _one_line(r)
+    _resumes(bank)
