@@ -11,6 +11,7 @@ and acts on.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import socket
 from importlib.metadata import PackageNotFoundError, version
@@ -63,10 +64,7 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
 
     async def on_call_tool(ctx, params: types.CallToolRequestParams) -> types.CallToolResult:
         try:
-            if service.slow(params.name):  # a child process, up to its time limit: off the event loop
-                result = await anyio.to_thread.run_sync(service.call, params.name, params.arguments)
-            else:  # milliseconds of work, serialised by the service anyway: a thread hop would cost
-                result = service.call(params.name, params.arguments)  # more than it frees (1-2 ms a call)
+            result = await answer(service, params.name, params.arguments)
         except UnknownTool as exc:
             raise MCPError(types.INVALID_PARAMS, str(exc), data={"tool": params.name}) from None
         except ArgumentError as exc:
@@ -78,6 +76,35 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
 
     return Server("memora", version=_version(), title="memora-graph memory",
                   instructions=instructions(service), on_list_tools=on_list_tools, on_call_tool=on_call_tool)
+
+
+async def answer(service: MemoryService, name: str, arguments: dict | None) -> dict:
+    """One call, off the event loop: validated here (bounded inputs: milliseconds), run in a
+    thread of its own (serve/budget.py) and awaited up to the service's time budget; past it the
+    caller gets CallTimeout and the work is stopped, while other calls go on being served. A
+    client that cancels its request stops the work too."""
+    if service.call_timeout is None:
+        return await anyio.to_thread.run_sync(service.call, name, arguments)
+    loop = asyncio.get_running_loop()
+    finished = loop.create_future()
+
+    def wake() -> None:  # in the call's thread
+        try:
+            loop.call_soon_threadsafe(lambda: finished.done() or finished.set_result(None))
+        except RuntimeError:  # the loop is gone (the server is stopping)
+            pass
+
+    call = service.start(name, arguments, on_done=wake)
+    late = None
+    try:
+        with anyio.move_on_after(service.call_timeout):
+            await finished
+    finally:  # past the budget, or the client cancelled its request: stop the work
+        if not call.done():
+            late = service.timed_out(call, name)
+    if late is not None:
+        raise late
+    return call.result()
 
 
 def serve_stdio(service: MemoryService, output_schemas: bool = False) -> None:
