@@ -241,10 +241,14 @@ class Bank:
         db = self.db_path(participant)
         found = [p for p in sorted(self.path.glob(f"{db.name}*"))]
         found += [p for p in (self.path / ".staging" / participant,) if p.exists()]
-        found += sorted((self.path / ".trash").glob(f"{participant}-*")) if (self.path / ".trash").is_dir() else []
+        # by exact name: `robot` must not take `robot-7`'s files (an id may hold '-' and '_')
+        trash = self.path / ".trash"
+        found += sorted(p for p in trash.iterdir() if re.fullmatch(rf"{re.escape(participant)}-\d+", p.name)) \
+            if trash.is_dir() else []
         cache = self.path / ".cache"
-        if cache.is_dir():
-            found += sorted(p for p in cache.iterdir() if re.search(rf"(^|[-_.]){participant}([-_.]|$)", p.name))
+        if cache.is_dir():  # KIND-PARTICIPANT[-KEY][.ext]: flat1d-P01-<16 hex>.npy, tools-P01, consolidate-P01.json
+            mine = re.compile(rf"[a-z0-9]+-{re.escape(participant)}(?:-[0-9a-f]{{16}})?(?:\.[A-Za-z0-9.]+)?")
+            found += sorted(p for p in cache.iterdir() if mine.fullmatch(p.name))
             if shared_caches:
                 found += sorted(cache.glob("embeddings-*"))
         return found
