@@ -101,6 +101,12 @@ def test_alice_and_robot_7_through_every_command(tmp_path):
         async with Client(_stdio(bank, "--participant", "robot-7")) as client:
             res = await client.call_tool("search_objects", {"query": "colander"})
             assert res.structured_content["participant"] == "robot-7"
+        async with Client(_stdio(bank, "--participant", "alice", "--writable")) as client:  # remember over MCP
+            res = await client.call_tool("remember", {"text": "put the colander in the sink", "video": "kitchen 9",
+                                                      "start": 4})
+            assert not res.is_error and res.structured_content["participant"] == "alice"
+            res = await client.call_tool("search_objects", {"query": "colander"})
+            assert any("colander" in json.dumps(r) for r in res.structured_content["results"])
 
     anyio.run(served)
 
