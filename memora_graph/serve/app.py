@@ -137,6 +137,58 @@ def listen(host: str, port: int) -> socket.socket:
     return sock
 
 
+MAX_BODY = 4 * 2**20  # bytes of one HTTP request; a 1 MB question still gets the field-level error
+
+
+class BodyLimit:
+    """ASGI middleware: a request body over `limit` bytes gets 413 before the MCP app reads it
+    (parsing a huge JSON body on the event loop would hold every client up)."""
+
+    def __init__(self, app, limit: int = MAX_BODY):
+        self.app, self.limit = app, limit
+
+    async def _refuse(self, send) -> None:
+        body = (f'{{"error": "request too large: at most {self.limit} bytes (free text is capped at 2,000 '
+                'characters)"}').encode()
+        await send({"type": "http.response.start", "status": 413,
+                    "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                                (b"connection", b"close")]})
+        await send({"type": "http.response.body", "body": body})
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        length = dict(scope.get("headers") or []).get(b"content-length")
+        if length is not None and (not length.isdigit() or int(length) > self.limit):
+            return await self._refuse(send)
+        seen = 0
+        started = False
+
+        async def counted():
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.limit:
+                    raise _TooLarge
+            return message
+
+        async def sending(message):
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, counted, sending)
+        except _TooLarge:
+            if not started:
+                await self._refuse(send)
+
+
+class _TooLarge(Exception):
+    pass
+
+
 class BearerAuth:
     """ASGI middleware: every HTTP request must carry `Authorization: Bearer TOKEN` (a writable
     server's token, given at start); others get 401 before the MCP app sees them."""
@@ -169,6 +221,7 @@ def serve_http(service: MemoryService, host: str = "127.0.0.1", port: int = 8765
     if service.writer is not None and not token:
         raise MemoraError("a writable server over HTTP needs a bearer token (--token, or MEMORA_SERVE_TOKEN)")
     app = build_server(service, output_schemas).streamable_http_app(streamable_http_path=HTTP_PATH, json_response=True, host=host)
+    app = BodyLimit(app)
     if token:
         app = BearerAuth(app, token)
     sock = listen(host, port)

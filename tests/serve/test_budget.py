@@ -263,3 +263,35 @@ def test_the_commands_refuse_long_text_with_a_clear_message(small_bank):
         assert res.exit_code != 0, args
         assert "2,000" in res.output or "2000" in res.output, res.output
         assert "Traceback" not in res.output
+
+
+def test_an_http_body_over_the_limit_is_refused_before_it_is_parsed(small_bank):
+    """A request announcing more than 4 MiB gets 413 at once, before the body is read."""
+    import http.client
+    from urllib.parse import urlparse
+
+    from memora_graph.serve.app import MAX_BODY
+
+    bank, _ = small_bank
+    server = ServerProcess(bank, "P37")
+    try:
+        url = urlparse(server.url)
+        conn = http.client.HTTPConnection(url.hostname, url.port, timeout=30)
+        t = time.monotonic()
+        conn.putrequest("POST", url.path)
+        for k, v in (("content-type", "application/json"), ("accept", "application/json, text/event-stream"),
+                     ("content-length", str(MAX_BODY + 1))):
+            conn.putheader(k, v)
+        conn.endheaders()
+        res = conn.getresponse()
+        assert res.status == 413 and b"request too large" in res.read()
+        assert time.monotonic() - t <= 2.0
+        conn.close()
+
+        async def still() -> None:
+            async with Client(server.url) as client:
+                assert not (await client.call_tool("search_objects", {"query": "knife"})).is_error
+
+        anyio.run(still)
+    finally:
+        server.stop()
