@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import ctypes
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from memora_graph.errors import MemoraError
@@ -43,6 +44,31 @@ class StopCall(BaseException):
     `except Exception` swallows it."""
 
 
+_local = threading.local()  # .call: the Call whose work this thread runs
+
+
+@contextmanager
+def shield() -> Iterator[None]:
+    """Work that must not be cut halfway (opening a participant's view: cut at every budget, a
+    slow open would never complete). A stop asked for meanwhile takes effect when it ends: the
+    caller was answered at the budget regardless."""
+    call = getattr(_local, "call", None)
+    if call is None:
+        yield
+        return
+    with call._state:
+        call._shielded += 1
+    try:
+        yield
+    finally:
+        with call._state:
+            call._shielded -= 1
+            deferred = call._shielded == 0 and call._deferred
+            call._deferred = False
+        if deferred:
+            raise StopCall
+
+
 def _raise_in(thread_id: int, exc: type[BaseException] | None) -> int:
     """Make `exc` pending in the thread `thread_id` (None: clear a pending one); the threads it reached."""
     return ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread_id),
@@ -60,6 +86,8 @@ class Call:
         self.on_done = on_done
         self._state = threading.Lock()  # orders the thread's "finished" against stop()'s "stopping"
         self._finished = self._stopping = False
+        self._shielded, self._deferred = 0, False
+        self.injected = False  # whether StopCall was raised at an arbitrary instruction (not at a shield's end)
         self._done = threading.Event()
         self._outcome: tuple[bool, Any] | None = None  # (ok, result or exception)
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -71,6 +99,7 @@ class Call:
     def _run(self) -> None:
         # A StopCall may land at any instruction until the thread marks itself finished (under
         # _state, which stop() takes to raise it: it is raised at most once, and never after).
+        _local.call = self
         while True:
             try:
                 if self._outcome is None:
@@ -115,9 +144,15 @@ class Call:
             if self._finished or self._stopping:
                 return False
             self._stopping = True
-            if self.stoppable and self._thread.ident is not None:
+            if not self.stoppable:
+                return True
+            if self._shielded:
+                self._deferred = True
+                return True
+            if self._thread.ident is not None:
                 _raise_in(self._thread.ident, StopCall)
-        if self.stoppable and self._interrupt is not None:
+                self.injected = True
+        if self._interrupt is not None:
             try:
                 self._interrupt()
             except Exception:  # noqa: BLE001 - the work is stopping anyway; an interrupt that fails changes nothing

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, field_validator
 
 from memora_graph.bank import Bank
 from memora_graph.cypher_guard import check_participant
@@ -32,7 +32,7 @@ from memora_graph.queries import load_queries
 from memora_graph.retrieve.registry import MEMORA, ToolSpec, specs
 from memora_graph.retrieve.search import DEFAULT_RECIPE
 from memora_graph.retrieve.view import MemoryView
-from memora_graph.serve.budget import DEFAULT_CALL_TIMEOUT, MAX_CALL_TIMEOUT, MAX_CALLS, Call, CallTimeout
+from memora_graph.serve.budget import DEFAULT_CALL_TIMEOUT, MAX_CALL_TIMEOUT, MAX_CALLS, Call, CallTimeout, shield
 
 MAX_ROWS = 1000  # rows a Cypher or named query returns at most (the rest is counted, not sent)
 CYPHER_BYTES = 4 * 2**20  # bytes of Arrow a cypher call's child hands back at most
@@ -41,6 +41,7 @@ CYPHER_QUEUE = 8  # cypher calls waiting beyond those; past it a call is refused
 CYPHER_TIMEOUT = 30.0
 MAX_CYPHER_TIMEOUT = 300.0
 QUERY_PREFIX = "query_"  # a named query `object_history` is served as the tool `query_object_history`
+SEGMENT_BYTES = 200_000  # JSON of one `remember` segment record at most
 SPIN_ENV = "MEMORA_TEST_SPIN_TOOL"  # test only: also serve `test_spin`, a call that runs in Python for as long as asked
 
 
@@ -170,8 +171,16 @@ class RememberArgs(_Args):
     id: str | None = Field(None, min_length=1, max_length=200,
                            description="Idempotency key: a retried call with the same key (default: video and start) "
                                        "returns its first answer and writes nothing.")
-    segment: dict[str, Any] | None = Field(None, description="Instead of text: a segment record perceived elsewhere "
-                                                             "(the project's LayeredSegment schema).")
+    segment: dict[str, Any] | None = Field(None, max_length=64, description="Instead of text: a segment record "
+                                           "perceived elsewhere (the project's LayeredSegment schema; at most "
+                                           f"{SEGMENT_BYTES // 1000} kB of JSON).")
+
+    @field_validator("segment")
+    @classmethod
+    def _bounded(cls, value: dict[str, Any] | None) -> dict[str, Any] | None:
+        if value is not None and len(json.dumps(value, default=str)) > SEGMENT_BYTES:
+            raise ValueError(f"more than {SEGMENT_BYTES // 1000} kB of JSON; a segment record is a few kB")
+        return value
 
 
 class EditOpResult(BaseModel):
@@ -340,13 +349,19 @@ class MemoryService:
     def _view(self, participant: str) -> MemoryView:
         """The participant's memory, opened read-only (integrity checked) on first use and kept."""
         view = self._views.get(participant)
-        if view is None and self.writer is not None:
+        if view is None:
+            with shield():  # an open is never cut halfway by a call's budget (serve/budget.py)
+                view = self._open_view(participant)
+        return view
+
+    def _open_view(self, participant: str) -> MemoryView:
+        if self.writer is not None:
             # the persisted tool stores, if computed from the database as the writer opened it (and
             # nothing was written since: the view could not absorb it), else the writer's store
             sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
             view = self._views[participant] = MemoryView.live(self.writer.store, self.bank.path, participant, sha,
                                                               config=self.recipe)
-        elif view is None:
+        else:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view
 
@@ -640,7 +655,7 @@ class MemoryService:
 
         call = Call(lambda: endpoint.run(participant, validated), stoppable=endpoint.stoppable,
                     interrupt=lambda: self._interrupt(participant, call.thread_id),
-                    after_stop=lambda: self._discard(participant) if endpoint.stoppable else None,
+                    after_stop=lambda: self._discard(participant) if call.injected else None,
                     on_done=done, name=f"memora-{name}")
         return call.start()
 

@@ -20,7 +20,7 @@ from memora_graph.cli import main
 from memora_graph.cli.perf.serve import ServerProcess
 from memora_graph.limits import MAX_TEXT
 from memora_graph.serve import MemoryService
-from memora_graph.serve.budget import Call, CallTimeout, StopCall
+from memora_graph.serve.budget import Call, CallTimeout, StopCall, shield
 from memora_graph.serve.service import SPIN_ENV
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -67,6 +67,25 @@ def test_a_stopped_call_stops_its_python_work_and_a_write_is_left_to_finish():
 
     quick = Call(lambda: 42).start()
     assert quick.wait(2.0) and not quick.stop() and quick.result() == 42
+
+
+def test_a_shielded_step_is_not_cut_halfway():
+    """Opening a view is shielded: a stop asked for meanwhile lands when the open is complete, so
+    an open slower than the budget still completes (and is kept) instead of starting over."""
+    steps = []
+
+    def work():
+        with shield():
+            time.sleep(0.4)
+            steps.append("opened")
+        steps.append("answered")
+
+    call = Call(work).start()
+    time.sleep(0.1)
+    assert call.stop()
+    assert call.wait(2.0) and steps == ["opened"] and not call.injected
+    with pytest.raises(StopCall):
+        call.result()
 
 
 def test_a_call_past_its_budget_in_process_is_stopped_and_its_view_reopened(small_bank, monkeypatch):
