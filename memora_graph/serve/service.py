@@ -244,28 +244,35 @@ class Busy(MemoraError):
 
 class _Guard:
     """A participant's lock (calls that read a view take it: a view and its Kùzu connection are
-    not shared across threads), knowing which thread holds it through a guard, so that a call
-    stopped past its budget interrupts the Kùzu query only while it is the one running it."""
+    not shared across threads), knowing which thread holds it, so that a call stopped past its
+    budget interrupts the Kùzu query only while it is the one running it. Taken as
+    `with guard.lock, guard.owned():`: the lock's own `__enter__` is C code, where no StopCall
+    lands (serve/budget.py), so a stop can never leave it taken."""
 
     def __init__(self, lock: threading.Lock):
         self.lock = lock
         self.owner: int | None = None
         self._meta = threading.Lock()
 
-    def __enter__(self) -> _Guard:
-        self.lock.acquire()
-        self.owner = threading.get_ident()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        with self._meta:
-            self.owner = None
-            self.lock.release()
+    def owned(self) -> _Owned:
+        return _Owned(self)
 
     def interrupt_if_held_by(self, thread_id: int | None, interrupt: Callable[[], None]) -> None:
         with self._meta:
             if thread_id is not None and self.owner == thread_id:
                 interrupt()
+
+
+class _Owned:
+    def __init__(self, guard: _Guard):
+        self.guard = guard
+
+    def __enter__(self) -> None:
+        self.guard.owner = threading.get_ident()
+
+    def __exit__(self, *exc) -> None:
+        with self.guard._meta:
+            self.guard.owner = None
 
 
 class MemoryService:
@@ -368,7 +375,7 @@ class MemoryService:
     def warm(self, participant: str) -> None:
         """Open a participant's memory and load what every call reads (tables, vectors, the query
         encoder), so that the first call costs what later ones do."""
-        with self._guards[participant]:
+        with self._guards[participant].lock, self._guards[participant].owned():
             view = self._view(participant)
             view.warm()
             view.embed("warm up the query encoder")
@@ -391,7 +398,7 @@ class MemoryService:
     def _discard(self, participant: str) -> None:
         """Drop a participant's open view (after a call was stopped inside it, its caches may be
         half-filled): the next call opens it afresh."""
-        with self._guards[participant]:
+        with self._guards[participant].lock, self._guards[participant].owned():
             view = self._views.pop(participant, None)
             if view is not None:
                 view.close()
@@ -481,21 +488,21 @@ class MemoryService:
 
     def _retrieval(self, spec: ToolSpec) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
-            with self._guards[participant]:
+            with self._guards[participant].lock, self._guards[participant].owned():
                 return spec.fn(self._view(participant), **arguments).as_json()
         return run
 
     def _ask(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.ask import ask_memory
 
-        with self._guards[participant]:
+        with self._guards[participant].lock, self._guards[participant].owned():
             result = ask_memory(self._view(participant), participant, arguments["question"], arguments["choices"])
         return AskAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
     def _plan(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.planner import plan_memory
 
-        with self._guards[participant]:
+        with self._guards[participant].lock, self._guards[participant].owned():
             result = plan_memory(self._view(participant), participant, arguments["goal"])
         return PlanAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
@@ -549,7 +556,7 @@ class MemoryService:
                 params = bind_params(statement, arguments["params"], participant)
             except QueryRefused as exc:
                 raise QueryRefused(for_agents(str(exc))) from None
-            with self._guards[participant]:
+            with self._guards[participant].lock, self._guards[participant].owned():
                 store = self.writer.store
                 store.set_timeout(self._cypher_timeout(arguments["timeout"]))
                 try:
@@ -586,7 +593,7 @@ class MemoryService:
     def _spin(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         import time
 
-        with self._guards[participant]:
+        with self._guards[participant].lock, self._guards[participant].owned():
             self._view(participant)
             end, n = time.monotonic() + arguments["seconds"], 0
             while time.monotonic() < end:  # pure Python, holding the GIL as a parser's loop would
@@ -595,7 +602,7 @@ class MemoryService:
 
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
-            with self._guards[participant]:
+            with self._guards[participant].lock, self._guards[participant].owned():
                 frame = self._view(participant).store.run(name, participant=participant, **arguments)
             return _rows(frame, participant, self.max_rows)
         return run
