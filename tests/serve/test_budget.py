@@ -168,13 +168,17 @@ def test_a_call_past_its_budget_errors_at_the_budget_while_others_are_served(sma
         after: list[float] = []
         spun: list[tuple[float, object]] = []
 
+        warmed = anyio.Event()
+
         async def spin() -> None:
             async with Client(server.url) as client:
+                await warmed.wait()
                 spun.append(await _timed(client, "test_spin", {"seconds": 60}))
 
         async def others() -> None:
             async with Client(server.url) as client:
                 await client.call_tool("search_objects", {"query": "knife"})
+                warmed.set()
                 await anyio.sleep(0.3)  # the spin has started
                 while not spun:
                     t = time.monotonic()
@@ -216,7 +220,8 @@ def test_an_unbound_server_serves_another_participant_during_a_stalled_call(smal
 
     async def run() -> None:
         async with Client(stdio(bank, "--call-timeout", "3")) as client:
-            await client.call_tool("search_objects", {"query": "knife", "participant": "P09"})
+            for who in ("P09", "P37"):  # both views open
+                await client.call_tool("search_objects", {"query": "knife", "participant": who})
 
             async def spin() -> None:
                 spun.append(await _timed(client, "test_spin", {"seconds": 60, "participant": "P37"}))
