@@ -664,7 +664,12 @@ class MemoryService:
                     interrupt=lambda: self._interrupt(participant, call.thread_id),
                     after_stop=lambda: self._discard(participant) if call.injected else None,
                     on_done=done, name=f"memora-{name}")
-        return call.start()
+        try:
+            return call.start()
+        except RuntimeError as exc:  # no thread to be had (the process's limit)
+            with self._in_flight_lock:
+                self._in_flight -= 1
+            raise Busy(f"busy: cannot start the call ({exc}); retry in a few seconds") from None
 
     def timed_out(self, call: Call, name: str) -> CallTimeout:
         """Stop a call past its budget; the error its caller gets."""
