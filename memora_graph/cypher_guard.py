@@ -128,7 +128,6 @@ _PARAM = re.compile(r"\$(?:[A-Za-z_][A-Za-z0-9_]*|[0-9]+)")
 _BLOCK_COMMENT = re.compile(r"/\*(?:[^*]|\*[^/])*\*/", re.S)
 _ESCAPES = set("\\'\"bBfFnNrRtT")
 _HEX4 = re.compile(r"[0-9A-Fa-f]{4}")
-_PID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
 
 
 @dataclass(frozen=True)
@@ -460,8 +459,9 @@ def parse_params(pairs) -> dict:
 
 
 def check_participant(value: object, source: str = "participant") -> str:
-    """A participant id (P01): refused if empty, not text, or not of that form."""
-    if not isinstance(value, str) or not _PID.match(value):
-        shown = "an empty string" if value == "" else repr(value)
-        raise QueryRefused(f"{source} must be one participant id like P01, not {shown}")
+    """A participant id (memora_graph/ids.py): refused if empty, not text, or not of that form."""
+    from memora_graph.ids import RULE, describe, is_participant_id
+
+    if not is_participant_id(value):
+        raise QueryRefused(f"{source} must be one participant id ({RULE}), not {describe(value)}")
     return value

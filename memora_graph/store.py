@@ -216,6 +216,11 @@ class Store:
         """Stop each later query after `seconds` (Kùzu interrupts it: QueryTimeout); None: never."""
         self._conn.set_query_timeout(0 if seconds is None else max(1, int(seconds * 1000)))
 
+    def interrupt(self) -> None:
+        """Stop the query this connection is running now (from another thread); it fails with
+        QueryTimeout. A served call past its time budget is stopped so (serve/budget.py)."""
+        self._conn.interrupt()
+
     def query(self, cypher: str, params: dict | None = None) -> pl.DataFrame:
         """Cypher from the library and tests (the `memora query` path goes through the read guard
         first, memora_graph/adhoc.py); writes fail unless opened read-write."""

@@ -102,6 +102,17 @@ def answer_in_words(intent: Intent, events: list[Event], lex: Lexicon) -> tuple[
     return words, [i for k in best for i in ids[k][:3]]
 
 
+def _check_inputs(question: str, choices: list[str] | None) -> None:
+    """A question and choices within the bounds on free text (memora_graph/limits.py), or TextTooLong."""
+    from memora_graph.limits import MAX_CHOICES, TextTooLong, check_text
+
+    check_text(question, "the question")
+    if choices and len(choices) > MAX_CHOICES:
+        raise TextTooLong(f"{len(choices)} choices given; at most {MAX_CHOICES} (A-D)")
+    for i, c in enumerate(choices or []):
+        check_text(c, f"choice {chr(65 + i)}")
+
+
 def ask(bank: str | Path, participant: str, question: str, choices: list[str] | None = None,
         memory: str = "memora", embed=None) -> AskResult:
     """Answer `question` from `participant`'s memory in `bank` (see the module docstring).
@@ -109,6 +120,7 @@ def ask(bank: str | Path, participant: str, question: str, choices: list[str] | 
     from memora_graph.agent.query.parse import check
 
     question = check(question)
+    _check_inputs(question, choices)
     store = get_family(memory).open(Path(bank), participant)
     try:
         return ask_memory(store, participant, question, choices, memory, embed)
@@ -126,6 +138,7 @@ def ask_memory(store, participant: str, question: str, choices: list[str] | None
     from memora_graph.agent.query.parse import check
 
     question = check(question)
+    _check_inputs(question, choices)
     lex = Lexicon.load()
     if not choices and memory == "memora":
         return _open(store, participant, question, lex)

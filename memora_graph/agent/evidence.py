@@ -22,7 +22,7 @@ from memora_graph.retrieve.results import (
     VideoActivitiesResult,
 )
 
-_STAMP = re.compile(r"^\[(?P<video>P\d{2}_\d{2,3}) (?P<t>[\d.]+)(?:-[\d.]+)?s[^\]]*\]\s*")
+_STAMP = re.compile(r"^\[(?P<video>[^\s\[\]]+) (?P<t>[\d.]+)(?:-[\d.]+)?s[^\]]*\]\s*")
 _STEP_T = re.compile(r"^([\d.]+)")
 
 

@@ -280,8 +280,10 @@ class PlanResult:
 def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora") -> PlanResult:
     """A plan for `goal` from `participant`'s memory in `bank` (the offline planner's lookups and
     composition, without the agent loop). `memory` picks the representation the tools read."""
+    from memora_graph.limits import check_text
     from memora_graph.retrieve.registry import get_family
 
+    check_text(goal, "the goal")
     store = get_family(memory).open(Path(bank), participant)
     try:
         return plan_memory(store, participant, goal, memory)
@@ -293,8 +295,10 @@ def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora") 
 
 def plan_memory(store, participant: str, goal: str, memory: str = "memora") -> PlanResult:
     """`plan` over a memory already open (a server plans many goals from one open bank)."""
+    from memora_graph.limits import check_text
     from memora_graph.retrieve.registry import tool_names, tool_set
 
+    check_text(goal, "the goal")
     lex = Lexicon.load()
     names = tool_names(memory, advertised_only=False)
     tools = tool_set(memory, names, participant, store)

@@ -243,10 +243,23 @@ class Bank:
         db = self.db_path(participant)
         found = [p for p in sorted(self.path.glob(f"{db.name}*"))]
         found += [p for p in (self.path / ".staging" / participant,) if p.exists()]
-        found += sorted((self.path / ".trash").glob(f"{participant}-*")) if (self.path / ".trash").is_dir() else []
+        # by exact name: `robot` must not take `robot-7`'s files (an id may hold '-' and '_')
+        trash = self.path / ".trash"
+        found += sorted(p for p in trash.iterdir() if re.fullmatch(rf"{re.escape(participant)}-\d+", p.name)) \
+            if trash.is_dir() else []
         cache = self.path / ".cache"
-        if cache.is_dir():
-            found += sorted(p for p in cache.iterdir() if re.search(rf"(^|[-_.]){participant}([-_.]|$)", p.name))
+        if cache.is_dir():  # KIND-PARTICIPANT[-KEY][.ext]: flat1d-P01-<hex>.npy, tools-P01, consolidate-P01.json
+            try:
+                others = [p for p in self.participants() if p != participant]
+            except BankError:
+                others = []
+
+            def fits(p: str, name: str) -> bool:
+                return re.fullmatch(rf"[a-z0-9]+-{re.escape(p)}(?:-[0-9a-f]+)?(?:\.[A-Za-z0-9.]+)?", name) is not None
+
+            # a file that fits a longer id too (robot-7's, for robot) is that person's
+            found += sorted(f for f in cache.iterdir() if fits(participant, f.name)
+                            and not any(len(o) > len(participant) and fits(o, f.name) for o in others))
             if shared_caches:
                 found += sorted(cache.glob("embeddings-*"))
         return found

@@ -10,12 +10,12 @@ from __future__ import annotations
 import json
 import logging
 import os
-import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from memora_graph.bank.locks import WriteMarks, now, pid_alive
 from memora_graph.bank.manifest import MANIFEST, PARTICIPANT_ID, ManifestFile
+from memora_graph.ids import DB_FILE
 from memora_graph.errors import BankError
 from memora_graph.files import file_kind, file_sha256, side_files
 
@@ -25,7 +25,6 @@ if TYPE_CHECKING:  # imported where used: a one-shot command that reads persiste
 VERIFIED = ".verified.json"
 NO_VERIFY_ENV = "MEMORA_NO_VERIFY"  # set by `--no-verify`; inherited by worker processes
 CHECKED_COUNTS = ("segments", "entity_records", "state_events", "places")
-DB_FILE = re.compile(r"\A(P\d{2})\.kuzu\Z")
 log = logging.getLogger("memora_graph.integrity")
 NOTICED: set[tuple[str, str]] = set()  # (bank, notice) already logged by this process
 
@@ -297,7 +296,7 @@ class Integrity:
                 if n and d.name not in marks:
                     out.append((d.name, f"{d}: a build of {d.name} was interrupted with {n} video(s) staged; "
                                         f"`memora build {self.directory} --participants {d.name}` resumes it"))
-        for f in sorted(self.directory.glob("P*.kuzu")):
+        for f in sorted(self.directory.glob("*.kuzu")):
             m = DB_FILE.match(f.name)
             if m and m.group(1) not in data["participants"] and m.group(1) not in marks:
                 out.append((m.group(1), self.not_listed(m.group(1), data)))

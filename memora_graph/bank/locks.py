@@ -52,10 +52,23 @@ def manifest_lock(directory: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def lock_byte(participant: str) -> int:
+    """The byte of BANK/.build.lock that stands for a participant: EPIC's P00-P99 their number (as
+    before ids were free), any other id a 48-bit hash of it past those (a file's byte ranges may
+    lie beyond its end; two ids sharing a byte is a 1 in 10^14 chance, and would only make one
+    build wait for the other)."""
+    import hashlib
+    import re
+
+    if re.fullmatch(r"P\d\d", participant):
+        return int(participant[1:])
+    return 100 + int.from_bytes(hashlib.blake2b(participant.encode(), digest_size=6).digest(), "big")
+
+
 @contextmanager
 def participant_lock(directory: Path, participant: str, wait_s: float = 10.0) -> Iterator[None]:
     """Exclusive, across processes, for building or forgetting one (valid) participant of the bank
-    in `directory`: a byte-range lock on BANK/.build.lock (one byte per participant number), held
+    in `directory`: a byte-range lock on BANK/.build.lock (one byte per participant: `lock_byte`), held
     for the whole build. Waits up to `wait_s` (the worker of a build that was just killed dies a
     moment after it)."""
     try:
@@ -68,7 +81,7 @@ def participant_lock(directory: Path, participant: str, wait_s: float = 10.0) ->
     key = str(path.resolve())
     if key not in LOCK_FDS:  # POSIX record locks belong to the process: keep one descriptor open
         LOCK_FDS[key] = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    fd, n = LOCK_FDS[key], int(participant[1:])
+    fd, n = LOCK_FDS[key], lock_byte(participant)
     deadline = time.monotonic() + wait_s
     while True:
         try:

@@ -6,36 +6,36 @@ from __future__ import annotations
 
 import json
 import os
-import re
 from collections.abc import Callable
 from pathlib import Path
 
 from memora_graph.bank.locks import BUILD_LOCK, manifest_lock
 from memora_graph.errors import BankError
+from memora_graph.ids import PARTICIPANT_ID, RULE, describe
+from memora_graph.ids import is_participant_id as _is_id
 
 MANIFEST = "manifest.json"
 FORMAT = 1
-PARTICIPANT_ID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
 
 
 def is_participant_id(name: str) -> bool:
-    """Whether `name` is a participant id (P01 ... P99)."""
-    return bool(PARTICIPANT_ID.match(name))
+    """Whether `name` is a participant id (memora_graph/ids.py: P01, alice, robot-7)."""
+    return _is_id(name)
 
 
 def parse_participants(text: object, option: str = "--participants") -> list[str] | None:
     """A comma-separated participant list ('P01,P02') as ids, or None for 'all'. An empty list
     ('', ',') is an error, not everyone."""
     if not isinstance(text, str):
-        raise BankError(f"{option}: expected participant ids like P01,P02 or 'all', not {text!r}")
+        raise BankError(f"{option}: expected participant ids like P01,alice or 'all', not {text!r}")
     if text.strip().lower() == "all":
         return None
     pids = [p.strip() for p in text.split(",") if p.strip()]
     if not pids:
-        raise BankError(f"{option}: no participant given (ids like P01,P02, or 'all')")
+        raise BankError(f"{option}: no participant given (ids like P01,alice, or 'all')")
     bad = [p for p in pids if not PARTICIPANT_ID.match(p)]
     if bad:
-        raise BankError(f"{option}: {bad[0]!r} is not a participant id like P01")
+        raise BankError(f"{option}: {describe(bad[0])} is not a participant id ({RULE})")
     return list(dict.fromkeys(pids))
 
 
@@ -57,7 +57,7 @@ class ManifestFile:
 
     def db_path(self, participant: str) -> Path:
         if not isinstance(participant, str) or not PARTICIPANT_ID.match(participant):
-            raise BankError(f"participant must look like P01, not {participant!r}")
+            raise BankError(f"participant must be a participant id ({RULE}), not {describe(participant)}")
         return self.directory / f"{participant}.kuzu"
 
     def read(self) -> dict:

@@ -220,7 +220,7 @@ def check_participant_option(ctx, param, value):
     except MemoraError as exc:
         raise click.BadParameter(str(exc).removeprefix("--participant: "), ctx, param) from None
     if got is None or len(got) != 1:
-        raise click.BadParameter(f"one participant id like P01, not {value!r}", ctx, param)
+        raise click.BadParameter(f"one participant id (like P01 or alice), not {value!r}", ctx, param)
     return got[0]
 
 

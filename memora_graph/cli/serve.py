@@ -43,9 +43,14 @@ def _recipes() -> list[str]:
 @click.option("--consolidate-every", type=click.IntRange(min=1), metavar="N",
               help="With --writable: update routines and preferences (incremental consolidation) after every N new "
                    "segments, in the background; readers see the old records or the new, never half.")
+@click.option("--call-timeout", type=click.FloatRange(min=0, min_open=True, max=3600), default=10.0,
+              show_default=True, metavar="SECONDS",
+              help="Time budget of one tool call: past it the call is answered 'took too long' and its work is "
+                   "stopped, while other clients go on being served (a remember is left to finish; a cypher call's "
+                   "`timeout` is capped at it).")
 @click.pass_context
 def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_schemas, unconfined_cypher, writable, token,
-              consolidate_every):
+              consolidate_every, call_timeout):
     """Serve a memory bank to agents over the Model Context Protocol (MCP).
 
     The bank is opened read-only (unless --writable), checked against its integrity record, and
@@ -53,7 +58,9 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
     results), `ask` (the typed question reader), `cypher` (one read-only statement through the
     guard of `memora query`, in a process the kernel confines to that one database: offered only
     where Landlock is available, unless --unconfined-cypher; at most 2 run at once) and the named queries as `query_<name>` (`memora queries`). Nothing
-    served writes. Bad arguments are MCP errors naming the field.
+    served writes. Bad arguments are MCP errors naming the field. Every call runs off the server's
+    event loop under a time budget (--call-timeout); free text (question, query, goal) is at most
+    2,000 characters.
 
     \b
     Examples:
@@ -95,7 +102,7 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
 
         signal.signal(signal.SIGTERM, stop)
     service = MemoryService(bank, participant, recipe=recipe, unconfined_cypher=unconfined_cypher, writable=writable,
-                            consolidate_every=consolidate_every)
+                            consolidate_every=consolidate_every, call_timeout=call_timeout)
     if not service.confinement.confined:
         click.echo(f"warning: ad-hoc Cypher {service.confinement.describe()}; "
                    + ("the cypher tool is offered anyway (--unconfined-cypher)" if service.cypher_offered

@@ -21,9 +21,10 @@ from memora_graph.bank.derived import sha256_file
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
 from memora_graph.files import file_kind, file_sha256, probe, side_files
+from memora_graph.ids import PATTERN, is_participant_id
 from memora_graph.store import Store
 
-_DB = re.compile(r"\A(P\d{2})\.kuzu(\.wal|\.shadow)?\Z")
+_DB = re.compile(rf"\A({PATTERN})\.kuzu(\.wal|\.shadow)?\Z")
 KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash"}
 PROBE_TIMEOUT_S = 60
 
@@ -48,7 +49,7 @@ def verify_bank(path: str | Path, participants: list[str] | None = None) -> Repo
     on_disk = {m.group(1) for f in bank.path.iterdir() if (m := _DB.match(f.name))}
     staging_root = bank.path / ".staging"
     staged = {d.name for d in staging_root.iterdir() if d.is_dir()} if staging_root.is_dir() else set()
-    everyone = sorted(set(data["participants"]) | on_disk | set(marks) | {p for p in staged if re.fullmatch(r"P\d{2}", p)})
+    everyone = sorted(set(data["participants"]) | on_disk | set(marks) | {p for p in staged if is_participant_id(p)})
     report = Report()
     for p in participants or everyone:
         report.rows.append(_participant(bank, data, p))
@@ -59,13 +60,13 @@ def verify_bank(path: str | Path, participants: list[str] | None = None) -> Repo
                 report.bank.append(f"{f}: not a file of a memora bank (foreign)")
         if staging_root.is_dir():
             for d in sorted(staging_root.iterdir()):
-                if not (d.is_dir() and re.fullmatch(r"P\d{2}", d.name)):
+                if not (d.is_dir() and is_participant_id(d.name)):
                     report.bank.append(f"{d}: not a participant's staging folder (foreign; never opened)")
         trash = bank.path / ".trash"
         if trash.is_dir():
             for d in sorted(trash.iterdir()):
                 report.bank.append(f"{d}: the previous database of an interrupted rebuild (removed when the rebuild "
-                                   f"completes: `memora build {bank.path} --participants {d.name.split('-')[0]}`)")
+                                   f"completes: `memora build {bank.path} --participants {d.name.rsplit('-', 1)[0]}`)")
     return report
 
 

@@ -22,13 +22,13 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.errors import DataError
+from memora_graph.ids import RULE, is_participant_id
 from memora_graph.perceive.annotations import ACTION_SCHEMA, ClassTables, load_class_tables
 from memora_graph.perceive.bounds import seconds_problem
 from memora_graph.perceive.lexicon import Lexicon, lemma
 
 REQUIRED = ("video_id", "start", "end", "text")
 FORMATS = {".csv": "csv", ".tsv": "csv", ".jsonl": "jsonl", ".ndjson": "jsonl", ".parquet": "parquet", ".pq": "parquet"}
-_PID = re.compile(r"\AP\d{2}\Z")  # \Z: "$" would also accept "P09\n"
 # Ego4D's markers: "#C" the camera wearer (the memory's person), "#O" someone else, "#unsure", "#summary"
 _EGO4D_SUBJECT = re.compile(r"^\s*#\s*C\s+C\b\s*", re.IGNORECASE)
 _MARKER = re.compile(r"#\s*(?:unsure|summary|c|o)\b", re.IGNORECASE)
@@ -160,8 +160,8 @@ def check_moment(where: str, video_id: object, start: object, end: object, text:
         shown = repr(value) if len(repr(value)) <= 80 else repr(value)[:77] + "..."
         return DataError(f"{where}, field '{fld}': {why} (got {shown})")
 
-    if participant is not None and (not isinstance(participant, str) or not _PID.match(participant)):
-        raise fail("participant", participant, "expected a participant id like P01")
+    if participant is not None and not is_participant_id(participant):
+        raise fail("participant", participant, f"expected a participant id: {RULE}")
     if not isinstance(video_id, str) or not video_id.strip():
         raise fail("video_id", video_id, "empty; name the video (or episode) the narration belongs to")
     if any(c in video_id for c in "\n\r\t#") or len(video_id) > 200:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from memora_graph.bank import Bank
 from memora_graph.errors import BankError
+from memora_graph.ids import DB_FILE
 
 
 def set_aside(bank: Bank, participant: str) -> Path:
@@ -65,7 +66,7 @@ def undo_build(bank: Bank, created: bool, new: set[str], aside: dict[str, Path])
             empty = not bank.exists() or not bank.manifest()["participants"]
         except BankError:
             empty = False
-        if empty and not any(bank.path.glob("P*.kuzu")):
+        if empty and not any(DB_FILE.match(f.name) for f in bank.path.glob("*.kuzu")):
             shutil.rmtree(bank.path, ignore_errors=True)
 
 
@@ -74,7 +75,7 @@ def purge_trash(bank: Bank, participants: set[str]) -> None:
     trash = bank.path / ".trash"
     if trash.is_dir():
         for d in sorted(trash.iterdir()):
-            if d.name.split("-", 1)[0] in participants:
+            if d.name.rsplit("-", 1)[0] in participants:  # PARTICIPANT-MILLISECONDS (an id may hold '-')
                 shutil.rmtree(d, ignore_errors=True)
     _drop_empty(trash)
 

@@ -13,6 +13,7 @@ from typing import Annotated
 
 from pydantic import AliasChoices, BaseModel, ConfigDict, Field
 
+from memora_graph.limits import MAX_TEXT
 from memora_graph.retrieve.search import DEFAULT_TOP_K, MAX_TOP_K
 
 
@@ -20,7 +21,8 @@ class Embedded:
     """Field metadata: this argument is free text the tool embeds."""
 
 
-QueryText = Annotated[str, Embedded()]
+QueryText = Annotated[str, Embedded(), Field(max_length=MAX_TEXT)]  # at most 2,000 characters (limits.py)
+Name = Annotated[str, Field(max_length=200)]  # a video id, a store name
 
 
 class ToolArgs(BaseModel):
@@ -40,7 +42,7 @@ class ObjectArgs(ToolArgs):
 
 class SearchArgs(ToolArgs):
     query: QueryText = Field(description="What to look for, in words.")
-    category: str | None = Field(None, description="Only one store: objects, activities, places or patterns.")
+    category: Name | None = Field(None, description="Only one store: objects, activities, places or patterns.")
     top_k_per_category: int = Field(3, ge=1, le=MAX_TOP_K, description="How many records per store.")
 
 
@@ -52,7 +54,7 @@ class HistoryArgs(ToolArgs):
 
 class StateArgs(ToolArgs):
     time_seconds: float = Field(ge=0, allow_inf_nan=False, description="Seconds from the start of the video.")
-    video: str | None = Field(None, description="The video id (e.g. P03_101); optional if the memory has one video.")
+    video: Name | None = Field(None, description="The video id (e.g. P03_101); optional if the memory has one video.")
     window: float = Field(60.0, ge=0, allow_inf_nan=False,
                           description="Seconds after an object's last sighting it still counts as present.")
 
@@ -69,7 +71,7 @@ class PreferenceArgs(ToolArgs):
 
 
 class VideoArgs(ToolArgs):
-    video: str = Field(validation_alias=AliasChoices("video", "video_id"), description="The video id, e.g. P03_101.")
+    video: Name = Field(validation_alias=AliasChoices("video", "video_id"), description="The video id, e.g. P03_101.")
     query: QueryText = Field("", description="Only the moments about this (an object or an action); empty: the "
                                              "whole video, evenly sampled.")
     top_k: int = Field(MAX_TOP_K, ge=1, le=MAX_TOP_K, description="How many activity records to return.")

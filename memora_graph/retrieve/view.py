@@ -248,6 +248,11 @@ class MemoryView:
             self._store = self._open_store()
         return self._store
 
+    def interrupt(self) -> None:
+        """Stop the Kùzu query this view runs now, if any (a served call past its time budget)."""
+        if self._store is not None:
+            self._store.interrupt()
+
     def close(self) -> None:
         if self._owns and self._store is not None:
             self._store.close()

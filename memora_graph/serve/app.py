@@ -11,6 +11,7 @@ and acts on.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import socket
 from importlib.metadata import PackageNotFoundError, version
@@ -63,10 +64,7 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
 
     async def on_call_tool(ctx, params: types.CallToolRequestParams) -> types.CallToolResult:
         try:
-            if service.slow(params.name):  # a child process, up to its time limit: off the event loop
-                result = await anyio.to_thread.run_sync(service.call, params.name, params.arguments)
-            else:  # milliseconds of work, serialised by the service anyway: a thread hop would cost
-                result = service.call(params.name, params.arguments)  # more than it frees (1-2 ms a call)
+            result = await answer(service, params.name, params.arguments)
         except UnknownTool as exc:
             raise MCPError(types.INVALID_PARAMS, str(exc), data={"tool": params.name}) from None
         except ArgumentError as exc:
@@ -78,6 +76,35 @@ def build_server(service: MemoryService, output_schemas: bool = False) -> Server
 
     return Server("memora", version=_version(), title="memora-graph memory",
                   instructions=instructions(service), on_list_tools=on_list_tools, on_call_tool=on_call_tool)
+
+
+async def answer(service: MemoryService, name: str, arguments: dict | None) -> dict:
+    """One call, off the event loop: validated here (bounded inputs: milliseconds), run in a
+    thread of its own (serve/budget.py) and awaited up to the service's time budget; past it the
+    caller gets CallTimeout and the work is stopped, while other calls go on being served. A
+    client that cancels its request stops the work too."""
+    if service.call_timeout is None:
+        return await anyio.to_thread.run_sync(service.call, name, arguments)
+    loop = asyncio.get_running_loop()
+    finished = loop.create_future()
+
+    def wake() -> None:  # in the call's thread
+        try:
+            loop.call_soon_threadsafe(lambda: finished.done() or finished.set_result(None))
+        except RuntimeError:  # the loop is gone (the server is stopping)
+            pass
+
+    call = service.start(name, arguments, on_done=wake)
+    late = None
+    try:
+        with anyio.move_on_after(service.call_timeout):
+            await finished
+    finally:  # past the budget, or the client cancelled its request: stop the work
+        if not call.done():
+            late = service.timed_out(call, name)
+    if late is not None:
+        raise late
+    return call.result()
 
 
 def serve_stdio(service: MemoryService, output_schemas: bool = False) -> None:
@@ -108,6 +135,58 @@ def listen(host: str, port: int) -> socket.socket:
         raise MemoraError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from exc
     sock.listen(128)
     return sock
+
+
+MAX_BODY = 4 * 2**20  # bytes of one HTTP request; a 1 MB question still gets the field-level error
+
+
+class BodyLimit:
+    """ASGI middleware: a request body over `limit` bytes gets 413 before the MCP app reads it
+    (parsing a huge JSON body on the event loop would hold every client up)."""
+
+    def __init__(self, app, limit: int = MAX_BODY):
+        self.app, self.limit = app, limit
+
+    async def _refuse(self, send) -> None:
+        body = (f'{{"error": "request too large: at most {self.limit} bytes (free text is capped at 2,000 '
+                'characters)"}').encode()
+        await send({"type": "http.response.start", "status": 413,
+                    "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
+                                (b"connection", b"close")]})
+        await send({"type": "http.response.body", "body": body})
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        length = dict(scope.get("headers") or []).get(b"content-length")
+        if length is not None and (not length.isdigit() or int(length) > self.limit):
+            return await self._refuse(send)
+        seen = 0
+        started = False
+
+        async def counted():
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.limit:
+                    raise _TooLarge
+            return message
+
+        async def sending(message):
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, counted, sending)
+        except _TooLarge:
+            if not started:
+                await self._refuse(send)
+
+
+class _TooLarge(Exception):
+    pass
 
 
 class BearerAuth:
@@ -142,6 +221,7 @@ def serve_http(service: MemoryService, host: str = "127.0.0.1", port: int = 8765
     if service.writer is not None and not token:
         raise MemoraError("a writable server over HTTP needs a bearer token (--token, or MEMORA_SERVE_TOKEN)")
     app = build_server(service, output_schemas).streamable_http_app(streamable_http_path=HTTP_PATH, json_response=True, host=host)
+    app = BodyLimit(app)
     if token:
         app = BearerAuth(app, token)
     sock = listen(host, port)

@@ -15,22 +15,25 @@ without `--write`.
 from __future__ import annotations
 
 import json
+import os
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, field_validator
 
 from memora_graph.bank import Bank
 from memora_graph.cypher_guard import check_participant
 from memora_graph.errors import BankError, MemoraError, QueryRefused
+from memora_graph.limits import MAX_CHOICES, MAX_CYPHER, MAX_PARAMS, MAX_TEXT, Text
 from memora_graph.queries import load_queries
 from memora_graph.records import MAX_VIDEO_SECONDS
 from memora_graph.retrieve.registry import MEMORA, ToolSpec, specs
 from memora_graph.retrieve.search import DEFAULT_RECIPE
 from memora_graph.retrieve.view import MemoryView
+from memora_graph.serve.budget import DEFAULT_CALL_TIMEOUT, MAX_CALL_TIMEOUT, MAX_CALLS, Call, CallTimeout, shield
 
 MAX_ROWS = 1000  # rows a Cypher or named query returns at most (the rest is counted, not sent)
 CYPHER_BYTES = 4 * 2**20  # bytes of Arrow a cypher call's child hands back at most
@@ -39,6 +42,8 @@ CYPHER_QUEUE = 8  # cypher calls waiting beyond those; past it a call is refused
 CYPHER_TIMEOUT = 30.0
 MAX_CYPHER_TIMEOUT = 300.0
 QUERY_PREFIX = "query_"  # a named query `object_history` is served as the tool `query_object_history`
+SEGMENT_BYTES = 200_000  # JSON of one `remember` segment record at most
+SPIN_ENV = "MEMORA_TEST_SPIN_TOOL"  # test only: also serve `test_spin`, a call that runs in Python for as long as asked
 
 
 class UnknownTool(MemoraError):
@@ -66,8 +71,9 @@ class Endpoint:
     args: type[BaseModel]  # validates the arguments (participant aside)
     input_schema: dict[str, Any]
     output_schema: dict[str, Any] | None
-    kind: str  # retrieval, ask, recall, plan, cypher, query
+    kind: str  # retrieval, ask, recall, plan, cypher, query, remember
     run: Callable[[str, dict[str, Any]], dict[str, Any]]  # (participant, validated arguments) -> JSON result
+    stoppable: bool = True  # past its budget its work is stopped (a remember's commit is left to finish)
 
 
 # -- argument and result models of the tools this module adds ------------------------------------
@@ -77,19 +83,24 @@ class _Args(BaseModel):
 
 
 class AskArgs(_Args):
-    question: str = Field(min_length=1, description="The question, in words (e.g. 'After P03 turns on the tap, "
+    question: str = Field(min_length=1, max_length=MAX_TEXT, description="The question, in words (e.g. 'After P03 turns on the tap, "
                                                      "what do they usually do next?').")
-    choices: list[str] | None = Field(None, max_length=4, description="Up to four answer options (A-D). With them "
+    choices: list[Text] | None = Field(None, max_length=MAX_CHOICES, description="Up to four answer options (A-D). With them "
                                       "the answer is one of them or 'not in memory'; without, an answer in words.")
 
 
 class CypherArgs(_Args):
-    query: str = Field(min_length=1, description="One read-only Cypher statement (MATCH ... RETURN ...). $participant "
+    query: str = Field(min_length=1, max_length=MAX_CYPHER, description="One read-only Cypher statement (MATCH ... RETURN ...). $participant "
                                                  "is bound to the participant served. Writes, files, extensions, other "
                                                  "databases and schema statements are refused.")
-    params: dict[str, Any] = Field(default_factory=dict, description="Values of the statement's other $parameters.")
+    params: dict[str, Any] = Field(default_factory=dict, max_length=MAX_PARAMS,
+                                   description="Values of the statement's other $parameters.")
     timeout: float = Field(CYPHER_TIMEOUT, gt=0, le=MAX_CYPHER_TIMEOUT, allow_inf_nan=False,
                            description="Seconds before the query is stopped.")
+
+
+class SpinArgs(_Args):
+    seconds: float = Field(ge=0, le=600, allow_inf_nan=False)
 
 
 class EvidenceItem(BaseModel):
@@ -123,7 +134,7 @@ class AskAnswer(BaseModel):
 
 
 class PlanArgs(_Args):
-    goal: str = Field(min_length=1, description="The goal, in words (e.g. 'cut the cucumber', 'wash, cut and "
+    goal: str = Field(min_length=1, max_length=MAX_TEXT, description="The goal, in words (e.g. 'cut the cucumber', 'wash, cut and "
                                                  "stir-fry the bok choy').")
 
 
@@ -163,8 +174,16 @@ class RememberArgs(_Args):
     id: str | None = Field(None, min_length=1, max_length=200,
                            description="Idempotency key: a retried call with the same key (default: video and start) "
                                        "returns its first answer and writes nothing.")
-    segment: dict[str, Any] | None = Field(None, description="Instead of text: a segment record perceived elsewhere "
-                                                             "(the project's LayeredSegment schema).")
+    segment: dict[str, Any] | None = Field(None, max_length=64, description="Instead of text: a segment record "
+                                           "perceived elsewhere (the project's LayeredSegment schema; at most "
+                                           f"{SEGMENT_BYTES // 1000} kB of JSON).")
+
+    @field_validator("segment")
+    @classmethod
+    def _bounded(cls, value: dict[str, Any] | None) -> dict[str, Any] | None:
+        if value is not None and len(json.dumps(value, default=str)) > SEGMENT_BYTES:
+            raise ValueError(f"more than {SEGMENT_BYTES // 1000} kB of JSON; a segment record is a few kB")
+        return value
 
 
 class EditOpResult(BaseModel):
@@ -223,7 +242,40 @@ def _rows(frame, participant: str, max_rows: int, total: int | None = None) -> d
 
 
 class Busy(MemoraError):
-    """Too many cypher calls at once: the call was not run."""
+    """Too many calls (or cypher calls) at once: the call was not run."""
+
+
+class _Guard:
+    """A participant's lock (calls that read a view take it: a view and its Kùzu connection are
+    not shared across threads), knowing which thread holds it, so that a call stopped past its
+    budget interrupts the Kùzu query only while it is the one running it. Taken as
+    `with guard.lock, guard.owned():`: the lock's own `__enter__` is C code, where no StopCall
+    lands (serve/budget.py), so a stop can never leave it taken."""
+
+    def __init__(self, lock: threading.Lock):
+        self.lock = lock
+        self.owner: int | None = None
+        self._meta = threading.Lock()
+
+    def owned(self) -> _Owned:
+        return _Owned(self)
+
+    def interrupt_if_held_by(self, thread_id: int | None, interrupt: Callable[[], None]) -> None:
+        with self._meta:
+            if thread_id is not None and self.owner == thread_id:
+                interrupt()
+
+
+class _Owned:
+    def __init__(self, guard: _Guard):
+        self.guard = guard
+
+    def __enter__(self) -> None:
+        self.guard.owner = threading.get_ident()
+
+    def __exit__(self, *exc) -> None:
+        with self.guard._meta:
+            self.guard.owner = None
 
 
 class MemoryService:
@@ -233,7 +285,8 @@ class MemoryService:
 
     def __init__(self, bank: str | Path, participant: str | None = None, recipe: str = DEFAULT_RECIPE,
                  max_rows: int = MAX_ROWS, unconfined_cypher: bool = False, cypher_in_flight: int = CYPHER_IN_FLIGHT,
-                 cypher_queue: int = CYPHER_QUEUE, writable: bool = False, consolidate_every: int | None = None):
+                 cypher_queue: int = CYPHER_QUEUE, writable: bool = False, consolidate_every: int | None = None,
+                 call_timeout: float | None = DEFAULT_CALL_TIMEOUT, max_calls: int = MAX_CALLS):
         """`unconfined_cypher`: offer the cypher tool even where the kernel cannot confine its
         child process (memora_graph/confine.py); by default it is offered only where it can.
         `writable` (one participant only) also serves the `remember` tool: this process then
@@ -243,7 +296,10 @@ class MemoryService:
         `absorb`), so the next call sees what was just remembered (no other process can
         open the database meanwhile: Kùzu locks it, so no confined child can either, and the cypher
         tool is then offered only with `unconfined_cypher`). `consolidate_every`: after that many
-        new segments, incremental consolidation runs in a background thread (consolidate/live.py)."""
+        new segments, incremental consolidation runs in a background thread (consolidate/live.py).
+        `call_timeout`: seconds a call may run before it is answered CallTimeout and its work is
+        stopped (serve/budget.py; None: no budget, the call runs in the caller's thread);
+        `max_calls`: calls in flight at once, past which a call is refused as Busy."""
         from memora_graph.confine import mode
 
         self.writer = None
@@ -277,6 +333,13 @@ class MemoryService:
         self._cypher_waiting = 0
         self._cypher_bound = cypher_in_flight + cypher_queue
         self._cypher_count = threading.Lock()
+        if call_timeout is not None and not (0 < call_timeout <= MAX_CALL_TIMEOUT):
+            raise BankError(f"--call-timeout must be above 0 and at most {MAX_CALL_TIMEOUT:.0f} seconds")
+        self.call_timeout = call_timeout
+        self._max_calls, self._in_flight, self._in_flight_lock = max_calls, 0, threading.Lock()
+        # one lock per participant (a writable server's one participant: the writer's lock)
+        self._guards = {p: _Guard(self._lock if self.writer is not None else threading.Lock())
+                        for p in ([participant] if participant is not None else self.participants)}
         self._views: dict[str, MemoryView] = {}
         self._endpoints = {e.name: e for e in self._build_endpoints()}
         if self.writer is not None and consolidate_every is not None:
@@ -296,20 +359,26 @@ class MemoryService:
     def _view(self, participant: str) -> MemoryView:
         """The participant's memory, opened read-only (integrity checked) on first use and kept."""
         view = self._views.get(participant)
-        if view is None and self.writer is not None:
+        if view is None:
+            with shield():  # an open is never cut halfway by a call's budget (serve/budget.py)
+                view = self._open_view(participant)
+        return view
+
+    def _open_view(self, participant: str) -> MemoryView:
+        if self.writer is not None:
             # the persisted tool stores, if computed from the database as the writer opened it (and
             # nothing was written since: the view could not absorb it), else the writer's store
             sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
             view = self._views[participant] = MemoryView.live(self.writer.store, self.bank.path, participant, sha,
                                                               config=self.recipe)
-        elif view is None:
+        else:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view
 
     def warm(self, participant: str) -> None:
         """Open a participant's memory and load what every call reads (tables, vectors, the query
         encoder), so that the first call costs what later ones do."""
-        with self._lock:
+        with self._guards[participant].lock, self._guards[participant].owned():
             view = self._view(participant)
             view.warm()
             view.embed("warm up the query encoder")
@@ -317,12 +386,31 @@ class MemoryService:
     def close(self) -> None:
         if self.consolidator is not None:
             self.consolidator.stop()
-        with self._lock:
-            for view in self._views.values():
+        for participant, guard in self._guards.items():
+            # a call stuck in one long C call past its budget still holds its lock: its view is left open
+            if guard.lock.acquire(timeout=5.0):
+                try:
+                    view = self._views.pop(participant, None)
+                    if view is not None:
+                        view.close()
+                    if self.writer is not None:
+                        self.writer.close()
+                finally:
+                    guard.lock.release()
+
+    def _discard(self, participant: str) -> None:
+        """Drop a participant's open view (after a call was stopped inside it, its caches may be
+        half-filled): the next call opens it afresh."""
+        with self._guards[participant].lock, self._guards[participant].owned():
+            view = self._views.pop(participant, None)
+            if view is not None:
                 view.close()
-            self._views.clear()
-            if self.writer is not None:
-                self.writer.close()
+
+    def _interrupt(self, participant: str, thread_id: int | None) -> None:
+        """Interrupt the Kùzu query of the call running in `thread_id`, if it holds the view now."""
+        view = self._views.get(participant)
+        if view is not None:
+            self._guards[participant].interrupt_if_held_by(thread_id, view.interrupt)
 
     def __enter__(self) -> MemoryService:
         return self
@@ -343,7 +431,10 @@ class MemoryService:
             schema["required"] = ["participant", *schema["required"]]
         else:
             description = f"{description} (Memory of {self.participant}.)"
-        return Endpoint(name, description, args, schema, output, kind, run)
+        # a remember's commit is left to finish; a confined cypher call is a child process under its own
+        # time limit (capped at the budget), killed by adhoc.py: its waiting thread is not interrupted
+        stoppable = kind != "remember" and not (kind == "cypher" and self.writer is None)
+        return Endpoint(name, description, args, schema, output, kind, run, stoppable)
 
     def _build_endpoints(self) -> list[Endpoint]:
         out = []
@@ -378,10 +469,14 @@ class MemoryService:
                             "/ NOOP per object) and committed before the answer; the next call reads it. Idempotent by "
                             "`id` (default: video and start).",
                 RememberArgs, RememberResult.model_json_schema(mode="serialization"), "remember", self._remember))
+        if os.environ.get(SPIN_ENV):  # test only: a call as slow as asked, in Python, holding the view
+            out.append(self._endpoint("test_spin", "Test only: run in Python for `seconds`, holding the view.",
+                                      SpinArgs, None, "test", self._spin))
         for q in load_queries().values():
             if q.name.startswith("_") or q.writes or "participant" not in q.params:
                 continue
-            fields = {p: (str, Field(description=f"The query's ${p} (`memora queries`).")) for p in q.params if p != "participant"}
+            fields = {p: (str, Field(max_length=MAX_TEXT, description=f"The query's ${p} (`memora queries`)."))
+                      for p in q.params if p != "participant"}
             args = create_model(f"{q.name}_args", __base__=_Args, **fields)
             out.append(self._endpoint(QUERY_PREFIX + q.name, f"Named query {q.name}: {q.description}", args,
                                       Rows.model_json_schema(mode="serialization"), "query", self._named(q.name)))
@@ -397,14 +492,14 @@ class MemoryService:
 
     def _retrieval(self, spec: ToolSpec) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
-            with self._lock:
+            with self._guards[participant].lock, self._guards[participant].owned():
                 return spec.fn(self._view(participant), **arguments).as_json()
         return run
 
     def _ask(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.ask import ask_memory
 
-        with self._lock:
+        with self._guards[participant].lock, self._guards[participant].owned():
             result = ask_memory(self._view(participant), participant, arguments["question"], arguments["choices"])
         return AskAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
@@ -428,14 +523,14 @@ class MemoryService:
     def _recall(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.query import recall
 
-        with self._lock:
+        with self._guards[participant].lock, self._guards[participant].owned():
             answer = recall(self._view(participant), participant, arguments)
         return answer.model_dump(mode="json")
 
     def _plan(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.planner import plan_memory
 
-        with self._lock:
+        with self._guards[participant].lock, self._guards[participant].owned():
             result = plan_memory(self._view(participant), participant, arguments["goal"])
         return PlanAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
@@ -489,9 +584,9 @@ class MemoryService:
                 params = bind_params(statement, arguments["params"], participant)
             except QueryRefused as exc:
                 raise QueryRefused(for_agents(str(exc))) from None
-            with self._lock:
+            with self._guards[participant].lock, self._guards[participant].owned():
                 store = self.writer.store
-                store.set_timeout(arguments["timeout"])
+                store.set_timeout(self._cypher_timeout(arguments["timeout"]))
                 try:
                     frame = store.query(statement.text, params)
                 finally:
@@ -509,7 +604,8 @@ class MemoryService:
         try:
             with self._cypher_slots:
                 result = run_query(self.bank.path, arguments["query"], arguments["params"], participant=participant,
-                                   write=False, timeout=arguments["timeout"], max_rows=self.max_rows,
+                                   write=False, timeout=self._cypher_timeout(arguments["timeout"]),
+                                   max_rows=self.max_rows,
                                    max_bytes=CYPHER_BYTES)
         except QueryRefused as exc:
             raise QueryRefused(for_agents(str(exc))) from None
@@ -518,9 +614,23 @@ class MemoryService:
                 self._cypher_waiting -= 1
         return _rows(result.frame, participant, self.max_rows, result.total_rows)
 
+    def _cypher_timeout(self, asked: float) -> float:
+        """A cypher call's time limit: its `timeout`, at most the call's budget."""
+        return asked if self.call_timeout is None else min(asked, self.call_timeout)
+
+    def _spin(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+        import time
+
+        with self._guards[participant].lock, self._guards[participant].owned():
+            self._view(participant)
+            end, n = time.monotonic() + arguments["seconds"], 0
+            while time.monotonic() < end:  # pure Python, holding the GIL as a parser's loop would
+                n += 1
+        return {"spins": n}
+
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
-            with self._lock:
+            with self._guards[participant].lock, self._guards[participant].owned():
                 frame = self._view(participant).store.run(name, participant=participant, **arguments)
             return _rows(frame, participant, self.max_rows)
         return run
@@ -560,9 +670,53 @@ class MemoryService:
             raise ArgumentError(name, problems)
         return endpoint, participant, validated
 
+    def start(self, name: str, arguments: dict[str, Any] | None = None,
+              on_done: Callable[[], None] | None = None) -> Call:
+        """Start one call in a thread of its own (serve/budget.py) after validating it: UnknownTool,
+        ArgumentError, or Busy past `max_calls` in flight, raised before anything runs. `on_done()`
+        runs in the call's thread once it has finished (or been stopped). The caller waits for it
+        up to `call_timeout`, then `call.stop()`s it: see `call`."""
+        endpoint, participant, validated = self.resolve(name, arguments)
+        with self._in_flight_lock:
+            if self._in_flight >= self._max_calls:
+                raise Busy(f"busy: {self._max_calls} calls are already running; retry in a few seconds")
+            self._in_flight += 1
+
+        def done() -> None:
+            with self._in_flight_lock:
+                self._in_flight -= 1
+            if on_done is not None:
+                on_done()
+
+        call = Call(lambda: endpoint.run(participant, validated), stoppable=endpoint.stoppable,
+                    interrupt=lambda: self._interrupt(participant, call.thread_id),
+                    after_stop=lambda: self._discard(participant) if call.injected else None,
+                    on_done=done, name=f"memora-{name}")
+        try:
+            return call.start()
+        except RuntimeError as exc:  # no thread to be had (the process's limit)
+            with self._in_flight_lock:
+                self._in_flight -= 1
+            raise Busy(f"busy: cannot start the call ({exc}); retry in a few seconds") from None
+
+    def timed_out(self, call: Call, name: str) -> CallTimeout:
+        """Stop a call past its budget; the error its caller gets."""
+        call.stop()
+        finish = ("its work was stopped" if call.stoppable else
+                  "it is left to finish (a remember may still be committed: retrying with the same id writes it "
+                  "once)" if name == "remember" else "its query is stopped at the time limit")
+        return CallTimeout(f"{name}: took too long: no answer within {self.call_timeout:g} s (the server's "
+                           f"--call-timeout); {finish}. Narrow the request, or retry later if the server is busy")
+
     def call(self, name: str, arguments: dict[str, Any] | None = None) -> dict[str, Any]:
         """Answer one call: the tool's JSON result. Raises UnknownTool or ArgumentError before
-        anything runs, ToolError / QueryRefused / BankError / StoreError (MemoraError) for a call
-        the tool cannot answer."""
-        endpoint, participant, validated = self.resolve(name, arguments)
-        return endpoint.run(participant, validated)
+        anything runs, Busy, CallTimeout past `call_timeout` (its work then stopped), and
+        ToolError / QueryRefused / BankError / StoreError (MemoraError) for a call the tool
+        cannot answer."""
+        if self.call_timeout is None:
+            endpoint, participant, validated = self.resolve(name, arguments)
+            return endpoint.run(participant, validated)
+        call = self.start(name, arguments)
+        if not call.wait(self.call_timeout):
+            raise self.timed_out(call, name)
+        return call.result()

@@ -22,6 +22,7 @@ import polars as pl
 
 from memora_graph.bank import Bank
 from memora_graph.errors import DataError
+from memora_graph.ids import RULE, is_participant_id
 
 FORMAT_KEY = "memora_export"
 FORMAT_VERSION = 1
@@ -205,9 +206,8 @@ def _check_header(doc, where: Path) -> None:
         if not isinstance(doc["bank"].get(k), str):
             raise DataError(f"{where}: damaged memora export: no 'bank.{k}' text field")
     p = doc["participant"]
-    if not isinstance(p, str) or not re.fullmatch(r"P\d{2}", p):
-        raise DataError(f"{where}: field 'participant' is {json.dumps(p)[:40]}, not a participant id like P01 "
-                        "(no path or control characters)")
+    if not is_participant_id(p):
+        raise DataError(f"{where}: field 'participant' is {json.dumps(p)[:40]}, not a participant id ({RULE})")
     counts = doc["manifest"].get("counts")
     if not isinstance(counts, dict):
         raise DataError(f"{where}: damaged memora export: field 'manifest.counts' is not a map of record counts")

@@ -35,7 +35,7 @@ def _refuse_if_held(bank: Bank, dump: ParticipantDump, source: Path) -> None:
     """The checks that need only the bank: the participant is new to it, and its mode and
     embedding model are the export's."""
     p = dump.participant
-    db = bank.db_path(p)  # also checks the id looks like P01
+    db = bank.db_path(p)  # also checks the id (memora_graph/ids.py)
     if bank.exists():
         data = bank.manifest()
         if p in data["participants"]:

@@ -94,8 +94,8 @@ def test_participants_option_parses_once_for_every_command(tmp_path):
     assert _command("build").make_context("build", [str(tmp_path / "b")]).params["participants"] is None
     for path, args in ((("build",), [str(tmp_path / "b")]), (("consolidate",), [str(tmp_path)]),
                        (("bench", "run"), [str(tmp_path), "--out", str(tmp_path / "r")])):
-        bad = CliRunner().invoke(main, [*path, *args, "--participants", "P1"])
-        assert bad.exit_code == 2 and "'P1' is not a participant id like P01" in bad.output, bad.output
+        bad = CliRunner().invoke(main, [*path, *args, "--participants", "P.1"])
+        assert bad.exit_code == 2 and "'P.1' is not a participant id (1-64 characters" in bad.output, bad.output
         empty = CliRunner().invoke(main, [*path, *args, "--participants", ","])
         assert empty.exit_code == 2 and "no participant given" in empty.output, empty.output
 

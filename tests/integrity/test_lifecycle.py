@@ -265,7 +265,7 @@ def test_a_rw_open_that_cannot_lock_leaves_no_mark(bank):
 
 
 def test_unknown_participant_id_is_refused(bank):
-    with pytest.raises(BankError, match="must look like P01"):
+    with pytest.raises(BankError, match="must be a participant id"):
         Bank(bank).forget("../etc")
 
 

@@ -22,9 +22,12 @@ fills in. `why_not` says why a combination makes no sense (an answer then says s
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from memora_graph.limits import MAX_TEXT
+from memora_graph.records import MAX_VIDEO_SECONDS
 
 Operation = Literal["where", "when", "which_video", "count", "exists", "list", "next", "previous", "steps", "state",
                     "duration"]
@@ -33,7 +36,9 @@ Relation = Literal["before", "after", "while", "instead_of"]
 OPERATIONS: tuple[str, ...] = Operation.__args__  # type: ignore[attr-defined]
 SELECTORS: tuple[str, ...] = Selector.__args__  # type: ignore[attr-defined]
 RELATIONS: tuple[str, ...] = Relation.__args__  # type: ignore[attr-defined]
-MAX_QUESTION = 2000  # characters: a longer question is refused (QuestionError)
+MAX_QUESTION = MAX_TEXT  # characters: a longer question is refused (QuestionError); one cap for all free text
+MAX_ITEMS = 32  # at most this many objects, videos or words in one list of a query
+Word = Annotated[str, Field(max_length=MAX_TEXT)]
 
 
 class _Strict(BaseModel):
@@ -44,11 +49,11 @@ class Action(_Strict):
     """An action: a verb class and its objects. Objects are EPIC noun classes ('board:chopping') or
     the person's own words ('v60', 'chopping board'); either resolves against their vocabulary."""
 
-    verb: str | None = Field(None, description="Verb class or word ('open', 'take', 'put', 'wash'); none: any action "
+    verb: str | None = Field(None, max_length=MAX_TEXT, description="Verb class or word ('open', 'take', 'put', 'wash'); none: any action "
                                                "with the objects.")
-    objects: list[str] = Field(default_factory=list, description="The objects, most important first (class or the "
+    objects: list[Word] = Field(default_factory=list, max_length=MAX_ITEMS, description="The objects, most important first (class or the "
                                                                  "person's word, e.g. 'fridge', 'chopping board').")
-    words: list[str] = Field(default_factory=list, description="The objects as the question worded them (filled by "
+    words: list[Word] = Field(default_factory=list, max_length=MAX_ITEMS, description="The objects as the question worded them (filled by "
                                                                "the parser; an agent may leave it empty).")
 
     def empty(self) -> bool:
@@ -56,22 +61,22 @@ class Action(_Strict):
 
 
 class Subject(Action):
-    place: str | None = Field(None, description="A place the action happened at or went to ('drawer').")
-    second: str | None = Field(None, description="A second object ('the knife' in 'cut the onion with the knife').")
+    place: str | None = Field(None, max_length=MAX_TEXT, description="A place the action happened at or went to ('drawer').")
+    second: str | None = Field(None, max_length=MAX_TEXT, description="A second object ('the knife' in 'cut the onion with the knife').")
     source: bool = Field(False, description="where: the place it is taken from (not put).")
-    goal: str = Field("", description="steps: the goal in words ('make tea').")
+    goal: str = Field("", max_length=MAX_TEXT, description="steps: the goal in words ('make tea').")
 
 
 class Scope(_Strict):
-    videos: list[str] = Field(default_factory=list, description="Only these videos (ids like 'P01_103'); empty: all.")
-    start: float | None = Field(None, ge=0, description="Seconds into the video: the window's start.")
-    end: float | None = Field(None, ge=0, description="Seconds into the video: the window's end ('at 01:00' is a "
+    videos: list[Word] = Field(default_factory=list, max_length=MAX_ITEMS, description="Only these videos (ids like 'P01_103'); empty: all.")
+    start: float | None = Field(None, ge=0, le=MAX_VIDEO_SECONDS, description="Seconds into the video: the window's start.")
+    end: float | None = Field(None, ge=0, le=MAX_VIDEO_SECONDS, description="Seconds into the video: the window's end ('at 01:00' is a "
                                                       "window ending there).")
-    at: float | None = Field(None, ge=0, description="A moment, in seconds into the video: where / state / count read "
+    at: float | None = Field(None, ge=0, le=MAX_VIDEO_SECONDS, description="A moment, in seconds into the video: where / state / count read "
                                                      "up to it; list reads the log within 15 s of it.")
     after: Action | None = Field(None, description="Only what happened after this event (in the same video).")
     before: Action | None = Field(None, description="Only what happened before this event (in the same video).")
-    session: int | None = Field(None, description="The nth session (video) of the person, 1-based; -1 the last.")
+    session: int | None = Field(None, ge=-1, le=100_000, description="The nth session (video) of the person, 1-based; -1 the last.")
 
     def empty(self) -> bool:
         return not (self.videos or self.start is not None or self.end is not None or self.at is not None or self.after or self.before
@@ -89,15 +94,15 @@ class Query(_Strict):
     scope: Scope = Field(default_factory=Scope, description="Where in memory to look (default: all of it).")
     selector: Selector = Field("usual", description="Which occurrence: first, last, nth, usual (the most frequent), "
                                                     "all.")
-    nth: int | None = Field(None, ge=1, description="selector nth: which occurrence (1-based).")
+    nth: int | None = Field(None, ge=1, le=100_000, description="selector nth: which occurrence (1-based).")
     relation: Relation | None = Field(None, description="How the answer relates to `anchor`: before, after, while "
                                                         "(during), instead_of (used in its place).")
     anchor: Action | None = Field(None, description="The event the relation is to ('put the pot').")
     unit: Literal["times", "videos"] = Field("times", description="count: occurrences or videos.")
-    person: str | None = Field(None, description="Whose memory the question names (none: the memory's owner).")
+    person: str | None = Field(None, max_length=MAX_TEXT, description="Whose memory the question names (none: the memory's owner).")
     world: bool = Field(False, description="The question asks about the world, not the person (general knowledge).")
-    unknown: list[str] = Field(default_factory=list, description="Words of the question no class or vocabulary knows.")
-    text: str = Field("", description="The question in words, when it came as words.")
+    unknown: list[Word] = Field(default_factory=list, max_length=MAX_ITEMS, description="Words of the question no class or vocabulary knows.")
+    text: str = Field("", max_length=MAX_TEXT, description="The question in words, when it came as words.")
 
     def why_not(self) -> str | None:
         """Why this combination makes no sense, or None."""
