@@ -414,3 +414,50 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
                f"{r.source_hours:g} h in {r.videos} videos, {r.actions} actions ({r.renamed} with a renamed object, "
                f"{len(r.new_objects)} new object names; {r.reordered} moved by reordering); seed {r.seed}")
     click.echo(f"build it: memora build BANK --annotations {r.annotations} --participants {r.participant}")
+
+
+@bench_group.command("noise")
+@click.argument("out", type=click.Path(file_okay=False, path_type=Path))
+@participants_option(default="P01,P02,P03,P04")
+@click.option("--rates", default="0,0.1,0.2,0.3,0.5", show_default=True,
+              help="Error rates, comma-separated (0 is the one clean cell every error type shares).")
+@click.option("--errors", default="mixed,drop,swap,alias", show_default=True,
+              help="Error types, comma-separated: mixed (every type at once), drop, swap, verb, alias, state, time, "
+                   "segment.")
+@click.option("--conditions", type=CONDITIONS, default="all", show_default=True, help="Conditions to run in each cell.")
+@click.option("--kinds", default="eam_qa,replay,generalize", show_default=True, help="Task kinds to run.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of every injected error.")
+@click.option("--delta", default=5.0, show_default=True, type=click.FloatRange(min=0),
+              help="Largest time shift of the 'time' error, in seconds.")
+@click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
+@click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`).")
+@click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="EPIC-style annotation CSV to perturb (default: the bundled annotations).")
+@quiet_option
+def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, annotations, quiet):
+    """Noise curves: every condition under perception errors injected at known rates.
+
+    For each error type and rate, writes the noisy annotations with their error log, builds the
+    MEMORA, raw and MEMORA-Episodic banks from them, runs the evaluation (`bench run`, resumable),
+    and writes OUT/report.md with accuracy and RGP against rate, the break-even rate per error
+    type, processed minus raw, and the editor's repair table. Re-running resumes.
+
+    \b
+    Examples:
+      memora bench noise runs/noise --participants P01,P02,P03,P04 --rates 0,0.1,0.2,0.3,0.5 \\
+          --errors mixed,drop,swap,alias
+      memora bench noise runs/noise-p01 --participants P01 --rates 0,0.2 --errors mixed
+      memora bench compare runs/noise/cells/clean-0/run runs/noise/cells/mixed-0.2/run
+    """
+    from memora_graph.bench.noise import parse_errors, parse_rates, run_noise
+
+    try:
+        if not participants:
+            raise click.BadParameter("name the participants", param_hint="'--participants'")
+        sweep = run_noise(out, participants, parse_rates(rates), parse_errors(errors), conditions=conditions,
+                          seed=seed, delta=delta, kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()),
+                          limit=limit, workers=workers, annotations=annotations,
+                          on_step=None if quiet else (lambda s: click.echo(s, err=True)))
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    click.echo(f"{len(sweep.cells)} cells in {sweep.seconds:.1f} s; report in {out}/report.md")

@@ -208,6 +208,7 @@ def inject_noise(actions: pl.DataFrame, classes: ClassTables, spec: NoiseSpec, d
         rng_verb, rng_state, rng_time = _rng(spec, "verb", video), _rng(spec, "state", video), _rng(spec, "time", video)
         for i, r in enumerate(rows):
             r = dict(r, all_nouns=list(r["all_nouns"]), all_noun_classes=list(r["all_noun_classes"]))
+            first_error = len(errors)
             changed = dropped = False
             # nouns: alias, then swap, then drop (each mention on its own)
             nouns, ncls = [], []
@@ -270,6 +271,8 @@ def inject_noise(actions: pl.DataFrame, classes: ClassTables, spec: NoiseSpec, d
                 log("time", r, round(r["start_s"], 2), round(start, 2), shift=shift)
                 r["start_s"], r["stop_s"] = start, start + length
                 changed = True
+            for e in errors[first_error:]:
+                e["t_out"] = round(float(r["start_s"]), 2)  # where the error lands after any time shift
             r["_changed"] = changed
             out_rows.append(r)
     schema = {k: v for k, v in actions.schema.items()}
