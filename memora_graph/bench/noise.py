@@ -23,8 +23,10 @@ is skipped; an interrupted one resumes (its build and its run both resume).
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from statistics import mean
@@ -37,6 +39,7 @@ from memora_graph.bench.aggregate import eam_scores, planning_panel
 from memora_graph.bench.items import KINDS
 from memora_graph.bench.run import load_run, run_bench
 from memora_graph.errors import MemoraError
+from memora_graph.form.repair import REPAIRS_ENV
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info, noun_phrase
 from memora_graph.perceive.narration import slug
 from memora_graph.perceive.noise import ERROR_TYPES, MIXED, NoiseSpec, inject_noise, read_errors, verb_families, write_noisy
@@ -80,13 +83,13 @@ def parse_errors(text: str) -> list[str]:
 def run_noise(out: str | Path, participants: list[str], rates: list[float], errors: list[str], *,
               conditions: str | list[str] = "all", seed: int = 0, delta: float = 5.0, kinds: tuple[str, ...] = KINDS,
               limit: int | None = None, workers: int | None = None, annotations: str | Path | None = None,
-              on_step: Callable[[str], None] | None = None) -> NoiseSweep:
+              repairs: bool = True, on_step: Callable[[str], None] | None = None) -> NoiseSweep:
     """Run (or resume) the sweep into `out` and write its report (see the module doc)."""
     t_start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     options = {"participants": sorted(participants), "seed": seed, "delta": delta, "kinds": list(kinds), "limit": limit,
-               "annotations": str(annotations) if annotations else None}
+               "annotations": str(annotations) if annotations else None, "repairs": repairs}
     meta_path = out / "noise.json"
     if meta_path.exists():
         old = json.loads(meta_path.read_text())
@@ -126,7 +129,8 @@ def run_noise(out: str | Path, participants: list[str], rates: list[float], erro
                 on_step(f"{name}: building the {kind} bank")
             from memora_graph.pipeline import build_bank
 
-            build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
+            with _repairs_switch(repairs):
+                build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
             (bank / ".complete").write_text("")
         if on_step:
             on_step(f"{name}: running the evaluation")
@@ -142,6 +146,20 @@ def run_noise(out: str | Path, participants: list[str], rates: list[float], erro
     old = json.loads(timing.read_text()) if timing.exists() else []
     timing.write_text(json.dumps([*old, {"seconds": round(sweep.seconds, 1), "cells": sweep.cells}], indent=1) + "\n")
     return sweep
+
+
+@contextmanager
+def _repairs_switch(on: bool):
+    """The editor's repair rules (form/repair.py) on or off for the builds in this process."""
+    old = os.environ.get(REPAIRS_ENV)
+    os.environ[REPAIRS_ENV] = "on" if on else "off"
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(REPAIRS_ENV, None)
+        else:
+            os.environ[REPAIRS_ENV] = old
 
 
 # -- the repair table ----------------------------------------------------------------------------
@@ -329,7 +347,7 @@ def _markdown(report: dict, figures: list[Path], out: Path) -> str:
     meta = report["options"]
     lines = [f"# Memory under imperfect perception: {', '.join(meta['participants'])}", "",
              f"Rates {', '.join(f'{r:g}' for r in meta['rates'])}; errors {', '.join(meta['errors'])}; seed {meta['seed']}; "
-             f"time shift up to +-{meta['delta']:g} s. Every cell's run is a `bench run` directory "
+             f"time shift up to +-{meta['delta']:g} s; editor repair rules {'on' if meta.get('repairs', True) else 'off'}. Every cell's run is a `bench run` directory "
              f"(`memora bench compare {out}/cells/A/run {out}/cells/B/run`).", ""]
     for f in figures:
         lines.append(f"![{f.stem}](figures/{f.name})")
