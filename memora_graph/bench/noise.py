@@ -83,13 +83,14 @@ def parse_errors(text: str) -> list[str]:
 def run_noise(out: str | Path, participants: list[str], rates: list[float], errors: list[str], *,
               conditions: str | list[str] = "all", seed: int = 0, delta: float = 5.0, kinds: tuple[str, ...] = KINDS,
               limit: int | None = None, workers: int | None = None, annotations: str | Path | None = None,
-              repairs: bool = True, on_step: Callable[[str], None] | None = None) -> NoiseSweep:
+              repairs: bool = True, tasks: str | Path | None = None, on_step: Callable[[str], None] | None = None) -> NoiseSweep:
     """Run (or resume) the sweep into `out` and write its report (see the module doc)."""
     t_start = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     options = {"participants": sorted(participants), "seed": seed, "delta": delta, "kinds": list(kinds), "limit": limit,
-               "annotations": str(annotations) if annotations else None, "repairs": repairs}
+               "annotations": str(annotations) if annotations else None, "repairs": repairs,
+               "tasks": str(tasks) if tasks else None}
     meta_path = out / "noise.json"
     if meta_path.exists():
         old = json.loads(meta_path.read_text())
@@ -134,7 +135,7 @@ def run_noise(out: str | Path, participants: list[str], rates: list[float], erro
             (bank / ".complete").write_text("")
         if on_step:
             on_step(f"{name}: running the evaluation")
-        run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, participants=participants,
+        run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, participants=participants, tasks=tasks,
                   raw_bank=cell / "banks" / "raw", episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit,
                   workers=workers)
         repair = repair_table(cell, participants)

@@ -433,11 +433,13 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
 @click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`).")
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="EPIC-style annotation CSV to perturb (default: the bundled annotations).")
+@click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="MEMORA-Bench release folder (default: the bundled calibration cohort P01-P04).")
 @click.option("--repairs/--no-repairs", default=True, show_default=True,
               help="The editor's repair rules (alias, implied state); --no-repairs gives the curve before them.")
 @quiet_option
-def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, annotations, repairs,
-              quiet):
+def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, annotations, tasks,
+              repairs, quiet):
     """Noise curves: every condition under perception errors injected at known rates.
 
     For each error type and rate, writes the noisy annotations with their error log, builds the
@@ -460,7 +462,7 @@ def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, 
         sweep = run_noise(out, participants, parse_rates(rates), parse_errors(errors), conditions=conditions,
                           seed=seed, delta=delta, kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()),
                           limit=limit, workers=workers, annotations=annotations, repairs=repairs,
-                          on_step=None if quiet else (lambda s: click.echo(s, err=True)))
+                          tasks=tasks, on_step=None if quiet else (lambda s: click.echo(s, err=True)))
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{len(sweep.cells)} cells in {sweep.seconds:.1f} s; report in {out}/report.md")

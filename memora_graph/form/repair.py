@@ -8,7 +8,7 @@ decision says so in its reason (`[repair: ...]`), and nothing else about the edi
   hand, taken in this video moments ago (`ALIAS_WINDOW_S`), and the observation names another
   kind that is not in the hand, with a verb that acts on what is held (it puts, inserts, washes,
   ...: not a take, which brings a new object into the hand), while the held object's own name is
-  not mentioned in the segment. The observation is the held object under a second name: it
+  not mentioned by an action of the segment. The observation is the held object under a second name: it
   edits that record. The second name then stands for that object for the rest of the video,
   unless a record of its own was already seen in it.
 - Implied state (a state change the next steps imply): an object is closed (or switched off)
@@ -70,7 +70,7 @@ class PerceptionRepairs:
         known = self.aliases.get((video, obs.kind))
         if known is not None:
             target = entities.get(known)
-            kinds_here = {o.kind for o in seg.objects}
+            kinds_here = {o.kind for o in seg.objects if o.narration_id}
             own_here = any(e.last_video == video for e in of_kind(obs.kind))
             if target is not None and target.status == "active" and not own_here and target.kind not in kinds_here:
                 return target, f"[repair: '{obs.name}' names {target.id} in this video]"
@@ -78,7 +78,7 @@ class PerceptionRepairs:
         if obs.action in HOLDING_VERBS or obs.action not in ON_HELD_VERBS or not obs.category or not self.held:
             return None
         t = seg.t_start + obs.t_rel
-        kinds_here = {o.kind for o in seg.objects}
+        kinds_here = {o.kind for o in seg.objects if o.narration_id}
         held = [e for e in self.held.values() if e.status == "active" and e.held_by == "hand" and e.kind != obs.kind
                 and e.category == obs.category and e.last_video == video and 0 <= t - e.last_seen <= ALIAS_WINDOW_S
                 and e.kind not in kinds_here]
