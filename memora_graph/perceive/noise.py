@@ -15,8 +15,9 @@ Error types (each at its own rate, per its own unit):
              `category`), drawn by how often that noun is narrated (unit: a noun)
     verb     a verb is confused with another of its family (verb_classes.csv `category`)
              (unit: an action)
-    alias    one object is named two ways within a video: from a random mention on, it goes by
-             a confusable name of its category (unit: an object of a video, its noun class)
+    alias    one object is named two ways within a video: from a random mention on (its own name
+             used at least once, the second at least twice), it goes by a confusable name of its
+             category (unit: an object of a video, its noun class, mentioned 3+ times)
     state    a state change is missed: the action is reported as 'use' (no state) instead of
              a state-changing verb (unit: an action whose verb changes a state)
     time     start and stop shift by up to +-delta seconds (unit: an action)
@@ -52,6 +53,8 @@ MIXED = "mixed"
 DEFAULT_DELTA = 5.0  # seconds: half a segment
 NO_STATE_VERB = "use"  # verb class key of an action whose state change was missed
 TURN_SECONDS = 10.0
+ALIAS_MIN_MENTIONS = 3  # an object named once by its own name and at least twice by a second one
+ALIAS_CONSISTENCY = 0.8  # measuring: the share of later mentions under the second name that makes an alias
 FPS = 50.0
 
 
@@ -197,13 +200,13 @@ def inject_noise(actions: pl.DataFrame, classes: ClassTables, spec: NoiseSpec, d
                     mentions.setdefault(c, []).append(i)
         alias_from: dict[int, tuple[int, int]] = {}  # true class -> (first aliased row, alias class)
         for c in sorted(mentions):
-            if len(mentions[c]) < 2:
-                continue  # one mention cannot be named two ways
+            if len(mentions[c]) < ALIAS_MIN_MENTIONS:
+                continue  # too few mentions to be named two ways
             units["alias"] += 1
             if rng.random() < spec.rate("alias"):
                 other = conf.noun(c, rng)
                 if other is not None:
-                    alias_from[c] = (mentions[c][rng.randrange(1, len(mentions[c]))], other)
+                    alias_from[c] = (mentions[c][rng.randrange(1, len(mentions[c]) - 1)], other)
         rng_drop, rng_swap = _rng(spec, "drop", video), _rng(spec, "swap", video)
         rng_verb, rng_state, rng_time = _rng(spec, "verb", video), _rng(spec, "state", video), _rng(spec, "time", video)
         for i, r in enumerate(rows):
@@ -351,5 +354,109 @@ def read_errors(folder: str | Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-__all__ = ["ERROR_TYPES", "MIXED", "NoiseResult", "NoiseSpec", "inject_noise", "read_errors", "verb_families",
+__all__ = ["ERROR_TYPES", "MIXED", "NoiseResult", "NoiseSpec", "inject_noise", "measure_errors", "read_errors", "verb_families",
            "write_noisy"]
+
+
+# -- measuring a perceiver's error rates against annotations -------------------------------------
+
+
+def _object_classes(classes: ClassTables, cs) -> list[int]:
+    return [c for c in cs if classes.nouns.get(c, "") not in NON_OBJECTS]
+
+
+def measure_errors(reference: pl.DataFrame, perceived: pl.DataFrame, classes: ClassTables) -> dict[str, dict]:
+    """A perceiver's error rate per type, measured against annotations of the same videos (both
+    `load_annotations` frames): the rates `NoiseSpec` takes, so a user reads their operating point
+    off the noise curves. Each perceived action is matched to the reference action of its video
+    with the same narration_id, else the one it overlaps most in time (each used once).
+
+    segment: reference 10 s windows with actions where nothing was perceived; drop: reference
+    object mentions missing from the matched action (or with no matched action, outside a missed
+    window); swap: a mention perceived as another noun of its category; alias: objects (a noun of
+    a video mentioned twice or more) that went by one other name at least twice; verb: matched
+    actions with another verb (not 'use'); state: state-changing actions perceived without a state
+    ('use' or a verb with none); time: matched actions whose start differs by over 0.05 s (delta:
+    the largest such shift)."""
+    out: dict[str, dict] = {t: {"errors": 0, "units": 0} for t in ERROR_TYPES}
+    shifts: list[float] = []
+    for video in sorted(reference["video_id"].unique().to_list()):
+        ref = reference.filter(pl.col("video_id") == video).sort("start_s", "narration_id").to_dicts()
+        got = perceived.filter(pl.col("video_id") == video).sort("start_s", "narration_id").to_dicts()
+        turns = {int(r["start_s"] // TURN_SECONDS) for r in ref}
+        seen_turns = {int(g["start_s"] // TURN_SECONDS) for g in got}
+        out["segment"]["units"] += len(turns)
+        missed_turns = turns - seen_turns
+        out["segment"]["errors"] += len(missed_turns)
+        by_id = {g["narration_id"]: i for i, g in enumerate(got)}
+        ref_ids = {r["narration_id"] for r in ref}
+        used = {j for nid, j in by_id.items() if nid in ref_ids}  # matched by id, or to none
+        match: dict[int, int] = {}
+        for i, r in enumerate(ref):
+            j = by_id.get(r["narration_id"])
+            if j is None:
+                best = 0.0
+                for k, g in enumerate(got):
+                    if k in used:
+                        continue
+                    overlap = min(r["stop_s"], g["stop_s"]) - max(r["start_s"], g["start_s"])
+                    span = max(r["stop_s"], g["stop_s"]) - min(r["start_s"], g["start_s"])
+                    iou = overlap / span if span > 0 else float(overlap >= 0)
+                    if iou > best:
+                        best, j = iou, k
+            if j is not None:
+                used.add(j)
+                match[i] = j
+        said: dict[int, list[int | None]] = {}  # reference object -> what each mention was perceived as
+        mentions: Counter[int] = Counter()
+        for i, r in enumerate(ref):
+            objs = _object_classes(classes, r["all_noun_classes"])
+            mentions.update(set(objs))
+            if i not in match:
+                if int(r["start_s"] // TURN_SECONDS) not in missed_turns:
+                    out["drop"]["units"] += len(objs)
+                    out["drop"]["errors"] += len(objs)
+                continue
+            g = got[match[i]]
+            mine = _object_classes(classes, g["all_noun_classes"])
+            extra = [c for c in mine if c not in objs]
+            for c in objs:
+                out["drop"]["units"] += 1
+                out["swap"]["units"] += 1
+                if c in mine:
+                    said.setdefault(c, []).append(None)
+                    continue
+                same = [x for x in extra if classes.noun_category.get(x) == classes.noun_category.get(c)]
+                if same:
+                    extra.remove(same[0])
+                    said.setdefault(c, []).append(same[0])
+                else:
+                    out["drop"]["errors"] += 1
+            out["verb"]["units"] += 1
+            if g["verb_class"] != r["verb_class"] and g["verb_key"] != NO_STATE_VERB:
+                out["verb"]["errors"] += 1
+            if r["verb_key"] in VERB_STATE:
+                out["state"]["units"] += 1
+                out["state"]["errors"] += g["verb_key"] not in VERB_STATE
+            out["time"]["units"] += 1
+            shift = g["start_s"] - r["start_s"]
+            if abs(shift) > 0.05:
+                out["time"]["errors"] += 1
+                shifts.append(abs(shift))
+        movable = {c: n for c, n in mentions.items() if classes.nouns.get(c, "") not in PLACE_NOUNS}
+        out["alias"]["units"] += sum(1 for n in movable.values() if n >= ALIAS_MIN_MENTIONS)
+        for c, names in said.items():
+            subs = [x for x in names if x is not None]
+            if not subs:
+                continue
+            top, n = Counter(subs).most_common(1)[0]
+            after = names[names.index(top):]  # from its first use on, the second name stands for the object
+            if movable.get(c, 0) >= ALIAS_MIN_MENTIONS and n >= 2 and after.count(top) >= ALIAS_CONSISTENCY * len(after):
+                out["alias"]["errors"] += 1
+                out["swap"]["errors"] += len(subs) - n
+            else:
+                out["swap"]["errors"] += len(subs)
+    for v in out.values():
+        v["rate"] = round(v["errors"] / v["units"], 4) if v["units"] else None
+    out["time"]["delta"] = round(max(shifts), 2) if shifts else 0.0
+    return out

@@ -109,3 +109,26 @@ def test_a_rate_outside_zero_to_one_or_an_unknown_type_is_refused_by_name():
         NoiseSpec({"swap": 1.5})
     with pytest.raises(DataError, match="unknown error type 'blur'"):
         NoiseSpec({"blur": 0.1})
+
+
+@pytest.fixture(scope="module")
+def p01():
+    return load_annotations(participants=["P01"])
+
+
+@pytest.mark.parametrize("error", ERROR_TYPES)
+def test_measuring_a_perceiver_against_annotations_recovers_the_injected_rate(p01, epic_meta, families, error):
+    from memora_graph.perceive.noise import measure_errors
+
+    classes, _ = epic_meta
+    res = _inject(p01, epic_meta, families, NoiseSpec.of(error, 0.2, seed=5))
+    got = measure_errors(p01, res.actions.drop("_changed"), classes)
+    if error == "alias":  # measured per object of a video
+        injected = len({(e["video"], e["true_class"]) for e in res.errors}) / res.units["alias"]
+    else:
+        injected = res.counts()[error] / res.units[error]
+    assert got[error]["rate"] == pytest.approx(injected, abs=0.06), (got, injected)
+    others = [t for t in ERROR_TYPES if t not in (error, "segment", "drop")]  # a lost action can empty a window
+    assert all(got[t]["rate"] <= 0.02 for t in others), got
+    clean = measure_errors(p01, p01, classes)
+    assert all(v["rate"] == 0 for v in clean.values())
