@@ -466,3 +466,52 @@ def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, 
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(f"{len(sweep.cells)} cells in {sweep.seconds:.1f} s; report in {out}/report.md")
+
+
+@bench_group.command("perceiver-errors")
+@click.argument("reference", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("perceived", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--participant", default=None,
+              help="Whose videos a narration table without a participant column describes.")
+@output_options
+def perceiver_errors_cmd(reference, perceived, participant, fmt):
+    """A perceiver's error rate per type against annotations of the same videos: the rates
+    `memora bench noise` sweeps, so the noise curves give its operating point (docs/robustness.md).
+
+    REFERENCE is an EPIC-style annotation CSV (the human annotations); PERCEIVED is another, or a
+    free-text narration table (CSV, JSONL or Parquet: video_id, start, end, text), read the way
+    `memora build --narrations` reads it. Actions are matched by narration_id, else by time overlap.
+
+    \b
+    Examples:
+      memora bench perceiver-errors annotations.csv my-vlm-narrations.csv --participant P01
+      memora bench perceiver-errors bench/data/epic-kitchens-100/extension_narrations.csv \\
+          runs/noise/cells/mixed-0.2/annotations/annotations.csv
+    """
+    import polars as pl
+
+    from memora_graph.perceive.annotations import REQUIRED_COLUMNS, load_annotations, load_class_tables
+    from memora_graph.perceive.noise import measure_errors
+
+    try:
+        head = perceived.read_text(errors="replace").splitlines()[0] if perceived.suffix == ".csv" else ""
+        if all(c in head.split(",") for c in REQUIRED_COLUMNS):
+            got = load_annotations(perceived)
+            classes = load_class_tables(perceived.parent)
+        else:
+            from memora_graph.perceive.narrations import NarrationReader, load_narrations
+
+            reader = NarrationReader()
+            got, _, _ = load_narrations(perceived, participant, reader)
+            classes = reader.classes
+        ref = load_annotations(reference, participants=sorted(got["participant_id"].unique().to_list()))
+        ref = ref.filter(pl.col("video_id").is_in(got["video_id"].unique().to_list()))
+        if ref.is_empty():
+            raise MemoraError(f"{reference}: no annotated action in the videos of {perceived}")
+        rates = measure_errors(ref, got, classes)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    rows = [{"error": k, "errors": v["errors"], "units": v["units"], "rate": v["rate"]} for k, v in rates.items()]
+    click.echo(render(pl.DataFrame(rows), fmt))
+    if fmt == "table":
+        click.echo(f"largest time shift: {rates['time']['delta']} s (`memora bench noise --delta`)")

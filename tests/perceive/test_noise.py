@@ -132,3 +132,20 @@ def test_measuring_a_perceiver_against_annotations_recovers_the_injected_rate(p0
     assert all(got[t]["rate"] <= 0.02 for t in others), got
     clean = measure_errors(p01, p01, classes)
     assert all(v["rate"] == 0 for v in clean.values())
+
+
+def test_the_perceiver_errors_command_reads_a_noisy_folder_against_the_annotations(p37, epic_meta, families, tmp_path):
+    import json as _json
+
+    from click.testing import CliRunner
+
+    from memora_graph.cli.bench import bench_group
+    from memora_graph.paths import default_annotations
+
+    spec = NoiseSpec.of("state", 0.5, seed=2)
+    res = _inject(p37, epic_meta, families, spec)
+    path = write_noisy(tmp_path / "noisy", res, epic_dir(), spec)
+    out = CliRunner().invoke(bench_group, ["perceiver-errors", str(default_annotations()), str(path), "--json"])
+    assert out.exit_code == 0, out.output
+    rows = {r["error"]: r for r in _json.loads(out.output)}
+    assert rows["state"]["errors"] == res.counts()["state"] and rows["swap"]["errors"] == 0
