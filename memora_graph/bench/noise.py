@@ -83,7 +83,7 @@ def parse_errors(text: str) -> list[str]:
 def run_noise(out: str | Path, participants: list[str], rates: list[float], errors: list[str], *,
               conditions: str | list[str] = "all", seed: int = 0, delta: float = 5.0, kinds: tuple[str, ...] = KINDS,
               limit: int | None = None, workers: int | None = None, annotations: str | Path | None = None,
-              repairs: bool = True, tasks: str | Path | None = None, on_step: Callable[[str], None] | None = None) -> NoiseSweep:
+              repairs: bool = False, tasks: str | Path | None = None, on_step: Callable[[str], None] | None = None) -> NoiseSweep:
     """Run (or resume) the sweep into `out` and write its report (see the module doc)."""
     t_start = time.perf_counter()
     out = Path(out)
@@ -348,7 +348,7 @@ def _markdown(report: dict, figures: list[Path], out: Path) -> str:
     meta = report["options"]
     lines = [f"# Memory under imperfect perception: {', '.join(meta['participants'])}", "",
              f"Rates {', '.join(f'{r:g}' for r in meta['rates'])}; errors {', '.join(meta['errors'])}; seed {meta['seed']}; "
-             f"time shift up to +-{meta['delta']:g} s; editor repair rules {'on' if meta.get('repairs', True) else 'off'}. Every cell's run is a `bench run` directory "
+             f"time shift up to +-{meta['delta']:g} s; editor repair rules {'on' if meta.get('repairs') else 'off'}. Every cell's run is a `bench run` directory "
              f"(`memora bench compare {out}/cells/A/run {out}/cells/B/run`).", ""]
     for f in figures:
         lines.append(f"![{f.stem}](figures/{f.name})")

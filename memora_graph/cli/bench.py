@@ -435,8 +435,9 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
               help="EPIC-style annotation CSV to perturb (default: the bundled annotations).")
 @click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
               help="MEMORA-Bench release folder (default: the bundled calibration cohort P01-P04).")
-@click.option("--repairs/--no-repairs", default=True, show_default=True,
-              help="The editor's repair rules (alias, implied state); --no-repairs gives the curve before them.")
+@click.option("--repairs/--no-repairs", default=False, show_default=True,
+              help="Build with the editor's repair rules (form/repair.py: alias, implied state; MEMORA_REPAIRS=on): "
+                   "the curve after them.")
 @quiet_option
 def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, annotations, tasks,
               repairs, quiet):

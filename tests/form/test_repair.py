@@ -10,6 +10,11 @@ from memora_graph.form.repair import REPAIRS_ENV
 from memora_graph.perceive.narration import perceive_video
 
 
+@pytest.fixture(autouse=True)
+def repairs_on(monkeypatch):
+    monkeypatch.setenv(REPAIRS_ENV, "on")
+
+
 def _action(i, start, verb, noun, classes, narration=None, extra=()):
     vid = {k: c for c, k in classes.verbs.items()}
     nid = {k: c for c, k in classes.nouns.items()}
@@ -47,9 +52,13 @@ def test_no_alias_when_the_held_name_is_said_in_the_same_segment(epic_meta):
     assert sorted(e.kind for e in ed.live()) == ["bowl", "plate"]
 
 
-def test_the_rules_are_off_under_memora_repairs_off(epic_meta, monkeypatch):
+@pytest.mark.parametrize("setting", ["off", None])
+def test_the_rules_are_off_unless_memora_repairs_is_on(epic_meta, monkeypatch, setting):
     classes, _ = epic_meta
-    monkeypatch.setenv(REPAIRS_ENV, "off")
+    if setting is None:
+        monkeypatch.delenv(REPAIRS_ENV)
+    else:
+        monkeypatch.setenv(REPAIRS_ENV, setting)
     acts = [_action(0, 7.0, "take", "plate", classes), _action(1, 12.0, "put", "bowl", classes)]
     ed, _ = _edit(acts, classes)
     assert sorted(e.kind for e in ed.live()) == ["bowl", "plate"]
