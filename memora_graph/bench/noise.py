@@ -374,7 +374,8 @@ def _markdown(report: dict, figures: list[Path], out: Path) -> str:
               "| error | rate | Flat-1D | Graph-2D |", "|---|---|---|---|"]
     for e, per in report["processed_vs_raw"].items():
         for rate, v in per.items():
-            lines.append(f"| {e} | {rate} | {v['flat_1d_pp']} | {v['graph_2d_pp']} |")
+            if v["flat_1d_pp"] is not None or v["graph_2d_pp"] is not None:
+                lines.append(f"| {e} | {rate} | {v['flat_1d_pp']} | {v['graph_2d_pp']} |")
     lines += ["", "## The editor's repair table (edited bank; see bench/noise.py `repair_table`)", "",
               "| error | rate | type | injected | undone | made worse | kept |", "|---|---|---|---|---|---|---|"]
     for r in report["repair"]:
