@@ -421,3 +421,105 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
                f"{r.source_hours:g} h in {r.videos} videos, {r.actions} actions ({r.renamed} with a renamed object, "
                f"{len(r.new_objects)} new object names; {r.reordered} moved by reordering); seed {r.seed}")
     click.echo(f"build it: memora build BANK --annotations {r.annotations} --participants {r.participant}")
+
+
+@bench_group.command("noise")
+@click.argument("out", type=click.Path(file_okay=False, path_type=Path))
+@participants_option(default="P01,P02,P03,P04")
+@click.option("--rates", default="0,0.1,0.2,0.3,0.5", show_default=True,
+              help="Error rates, comma-separated (0 is the one clean cell every error type shares).")
+@click.option("--errors", default="mixed,drop,swap,alias", show_default=True,
+              help="Error types, comma-separated: mixed (every type at once), drop, swap, verb, alias, state, time, "
+                   "segment.")
+@click.option("--conditions", type=CONDITIONS, default="all", show_default=True, help="Conditions to run in each cell.")
+@click.option("--kinds", default="eam_qa,replay,generalize", show_default=True, help="Task kinds to run.")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of every injected error.")
+@click.option("--delta", default=5.0, show_default=True, type=click.FloatRange(min=0),
+              help="Largest time shift of the 'time' error, in seconds.")
+@click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
+@click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`).")
+@click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="EPIC-style annotation CSV to perturb (default: the bundled annotations).")
+@click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="MEMORA-Bench release folder (default: the bundled calibration cohort P01-P04).")
+@click.option("--repairs/--no-repairs", default=False, show_default=True,
+              help="Build with the editor's repair rules (form/repair.py: alias, implied state; MEMORA_REPAIRS=on): "
+                   "the curve after them.")
+@quiet_option
+def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, annotations, tasks,
+              repairs, quiet):
+    """Noise curves: every condition under perception errors injected at known rates.
+
+    For each error type and rate, writes the noisy annotations with their error log, builds the
+    MEMORA, raw and MEMORA-Episodic banks from them, runs the evaluation (`bench run`, resumable),
+    and writes OUT/report.md with accuracy and RGP against rate, the break-even rate per error
+    type, processed minus raw, and the editor's repair table. Re-running resumes.
+
+    \b
+    Examples:
+      memora bench noise runs/noise --participants P01,P02,P03,P04 --rates 0,0.1,0.2,0.3,0.5 \\
+          --errors mixed,drop,swap,alias
+      memora bench noise runs/noise-p01 --participants P01 --rates 0,0.2 --errors mixed
+      memora bench compare runs/noise/cells/clean-0/run runs/noise/cells/mixed-0.2/run
+    """
+    from memora_graph.bench.noise import parse_errors, parse_rates, run_noise
+
+    try:
+        if not participants:
+            raise click.BadParameter("name the participants", param_hint="'--participants'")
+        sweep = run_noise(out, participants, parse_rates(rates), parse_errors(errors), conditions=conditions,
+                          seed=seed, delta=delta, kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()),
+                          limit=limit, workers=workers, annotations=annotations, repairs=repairs,
+                          tasks=tasks, on_step=None if quiet else (lambda s: click.echo(s, err=True)))
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    click.echo(f"{len(sweep.cells)} cells in {sweep.seconds:.1f} s; report in {out}/report.md")
+
+
+@bench_group.command("perceiver-errors")
+@click.argument("reference", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("perceived", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--participant", default=None,
+              help="Whose videos a narration table without a participant column describes.")
+@output_options
+def perceiver_errors_cmd(reference, perceived, participant, fmt):
+    """A perceiver's error rate per type against annotations of the same videos: the rates
+    `memora bench noise` sweeps, so the noise curves give its operating point (docs/robustness.md).
+
+    REFERENCE is an EPIC-style annotation CSV (the human annotations); PERCEIVED is another, or a
+    free-text narration table (CSV, JSONL or Parquet: video_id, start, end, text), read the way
+    `memora build --narrations` reads it. Actions are matched by narration_id, else by time overlap.
+
+    \b
+    Examples:
+      memora bench perceiver-errors annotations.csv my-vlm-narrations.csv --participant P01
+      memora bench perceiver-errors bench/data/epic-kitchens-100/extension_narrations.csv \\
+          runs/noise/cells/mixed-0.2/annotations/annotations.csv
+    """
+    import polars as pl
+
+    from memora_graph.perceive.annotations import REQUIRED_COLUMNS, load_annotations, load_class_tables
+    from memora_graph.perceive.noise import measure_errors
+
+    try:
+        head = perceived.read_text(errors="replace").splitlines()[0] if perceived.suffix == ".csv" else ""
+        if all(c in head.split(",") for c in REQUIRED_COLUMNS):
+            got = load_annotations(perceived)
+            classes = load_class_tables(perceived.parent)
+        else:
+            from memora_graph.perceive.narrations import NarrationReader, load_narrations
+
+            reader = NarrationReader()
+            got, _, _ = load_narrations(perceived, participant, reader)
+            classes = reader.classes
+        ref = load_annotations(reference, participants=sorted(got["participant_id"].unique().to_list()))
+        ref = ref.filter(pl.col("video_id").is_in(got["video_id"].unique().to_list()))
+        if ref.is_empty():
+            raise MemoraError(f"{reference}: no annotated action in the videos of {perceived}")
+        rates = measure_errors(ref, got, classes)
+    except MemoraError as exc:
+        raise click.ClickException(str(exc)) from exc
+    rows = [{"error": k, "errors": v["errors"], "units": v["units"], "rate": v["rate"]} for k, v in rates.items()]
+    click.echo(render(pl.DataFrame(rows), fmt))
+    if fmt == "table":
+        click.echo(f"largest time shift: {rates['time']['delta']} s (`memora bench noise --delta`)")

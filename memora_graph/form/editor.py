@@ -15,6 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
+from memora_graph.form.repair import PerceptionRepairs, wants_repairs
 from memora_graph.perceive.vocab import KEPT_STATE, NEW_STATE, RETRACTING_VERBS
 from memora_graph.records import EditOp, LayeredSegment, ObjectObservation
 
@@ -92,6 +93,7 @@ class DeterministicPolicy:
 
     name = "deterministic"
     same_kind_only = True  # `_decide_one` keeps only candidates of the observation's kind
+    perception_repairs = True  # the editor runs form/repair.py's rules with it
 
     def decide(self, segment, observations, candidates, embed) -> list[list[EditOp]]:
         return [self._decide_one(obs, cands, embed) for obs, cands in zip(observations, candidates)]
@@ -216,6 +218,7 @@ class EntityEditor:
         self.entities: dict[str, EntityState] = {e.id: e for e in entities or []}
         self._ord = next_ord
         self._raw_seq = 0
+        self.repairs = PerceptionRepairs() if wants_repairs(self.policy) else None
 
     def embed(self, text: str) -> np.ndarray:
         if self._embed is None:
@@ -262,8 +265,19 @@ class EntityEditor:
         result = EditResult(ops=[], events=[], touched=set(), added=[])
         added_here: dict[str, list[str]] = {}
         for obs, ops in zip(segment.objects, decisions):
+            note = ""
+            if self.repairs is not None:
+                found = self.repairs.alias_target(obs, segment, self._live_index().of_kind, self.entities)
+                if found is not None:  # form/repair.py: the held object under a second name
+                    target, note = found
+                    obs = obs.model_copy(update={"object_id": target.object_id, "kind": target.kind,
+                                                 "name": target.name, "category": target.category,
+                                                 "visual_properties": type(obs.visual_properties)()})
+                    ops = [update_or_noop(target, obs)]
             for op in ops:
                 op = self._repair(op, obs, added_here)
+                if op is not None and note:
+                    op = op.model_copy(update={"reason": f"{op.reason} {note}"})
                 if op is not None:
                     self._apply(op, obs, segment, result, added_here)
         return result
@@ -338,8 +352,22 @@ class EntityEditor:
             result.ops.append((op, obs))
             result.touched.add(e.id)
             return
+        restore = self.repairs.implied_event(e, obs, t) if self.repairs is not None else None
+        if restore is not None:  # form/repair.py: a state change the next step implies was missed
+            state, when = restore
+            self._ord += 1
+            result.events.append({
+                "id": f"{e.id}@{self._ord}", "participant": self.participant, "entity": e.id,
+                "video": seg.video_id, "turn": seg.turn_id, "t": round(when, 3), "ord": self._ord,
+                "state": state, "location": e.location, "prev_state": prev_state, "prev_location": prev_loc,
+                "zone": "", "held_by": e.held_by, "relative_to": "", "relation": "", "action": "",
+                "narration": f"(restored: '{obs.narration}' implies it was {state})", "op": "UPDATE",
+                "segment": seg.segment_id,
+            })
         e.last_seen, e.last_video, e.last_turn = t, seg.video_id, seg.turn_id
         e.n_observations += 1
+        if self.repairs is not None:
+            self.repairs.note(e)
         result.touched.add(e.id)
         result.ops.append((op, obs))
         self._ord += 1

@@ -1,0 +1,93 @@
+"""`memora bench noise`: a small sweep end to end (one participant, two rates), its report, resume,
+and the break-even arithmetic; the calibration sweep itself is behind `-m slow`."""
+
+from __future__ import annotations
+
+import json
+
+import polars as pl
+import pytest
+
+from memora_graph.bank import Bank
+from memora_graph.bench.conditions import list_conditions
+from memora_graph.bench.noise import break_even, parse_errors, parse_rates, run_noise
+from memora_graph.errors import MemoraError
+from memora_graph.perceive.noise import read_errors
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory, tiny_tasks):
+    out = tmp_path_factory.mktemp("noise") / "sweep"
+    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2)
+    return out, result
+
+
+def test_a_small_sweep_runs_every_condition_at_every_rate_and_reports(sweep):
+    out, result = sweep
+    assert [c["cell"] for c in result.cells] == ["clean-0", "mixed-0.3"]
+    curves = pl.read_parquet(out / "curves.parquet")
+    got = {(r["rate"], r["condition"]) for r in curves.iter_rows(named=True)}
+    assert got == {(rate, c) for rate in (0.0, 0.3) for c in list_conditions()}
+    report = (out / "report.md").read_text()
+    assert "Break-even rate" in report and "repair table" in report
+    assert (out / "figures" / "accuracy.png").stat().st_size > 0 and (out / "figures" / "rgp.png").exists()
+    assert "mixed" in json.loads((out / "report.json").read_text())["break_even"]
+
+
+def test_the_clean_cell_is_the_bank_a_plain_build_makes_and_noise_changes_it(sweep, small_bank):
+    out, _ = sweep
+    clean = Bank(out / "cells" / "clean-0" / "banks" / "edited").manifest()["participants"]["P37"]["counts"]
+    plain = Bank(small_bank[0]).manifest()["participants"]["P37"]["counts"]
+    assert clean == plain
+    assert read_errors(out / "cells" / "clean-0" / "annotations") == []
+    noisy = Bank(out / "cells" / "mixed-0.3" / "banks" / "edited").manifest()["participants"]["P37"]["counts"]
+    assert noisy != plain
+
+
+def test_the_repair_table_accounts_for_every_injected_error(sweep):
+    out, _ = sweep
+    errors = read_errors(out / "cells" / "mixed-0.3" / "annotations")
+    table = json.loads((out / "cells" / "mixed-0.3" / "repair.json").read_text())
+    for kind, row in table.items():
+        assert row["injected"] == sum(e["type"] == kind for e in errors)
+        assert row["undone"] + row["worse"] + row["kept"] == row["injected"]
+    assert sum(r["injected"] for r in table.values()) == len(errors) > 0
+
+
+def test_a_second_sweep_resumes_without_running_anything_again(sweep, tiny_tasks):
+    out, _ = sweep
+    run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2)
+    sessions = json.loads((out / "cells" / "mixed-0.3" / "run" / "manifest.json").read_text())["sessions"]
+    assert sessions[-1]["done"] == 0 and sessions[-1]["skipped"] > 0
+    with pytest.raises(MemoraError, match="other options"):
+        run_noise(out, ["P37"], [0.3], ["mixed"], tasks=tiny_tasks, seed=3)
+
+
+def test_break_even_interpolates_where_memora_meets_the_best_baselines_clean_accuracy():
+    rows = [{"error": "swap", "rate": 0.0, "condition": "memora_full", "accuracy": 60.0},
+            {"error": "swap", "rate": 0.0, "condition": "flat_1d_raw", "accuracy": 50.0},
+            {"error": "swap", "rate": 0.0, "condition": "graph_2d_edited", "accuracy": 52.0},
+            {"error": "swap", "rate": 0.2, "condition": "memora_full", "accuracy": 56.0},
+            {"error": "swap", "rate": 0.4, "condition": "memora_full", "accuracy": 48.0}]
+    b = break_even(rows, "swap")
+    assert b["baseline"] == "graph_2d_edited" and b["rate"] == pytest.approx(0.3)
+    assert break_even(rows[:4], "swap")["rate"] is None  # not reached within the rates measured
+
+
+def test_rates_and_errors_are_checked_by_name():
+    assert parse_rates("0.2,0,0.2") == [0.0, 0.2]
+    with pytest.raises(MemoraError, match="between 0 and 1"):
+        parse_rates("0,2")
+    with pytest.raises(MemoraError, match="choose from"):
+        parse_errors("mixed,blur")
+
+
+@pytest.mark.slow
+def test_the_calibration_sweep_names_a_break_even_rate_per_error_type(tmp_path):
+    """The issue's sweep: P01-P04, five rates, four error types (about an hour on 2 busy cores)."""
+    out = tmp_path / "noise"
+    run_noise(out, ["P01", "P02", "P03", "P04"], [0, 0.1, 0.2, 0.3, 0.5], ["mixed", "drop", "swap", "alias"])
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["break_even"]) == {"mixed", "drop", "swap", "alias"}
+    curves = pl.read_parquet(out / "curves.parquet")
+    assert curves.filter(pl.col("condition") == "memora_full").height == 4 * 5
