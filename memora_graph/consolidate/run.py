@@ -245,7 +245,8 @@ def _collect_tasks(c: "_Collector", patterns: list[TaskPattern]) -> None:
             continue
         words = [w for a in p.actions for w in (a.verb.replace("-", " "), a.noun.replace(":", " "), a.place) if w]
         c.preference("pref", (p.family, *p.key), subtype=p.family, statement=p.statement,
-                     keywords=list(dict.fromkeys([p.family, *words])), objects=p.objects, context=p.goal or p.family,
+                     keywords=list(dict.fromkeys([p.family, *words])), objects=p.objects,
+                     context=p.detail.get("way") or p.goal or p.family,
                      episodes=p.evidence, entities=[], videos=p.videos, count=p.count, confidence=p.confidence,
                      source="tasks", evidence_summary=f"{p.count} of {p.total} in {len(p.tasks)} tasks",
                      detail={**common, "actions": [a.model_dump() for a in p.actions]})

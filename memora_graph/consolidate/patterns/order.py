@@ -1,7 +1,8 @@
 """Order invariants: "empties the saucepan before washing it (4 of 5 times)".
 
-Rule: within each task, the first time each action (verb class) is done to an object kind. For
-every pair of actions on the same object in one task, which came first. A pair whose order held
+Rule: within each task, the first and last time each action (verb class) is done to an object
+kind. For every pair of actions on the same object in one task, whether one was over before the
+other began (interleaved pairs, a b a, say nothing about order: see `repetition`). A pair whose order held
 in at least `MIN_SHARE` of the tasks where both occur, over at least `MIN_TASKS` tasks, is an
 invariant; the tasks where it was reversed are its exceptions. Bookkeeping verbs that say
 nothing about method (hold, move, let go) are left out, and so are pairs of two bookkeeping
@@ -29,11 +30,13 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
     held: dict[tuple, list[tuple[Task, str]]] = defaultdict(list)
     for t in tasks:
         first: dict[tuple[str, str], tuple[float, str]] = {}
+        last: dict[tuple[str, str], float] = {}
         for s in t.steps:
             a = s.action
             if a.verb in IGNORED or not a.noun:
                 continue
             first.setdefault((a.noun, a.verb), (s.t, s.segment))
+            last[(a.noun, a.verb)] = s.t
         by_obj: dict[str, list[tuple[float, str, str]]] = defaultdict(list)
         for (noun, verb), (tt, seg) in first.items():
             by_obj[noun].append((tt, verb, seg))
@@ -42,6 +45,8 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
             for i, (ta, va, sa) in enumerate(acts):
                 for tb, vb, sb in acts[i + 1:]:
                     if va in BOOKKEEPING or vb in BOOKKEEPING or (va, vb) in INVERSE or ta == tb:
+                        continue
+                    if last[(noun, va)] > tb:  # interleaved (a b a): no order, a repetition's business
                         continue
                     held[(noun, va, vb)].append((t, sa))
     out = []
