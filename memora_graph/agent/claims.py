@@ -58,7 +58,8 @@ def cues(option: str) -> set[str]:
 
 
 def _about(claim: Claim, subject: set[str]) -> bool:
-    return not subject or not claim.nouns or bool(subject & set(claim.nouns)) or \
+    """The record is about one of the question's objects (at class or head level)."""
+    return bool(subject & set(claim.nouns)) or \
         bool({n.split(":")[0] for n in subject} & {n.split(":")[0] for n in claim.nouns})
 
 

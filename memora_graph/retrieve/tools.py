@@ -464,7 +464,7 @@ def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> Repl
     return Reply(args, routines=_search_routines(view, query, view.embed(query), k))
 
 
-TASK_EXTRA = 3  # task-level records a routine or preference search adds after its top k (see _with_tasks)
+TASK_EXTRA = 5  # task-level records a routine or preference search adds after its top k (see _with_tasks)
 TASK_SOURCES = frozenset({"task_routine", "tasks"})  # Routine / Preference rows of the task memory
 
 
