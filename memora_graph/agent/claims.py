@@ -71,12 +71,9 @@ def _verb_at(clauses, verb: str | None, lex: Lexicon) -> int | None:
 
 
 def _ordered(option: str, lex: Lexicon):
-    """The option's clauses in the order it says they happen ("X after Y" is Y, then X)."""
-    clauses = [c for c in lex.parse(option) if not c.negated and c.verb]
-    low = option.lower()
-    if re.search(r"\bafter\b", low) and not re.search(r"\bthen\b|\bbefore\b|\bfirst\b", low):
-        clauses = clauses[::-1]
-    return clauses
+    """The option's actions in the order it says they happen (the clause parser already reads
+    "X after Y" as Y, then X)."""
+    return [c for c in lex.parse(option) if not c.negated and c.verb]
 
 
 def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:

@@ -12,7 +12,8 @@ Deterministic, from the typed steps alone (`consolidate.memory.MemoryStep`):
    and the object the family's steps handle most: "wash up saucepan", "cook egg", "prepare onion",
    "put away milk". A task whose objects include a drink or dish it produces is named after it
    ("make coffee", "make tea", "make toast").
-3. **Stages**: `main` runs from the first to the last step of the dominant family; steps before it
+3. **Stages**: `main` runs from the first to the last step of the dominant family (of a task named
+   after its product, from the first to the last step handling the product); steps before it
    are `setup`; after it, from the first cleanup step (a cleanup verb, or something thrown away or
    put back in storage) on, `cleanup`, and the rest `finish`.
 
@@ -87,9 +88,12 @@ def _family(steps: list[MemoryStep]) -> str:
     return best
 
 
-def _stage(steps: list[MemoryStep], family: str) -> list[str]:
-    fam_idx = [i for i, s in enumerate(steps) if (vocab.category(s.verb) or "store") == family
-               or (family == "store" and s.verb in vocab.RELEASING)]
+def _stage(steps: list[MemoryStep], family: str, product: str | None = None) -> list[str]:
+    if product:  # a task named after its product: the main work is what is done with the product
+        fam_idx = [i for i, s in enumerate(steps) if product in _objects(s)]
+    else:
+        fam_idx = [i for i, s in enumerate(steps) if (vocab.category(s.verb) or "store") == family
+                   or (family == "store" and s.verb in vocab.RELEASING)]
     first, last = (fam_idx[0], fam_idx[-1]) if fam_idx else (0, len(steps) - 1)
     out = []
     cleanup_started = False
@@ -106,12 +110,14 @@ def _stage(steps: list[MemoryStep], family: str) -> list[str]:
     return out
 
 
-def _goal(steps: list[MemoryStep], family: str, main: str) -> str:
+def _product(steps: list[MemoryStep]) -> str | None:
     kinds = {k for s in steps for k in _objects(s)}
-    for k, name in PRODUCTS.items():
-        if k in kinds:
-            return name
-    return f"{FAMILY_VERB[family]} {display(main)}".strip()
+    return next((k for k in PRODUCTS if k in kinds), None)
+
+
+def _goal(steps: list[MemoryStep], family: str, main: str) -> str:
+    product = _product(steps)
+    return PRODUCTS[product] if product else f"{FAMILY_VERB[family]} {display(main)}".strip()
 
 
 def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
@@ -123,7 +129,7 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
     if not counts:
         counts = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     main = counts.most_common(1)[0][0] if counts else steps[0].main.kind
-    stages = _stage(steps, family)
+    stages = _stage(steps, family, _product(steps))
     everything = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     tools = list(dict.fromkeys(o.kind for s in steps for o in s.objects if _is_tool(o.category)))
     out_steps = []

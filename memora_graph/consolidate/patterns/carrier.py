@@ -36,7 +36,8 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
             dest = a.place if a.place and a.place != a.noun else ""
             if not dest:
                 continue
-            carrier = a.instrument or (last_vessel if last_vessel and last_vessel not in (a.noun, dest) else "directly")
+            tool = a.instrument if a.instrument not in (a.noun, dest) else ""
+            carrier = tool or (last_vessel if last_vessel and last_vessel not in (a.noun, dest) else "directly")
             seen[(a.noun, dest)].append((t, carrier, s.segment))
     out = []
     for (noun, dest), occ in seen.items():
