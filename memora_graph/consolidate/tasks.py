@@ -164,7 +164,7 @@ def segment_tasks(memory: ParticipantMemory) -> list[Task]:
     by_video = memory.steps_by_video()
     out: list[Task] = []
     for v in memory.videos:
-        steps = list(by_video[v]) if v in by_video else []
+        steps = list(by_video.get(v) or [])  # one read: a step table makes a video's steps per read
         if steps:
             out += video_tasks(memory.participant, steps)
     return out

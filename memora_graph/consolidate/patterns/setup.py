@@ -66,8 +66,9 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
         for (v, o), seg in _setup(t).items():
             if v in PREPARING and v not in vocab.TAKING and v != "put":
                 ready[(v, o)].append((t, seg))
+    handled = {t.id: {s.action.noun for s in t.steps} for t in tasks}
     for (v, o), occ in ready.items():
-        using = [t for t in tasks if any(s.action.noun == o for s in t.steps)]
+        using = [t for t in tasks if o in handled[t.id]]
         n = len({t.id for t, _ in occ})
         if n < MIN_TASKS or n / max(1, len(using)) < MIN_SHARE:
             continue
