@@ -158,3 +158,21 @@ def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_sta
     finish_participant(bank, p, embedder, episodic=True)
     with Store(bank.db_path(p)) as s:
         assert s.rows("tasks", participant=p) == []
+
+
+def test_incremental_consolidation_writes_the_tasks_and_patterns_a_full_run_writes(small_bank, tmp_path, embedder):
+    from memora_graph.consolidate.live import consolidate_bank_incremental
+
+    src, _ = small_bank
+    shutil.copytree(src, tmp_path / "bank", ignore=shutil.ignore_patterns(".staging"))
+    bank = Bank(tmp_path / "bank")
+    p = "P37"
+    full = finish_participant(bank, p, embedder)
+    with Store(bank.db_path(p)) as s:
+        tasks_full = s.rows("tasks", participant=p)
+    consolidate_bank_incremental(bank, [p], embedder)
+    consolidate_bank_incremental(bank, [p], embedder)  # a second run reads the folds (with their tasks) back
+    with Store(bank.db_path(p)) as s:
+        assert s.rows("tasks", participant=p) == tasks_full
+        kinds = {(r["source"], r["subtype"]) for r in s.rows("_tool_preferences", participant=p) if r["source"] == "tasks"}
+    assert kinds == {("tasks", x.family) for x in full.patterns if x.family != "canonical"}
