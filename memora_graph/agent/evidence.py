@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import re
 
+from memora_graph.agent.claims import Claim
 from memora_graph.agent.reading import Event
 from memora_graph.baselines.flat1d import FlatHit
 from memora_graph.baselines.graph2d import GraphNode
@@ -199,6 +200,26 @@ def _preference_events(p: PreferenceRecord, lex: Lexicon) -> list[Event]:
         after = _actions(p.then or "", lex)
         return [Event("", -1.0, lex.verb(verb.strip()), tuple(dict.fromkeys(nouns)), ids, weight, "storage",
                       tuple(after[:1]), text=p.preference)]
+    if p.subtype in PATTERN_FAMILIES and p.actions:
+        return _pattern_events(p, ids, weight, lex)
     if p.actions:
         return [Event("", -1.0, *_step_action(a, lex), ids, weight, "tool", text=p.preference) for a in p.actions]
     return []
+
+
+PATTERN_FAMILIES = ("order", "staging", "batch", "repetition", "setup", "carrier")
+
+
+def _pattern_events(p: PreferenceRecord, ids: tuple[str, ...], weight: float, lex: Lexicon) -> list[Event]:
+    """A task-pattern record: its actions as consolidated events, the first carrying the record
+    as a `Claim` the reader checks options against (`agent.claims`). Their origin, "pattern", keeps
+    them out of the reader's context windows: they speak only through the claims they make."""
+    steps = [_step_action(a, lex) for a in p.actions]
+    nouns = [n for o in p.objects for n in object_classes(o, lex)]
+    way = p.context
+    if p.subtype == "carrier":
+        way = "with" if any(a.instrument for a in p.actions) else "directly"
+    share = min(1.0, p.count / p.total) if p.total else p.confidence
+    claim = Claim(p.subtype, way, tuple(v for v, _ in steps), tuple(dict.fromkeys(nouns)), float(share), ids)
+    return [Event("", -1.0, v, ns, ids, weight, "pattern", text=p.preference, claim=claim if i == 0 else None)
+            for i, (v, ns) in enumerate(steps)]

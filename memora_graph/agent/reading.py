@@ -84,6 +84,7 @@ class Event:
     origin: str = "log"  # log | habit | storage | tool | routine | object
     follows: tuple[tuple[str | None, tuple[str, ...]], ...] = ()  # a habit: the actions that follow it
     text: str = ""  # the record's own words (a narration, a statement), for the semantic check
+    claim: object = None  # a task-pattern record as a `claims.Claim` (how a task is done), checked against options
 
 
 @dataclass
@@ -445,6 +446,8 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
                 if parsed[i][0] or sim:
                     sims[i] = sim
                     scores[i] += SEMANTIC * sim
+    if windows and not no_subject and intent.kind in ("routine", "preference"):
+        scores, support = _reordered(scores, support, *task_claims(choices[:4], events, subject, lex))
     order = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
     best, second = scores[order[0]], scores[order[1]] if len(order) > 1 else 0.0
     feats = evidence_features(intent, events, windows, mentions, scores, classes, sims, order, support)
@@ -478,6 +481,31 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
     else:
         d.letter, d.reason = "ABCD"[order[0]], "supported"
     return d
+
+
+def _reordered(scores: list[float], support: list[list[str]], shifts: list[float], claim_ids: list[list[str]]):
+    """The options ranked again with the task-pattern records' shifts, the scores they hold kept:
+    the records decide which option the evidence supports most, not how strongly memory supports
+    an answer at all (that, and so abstaining, stays with the evidence as read)."""
+    if not any(shifts):
+        return scores, support
+    n = len(scores)
+    moved = sorted(range(n), key=lambda i: (-(scores[i] + shifts[i]), i))
+    levels = sorted(scores, reverse=True)
+    out = [0.0] * n
+    for rank, i in enumerate(moved):
+        out[i] = levels[rank]
+    return out, [list(dict.fromkeys(claim_ids[i] + support[i])) if shifts[i] > 0 else support[i] for i in range(n)]
+
+
+def task_claims(choices: list[str], events: list[Event], subject: set[str], lex: Lexicon):
+    """How the task-pattern records among the events move each option (`agent.claims`)."""
+    from memora_graph.agent.claims import adjust
+
+    claims = list(dict.fromkeys(e.claim for e in events if e.claim is not None))
+    if not claims:
+        return [0.0] * len(choices), [[] for _ in choices]
+    return adjust(choices, claims, subject, lex)
 
 
 def _share_found(nouns: list[str], events: list[Event]) -> float:
@@ -519,7 +547,7 @@ def evidence_features(intent: Intent, events: list[Event], windows, mentions: in
 def _context_texts(events: list[Event], windows) -> list[str]:
     """The words of the records the windows were built from (most supported first)."""
     ids = {i for _, _, wid in windows for i in wid}
-    out = [e.text for e in events if e.text and (set(e.ids) & ids)]
+    out = [e.text for e in events if e.text and e.origin != "pattern" and (set(e.ids) & ids)]
     return list(dict.fromkeys(out))[:MAX_TEXTS]
 
 

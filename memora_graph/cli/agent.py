@@ -98,7 +98,9 @@ def ask_cmd(bank, question, participant, choices, family, explain, fmt):
               help="The memory the lookups read: memora, or a baseline's representation (flat1d, graph2d).")
 @click.option("--json", "as_json", is_flag=True, help="The structured steps (verb, object, place, preconditions, "
                                                       "evidence ids, notes) and the lookups made, as JSON.")
-def plan_cmd(bank, goal, participant, family, as_json):
+@click.option("--from-task", is_flag=True, help="Start from the person's recurring task that does the goal (its "
+                                                "canonical stages, grounded), when one does; else plan as usual.")
+def plan_cmd(bank, goal, participant, family, as_json, from_task):
     """Plan a goal from one person's memory, with the offline planner (deterministic, no model).
 
     The planner reads the goal into actions and objects, retrieves the person's routines, episodes
@@ -111,10 +113,11 @@ def plan_cmd(bank, goal, participant, family, as_json):
     Examples:
       memora plan banks/epic "cut the cucumber" --participant P01
       memora plan banks/epic "wash, cut and stir-fry the bok choy" --participant P01 --json
+      memora plan banks/epic "make coffee" --participant P30 --from-task
     """
     from memora_graph.agent.planner import plan
 
-    result = plan(bank, participant, goal, memory=family)
+    result = plan(bank, participant, goal, memory=family, from_task=from_task)
     if as_json:
         click.echo(json.dumps(result.as_dict(), indent=2, ensure_ascii=False))
         return

@@ -46,11 +46,14 @@ from memora_graph.bank.derived import sha256_bytes
 from memora_graph.consolidate.memory import Obj, StepReader, merged_map, resolve
 from memora_graph.consolidate.records import Enrichment, VideoConsolidation
 from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
+from memora_graph.consolidate.patterns import detect_all
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
+from memora_graph.consolidate.task_records import Task
+from memora_graph.consolidate.tasks import video_tasks
 from memora_graph.errors import BankError
 
 log = logging.getLogger("memora_graph.consolidate")
-CACHE_FORMAT = 3
+CACHE_FORMAT = 4  # 4: folds keep their video's tasks
 CACHE_RECORD = "consolidate"  # the kept folds' record in the manifest (bank/derived.py)
 # The folds are kept on disk (JSON) only up to this size: reading a larger file back costs more
 # time and memory than recomputing every video (format 2, records as JSON: 231 MB at 100 h took
@@ -64,11 +67,12 @@ class _VideoFold:
     """What one video contributes to the participant's inferred knowledge (see the module); its
     records are kept by the `FoldIndex`, compact."""
 
-    __slots__ = ("mark", "raw", "segments", "ngrams", "episodes", "tool_uses")
+    __slots__ = ("mark", "raw", "segments", "ngrams", "episodes", "tool_uses", "tasks")
 
-    def __init__(self, mark, raw, segments, ngrams, episodes, tool_uses):
+    def __init__(self, mark, raw, segments, ngrams, episodes, tool_uses, tasks=None):
         self.mark, self.raw, self.segments, self.ngrams = mark, raw, segments, ngrams
         self.episodes, self.tool_uses = episodes, tool_uses
+        self.tasks = tasks or []  # the video's tasks (consolidate.tasks): a video's own steps decide them
 
     def to_json(self, tables: dict) -> dict:
         """The fold as JSON; its n-grams and canonical steps as ids into `tables` (added to:
@@ -84,7 +88,8 @@ class _VideoFold:
                               e.kinds, [[k, x, n] for (k, x), n in e.entities], e.t_start, e.t_end, e.segments]
                              for e in self.episodes],
                 "tool_uses": [[u.verb, u.target, u.tool, u.video, u.segment, u.narration,
-                               [[o.kind, o.entity, o.category, o.is_fixture] for o in u.objects]] for u in self.tool_uses]}
+                               [[o.kind, o.entity, o.category, o.is_fixture] for o in u.objects]] for u in self.tool_uses],
+                "tasks": [t.model_dump() for t in self.tasks]}
 
     @classmethod
     def from_json(cls, d: dict, tables: dict) -> _VideoFold:
@@ -96,7 +101,7 @@ class _VideoFold:
         tool_uses = [ToolUse(verb, target, tool, video, segment, narration, [Obj(*o) for o in objects])
                      for verb, target, tool, video, segment, narration, objects in d["tool_uses"]]
         return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {ngrams[i] for i in d["ngrams"]},
-                   episodes, tool_uses)
+                   episodes, tool_uses, [Task.model_validate(t) for t in d.get("tasks", [])])
 
 
 class _Recurring:
@@ -272,7 +277,8 @@ class IncrementalConsolidation:
             episodes = self._shared(enricher.video_episodes(steps))
             touched_goals.update(e.goal for e in episodes)
             self.folds[video] = _VideoFold(marks[video], reader.raw.get(video, set()), {s.segment for s in steps},
-                                           ngrams, episodes, enricher.tool_uses(steps))
+                                           ngrams, episodes, enricher.tool_uses(steps),
+                                           video_tasks(participant, steps) if steps else [])
             self.segment_ids |= self.folds[video].segments
             self.index.put(records, video)
         # an n-gram that started or stopped recurring changes the action sequences of the unchanged
@@ -306,7 +312,9 @@ class IncrementalConsolidation:
         prefs = enricher.tool_preferences_from(u for v in videos for u in self.folds[v].tool_uses)
         enrichment = Enrichment(participant=participant, routine_skills=skills, generated_preferences=prefs)
         t4 = time.perf_counter()
-        out = collect(participant, self.segment_ids, entity_ids, consolidation, enrichment, rules.name)
+        tasks = [t for v in videos for t in self.folds[v].tasks]
+        out = collect(participant, self.segment_ids, entity_ids, consolidation, enrichment, rules.name,
+                      tasks=tasks, patterns=detect_all(tasks))
         out.seconds = {"read": round(t1 - t0, 3), "folds": round(t2 - t1, 3), "consolidation": round(t3 - t2, 3),
                        "enrichment": round(t4 - t3, 3), "collect": round(time.perf_counter() - t4, 3)}
         return out

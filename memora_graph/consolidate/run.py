@@ -27,6 +27,7 @@ from memora_graph.consolidate.memory import ParticipantMemory, load_memory
 from memora_graph.consolidate.processors import Processors, StepReport, get_processors, register_processor
 from memora_graph.consolidate.records import Consolidation, Enrichment
 from memora_graph.consolidate.rules import RuleConsolidator, RuleEnricher, stable_id
+from memora_graph.consolidate.task_records import Task, TaskPattern
 from memora_graph.errors import ConsolidationError
 from memora_graph.llm.backends import CallRecord
 from memora_graph.embed import encode_passages
@@ -51,6 +52,9 @@ class InferredKnowledge:
     calls: list[CallRecord] = field(default_factory=list)  # model calls of this participant's run
     steps: list[StepReport] = field(default_factory=list)  # model steps and whether they produced records
     seconds: dict = field(default_factory=dict)
+    tasks: list[Task] = field(default_factory=list)  # task-level memory (consolidate.tasks)
+    task_rows: list[dict] = field(default_factory=list)  # the tasks as Task rows (evidence that exists)
+    patterns: list[TaskPattern] = field(default_factory=list)  # how tasks are done (consolidate.patterns)
 
     @property
     def failed_steps(self) -> list[StepReport]:
@@ -66,6 +70,11 @@ class InferredKnowledge:
         out = {"routines": len(self.routines), "preferences": len(self.preferences),
                "routines_by_source": by_src, "preferences_by_subtype": by_sub, "dropped_ids": self.dropped_ids,
                "dropped_records": self.dropped_records}
+        if self.task_rows or self.patterns:
+            fam: dict[str, int] = {}
+            for x in self.patterns:
+                fam[x.family] = fam.get(x.family, 0) + 1
+            out.update(tasks=len(self.task_rows), task_patterns=fam)
         if self.calls or self.steps:
             out.update(model_calls=len(self.calls), failed_calls=sum(not c.ok for c in self.calls),
                        failed_steps=[f"{s.step}: {s.error}" for s in self.failed_steps])
@@ -185,8 +194,10 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
         consolidation = processors.consolidation.consolidate_participant(memory, per_video)
     t1 = time.perf_counter()
     enrichment = processors.enrichment.enrich(memory, consolidation)
+    tasks, patterns = task_memory(memory)
     t2 = time.perf_counter()
-    out = collect(memory.participant, memory.segment_ids, entity_ids, consolidation, enrichment, processors.name)
+    out = collect(memory.participant, memory.segment_ids, entity_ids, consolidation, enrichment, processors.name,
+                  tasks=tasks, patterns=patterns)
     out.calls = _calls_since(processors, call_mark, memory.participant)
     out.steps = [r for r in (processors.reports or [])[report_mark:] if r.participant == memory.participant]
     out.seconds = {"consolidation": round(t1 - t0, 3), "enrichment": round(t2 - t1, 3),
@@ -194,12 +205,62 @@ def infer(memory: ParticipantMemory, entity_ids: set[str], processors: Processor
     return out
 
 
+def task_memory(memory: ParticipantMemory) -> tuple[list[Task], list[TaskPattern]]:
+    """Tasks and the patterns of how they are done: computed from the typed steps for every
+    processor (a model-backed one writes the same task records as the rules)."""
+    from memora_graph.consolidate.patterns import detect_all
+    from memora_graph.consolidate.tasks import segment_tasks
+
+    tasks = segment_tasks(memory)
+    return tasks, detect_all(tasks)
+
+
+def task_rows(participant: str, tasks: list[Task], segment_ids) -> list[dict]:
+    """Task rows (schema/005_tasks.cypher), citing only segments that exist."""
+    out = []
+    for t in tasks:
+        segs = [x for x in t.segments if x in segment_ids]
+        if not segs:
+            continue
+        out.append({"id": t.id, "participant": participant, "video": t.video, "goal": t.goal, "family": t.family,
+                    "main_object": t.main_object, "t_start": float(t.t_start), "t_end": float(t.t_end),
+                    "objects": t.objects, "tools": t.tools, "places": t.places, "segments": segs,
+                    "stages": json.dumps({st: [s.text for s in t.stage(st)] for st in ("setup", "main", "finish", "cleanup")}),
+                    "steps": json.dumps([{**s.action.model_dump(), "stage": s.stage, "t": s.t, "segment": s.segment}
+                                         for s in t.steps])})
+    return out
+
+
+def _collect_tasks(c: "_Collector", patterns: list[TaskPattern]) -> None:
+    """A recurring task's canonical stages as a Routine row (source "task_routine"); every other
+    pattern as a Preference row (source "tasks") whose subtype is its family."""
+    for p in patterns:
+        common = {"count": p.count, "total": p.total, "exceptions": p.exceptions, "tasks": p.tasks[:30], **p.detail}
+        if p.family == "canonical":
+            stages = p.detail.get("stages", {})
+            steps = [f"{st}: {x}" for st in ("setup", "main", "finish", "cleanup") for x in stages.get(st, [])]
+            c.routine("task_routine", p.key, goal=f"{p.goal} (how it is usually done)", activity_type="task_routine",
+                      steps=steps, key_objects=p.objects[:8], episodes=p.evidence[:10], segments=p.evidence,
+                      entities=[], videos=p.videos, count=p.count, confidence=p.confidence, source="task_routine",
+                      detail={**common, "statement": p.statement, "steps": [a.model_dump() for a in p.actions]})
+            continue
+        words = [w for a in p.actions for w in (a.verb.replace("-", " "), a.noun.replace(":", " "), a.place) if w]
+        c.preference("pref", (p.family, *p.key), subtype=p.family, statement=p.statement,
+                     keywords=list(dict.fromkeys([p.family, *words])), objects=p.objects,
+                     context=p.detail.get("way") or p.goal or p.family,
+                     episodes=p.evidence, entities=[], videos=p.videos, count=p.count, confidence=p.confidence,
+                     source="tasks", evidence_summary=f"{p.count} of {p.total} in {len(p.tasks)} tasks",
+                     detail={**common, "actions": [a.model_dump() for a in p.actions]})
+
+
 def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: Consolidation, enrichment: Enrichment,
-            processor: str) -> InferredKnowledge:
-    """The records of both processors as Routine / Preference rows, keeping only the evidence
-    ids that exist (`segment_ids`, `entity_ids`: anything with `in`)."""
+            processor: str, tasks: list[Task] | None = None, patterns: list[TaskPattern] | None = None) -> InferredKnowledge:
+    """The records of both processors (and the task memory) as Routine / Preference rows, keeping
+    only the evidence ids that exist (`segment_ids`, `entity_ids`: anything with `in`)."""
     c = _Collector(participant, segment_ids, entity_ids, processor)
     c.out.consolidation, c.out.enrichment = consolidation, enrichment
+    c.out.tasks, c.out.patterns = list(tasks or []), list(patterns or [])
+    c.out.task_rows = task_rows(participant, c.out.tasks, segment_ids)
     for s in consolidation.storage_preferences:
         c.preference("pref", ("storage", s.object, s.context), subtype="storage", statement=s.statement,
                      keywords=[s.object_name, s.preferred_location, s.context.replace("_", " "), "store", "keep", "put"],
@@ -242,6 +303,7 @@ def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: 
                      evidence_summary=g.evidence_summary,
                      detail={"alternatives": g.alternatives,
                              **({"actions": [x.model_dump() for x in g.actions]} if g.actions else {})})
+    _collect_tasks(c, c.out.patterns)
     return c.out
 
 
@@ -295,6 +357,7 @@ def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None
                          schema={"from": pl.String, "to": pl.String})
     with store.transaction():
         store.run("_inferred_clear", participant=p)
+        _write_tasks(store, p, knowledge)
         if routines is not None:
             store.copy("Routine", routines)
         if prefs is not None:
@@ -306,6 +369,14 @@ def write_inferred(store: Store, knowledge: InferredKnowledge, embedder) -> None
         calls = _call_frame(p, knowledge.calls)
         if calls is not None:
             store.copy("ModelCall", calls)
+
+
+def _write_tasks(store: Store, participant: str, knowledge: InferredKnowledge) -> None:
+    if "Task" not in store.tables():  # a bank opened without the task schema (read as it is)
+        return
+    store.run("_task_clear", participant=participant)
+    if knowledge.task_rows:
+        store.copy("Task", schema.frame("Task", knowledge.task_rows))
 
 
 def consolidate_participant(store: Store, participant: str, embedder, processors: str | Processors = "deterministic") -> InferredKnowledge:
@@ -344,6 +415,8 @@ def consolidate_participant(store: Store, participant: str, embedder, processors
 def clear_inferred(store: Store, participant: str) -> None:
     with store.transaction():
         store.run("_inferred_clear", participant=participant)
+        if "Task" in store.tables():
+            store.run("_task_clear", participant=participant)
 
 
 def finish_participant(bank: Bank, participant: str, embedder, episodic: bool = False,

@@ -1,6 +1,7 @@
 """`memora explore`: one participant's memory as a single self-contained HTML page.
 
-The page shows a timeline of videos and 10 s segments coloured by place, swimlanes of object
+The page shows a timeline of videos and 10 s segments coloured by place (each video's tasks
+as a band under its row, named by goal, with their stages), swimlanes of object
 state histories with the editor's decisions, the routines and preferences with their supporting
 segments, and a small graph of routines, objects and places, with filters by object and place.
 Its data is read here through named queries and embedded as JSON; the page's script and styles
@@ -31,6 +32,9 @@ def explorer_data(bank_path: str | Path, participant: str) -> dict:
     with bank.open(participant) as store:
         data = {key: store.fetch(name, participant=participant) for key, name in _QUERIES.items()}
         evidence = {r["id"]: sorted(set(r["linked"])) for r in store.fetch("inferred_evidence", participant=participant)}
+        # tasks on the timeline (a bank consolidated before task memory has no Task table: none shown)
+        data["tasks"] = [{**t, "stages": json.loads(t["stages"] or "{}"), "steps": None}
+                         for t in store.fetch("tasks", participant=participant)] if "Task" in store.tables() else []
         links: dict[str, list[str]] = {}
         for r in store.fetch("_tool_inferred_links", participant=participant):
             links.setdefault(r["id"], []).append(r["entity"])

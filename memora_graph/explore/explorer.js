@@ -210,6 +210,17 @@
           tip(`${s.video} turn ${s.turn} (${clock(s.t0)}), ${placeName(s.place)}: ${s.summary}`)));
       }
     });
+    const rowOf = new Map(DATA.videos.map((v, i) => [v.id, i]));
+    for (const t of DATA.tasks || []) {  // tasks: a band at the foot of their video's row
+      const i = rowOf.get(t.video);
+      if (i === undefined) continue;
+      const y = axisH + i * (rowH + 2) + rowH - 3;
+      const stages = Object.entries(t.stages || {}).filter(([, xs]) => xs.length)
+        .map(([k, xs]) => `${k}: ${xs.slice(0, 4).join(", ")}`).join("; ");
+      svg.append(sv("rect", { x: labelW + t.t_start * scale, y, width: Math.max(2, (t.t_end - t.t_start) * scale - 1), height: 3,
+        class: "task", "data-segment": (t.segments || [])[0] || null },
+        tip(`task "${t.goal}" (${clock(t.t_start)}-${clock(t.t_end)}): ${stages}`)));
+    }
     svg.addEventListener("click", (ev) => {
       const seg = ev.target.getAttribute("data-segment"), video = ev.target.getAttribute("data-video");
       if (seg) selectSegment(seg);

@@ -464,10 +464,28 @@ def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> Repl
     return Reply(args, routines=_search_routines(view, query, view.embed(query), k))
 
 
+TASK_EXTRA = 5  # task-level records a routine or preference search adds after its top k (see _with_tasks)
+TASK_SOURCES = frozenset({"task_routine", "tasks"})  # Routine / Preference rows of the task memory
+
+
+def _with_tasks(view: MemoryView, table: str, rows: dict, cands: dict, k: int) -> list:
+    """The top k of the other records as before, then up to TASK_EXTRA task-level records (a
+    recurring task's stages, how tasks are done): they answer how a task is organised, and
+    ranked among the rest they would push out the habits and storage places a search answered
+    with before."""
+    task = {i: c for i, c in cands.items() if rows.get(i, {}).get("source") in TASK_SOURCES}
+    other = {i: c for i, c in cands.items() if i not in task}
+    out = _finish(view, table, other, k)
+    if task:
+        out += _finish(view, table, task, min(k, TASK_EXTRA))
+    return out
+
+
 def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[RoutineRecord]:
     cands = _hybrid(view, "routine", query, q, view.config.pool)
     _inferred_graph(view, cands, query)
-    return [_routine_record(view, view.routines[c.id], c) for c in _finish(view, "routine", cands, k) if c.id in view.routines]
+    return [_routine_record(view, view.routines[c.id], c) for c in _with_tasks(view, "routine", view.routines, cands, k)
+            if c.id in view.routines]
 
 
 @tool("get_preferences", args=PreferenceArgs, result=PreferencesResult, store="Inferred",
@@ -488,7 +506,7 @@ def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> 
     cands = _hybrid(view, "preference", query, q, view.config.pool)
     _inferred_graph(view, cands, query)
     return [_preference_record(view, view.preferences[c.id], c)
-            for c in _finish(view, "preference", cands, k) if c.id in view.preferences]
+            for c in _with_tasks(view, "preference", view.preferences, cands, k) if c.id in view.preferences]
 
 
 @tool("search_patterns", args=QueryArgs, result=PatternsResult, store="Inferred",
@@ -501,7 +519,7 @@ def search_patterns(view: MemoryView, query: str, top_k: int = DEFAULT_TOP_K) ->
 
 def _pattern(rec: RoutineRecord | PreferenceRecord) -> PatternRecord:
     if isinstance(rec, RoutineRecord):
-        category = "routine" if rec.kind == "routine_skill" else "action_sequence"
+        category = {"routine_skill": "routine", "task_routine": "task_routine"}.get(rec.kind, "action_sequence")
         pid = rec.routine_id
     else:
         category, pid = rec.subtype, rec.preference_id

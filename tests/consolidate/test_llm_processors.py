@@ -172,6 +172,10 @@ def test_scripted_replies_become_routines_and_preferences_supported_by_the_cited
     habit = prefs["After pouring oil into the pan, takes the condiments"]
     workflow = prefs["Pans are washed at the sink, then go on the hob"]
     tool = prefs["Uses a knife to cut chicken"]
+    task_made = {k for k, v in prefs.items() if v["source"] == "tasks"}  # task patterns: from the typed steps, any processor
+    assert task_made and {prefs[k]["subtype"] for k in task_made} <= {"order", "staging", "batch", "repetition", "setup", "carrier"}
+    assert knowledge.task_rows and {t.video for t in knowledge.tasks} <= set(VIDEOS)
+    prefs = {k: v for k, v in prefs.items() if k not in task_made}
     assert set(prefs) == {storage["statement"], habit["statement"], workflow["statement"], tool["statement"]}
     assert (storage["subtype"], habit["subtype"], workflow["subtype"], tool["subtype"]) == ("storage", "habit", "workflow", "tool")
     assert {p["processor"] for p in prefs.values()} == {"llm"}
@@ -206,7 +210,7 @@ def test_scripted_replies_become_routines_and_preferences_supported_by_the_cited
     assert linked(tool) and linked(tool) <= span(e2)
     seq = rts[("action_sequence", "fry chicken")]
     assert set(ev[seq["id"]]["linked"]) == {segment_of("P09_103", s103["S2"]), segment_of("P09_103", s103["S4"])}
-    assert set(rts) == {("routine_skill", "cook chicken"), ("action_sequence", "fry chicken")}
+    assert {k for k in rts if k[0] != "task_routine"} == {("routine_skill", "cook chicken"), ("action_sequence", "fry chicken")}
 
     for row in ev.values():  # nothing invented reached the graph
         assert row["cited"] and set(row["cited"]) <= set(row["linked"]) <= set(segments)
@@ -217,8 +221,9 @@ def test_scripted_replies_become_routines_and_preferences_supported_by_the_cited
     assert {(c["role"], c["calls"], c["failed"], c["tokens_in"]) for c in calls} == {
         ("consolidation", 5, 0, 5 * 1500), ("enrichment", 2, 0, 2 * 1500)}
     entry = bank.manifest()["participants"][P]
-    assert entry["inferred"]["processor"] == "llm" and entry["counts"]["routines"] == 2
-    assert entry["counts"]["preferences"] == 4 and entry["inferred"]["dropped_ids"] == DROPPED_IDS
+    n_task_routines = sum(x.family == "canonical" for x in knowledge.patterns)
+    assert entry["inferred"]["processor"] == "llm" and entry["counts"]["routines"] == 2 + n_task_routines
+    assert entry["counts"]["preferences"] == 4 + len(task_made) and entry["inferred"]["dropped_ids"] == DROPPED_IDS
 
 
 def test_a_malformed_reply_is_repaired_once_then_recorded_as_a_failed_call_with_nothing_half_written(bank, embedder, caplog):
@@ -251,9 +256,12 @@ def test_a_malformed_reply_is_repaired_once_then_recorded_as_a_failed_call_with_
     assert all("after one repair turn" in f["error"] for f in failed)
     assert (by_role["consolidation"]["calls"], by_role["consolidation"]["failed"], by_role["consolidation"]["repairs"]) == (5, 1, 2)
     assert (by_role["enrichment"]["calls"], by_role["enrichment"]["failed"], by_role["enrichment"]["repairs"]) == (2, 1, 1)
-    assert set(rts) == {("action_sequence", "fry chicken")}, "no routine skill from the failed step"
-    assert set(prefs) == {"Uses a knife to cut chicken"}
-    assert not any(s.startswith("P09_104") for row in ev.values() for s in row["linked"])
+    assert {k for k in rts if k[0] != "task_routine"} == {("action_sequence", "fry chicken")}, \
+        "no routine skill from the failed step"
+    assert {k for k, v in prefs.items() if v["source"] != "tasks"} == {"Uses a knife to cut chicken"}
+    task_ids = {v["id"] for v in prefs.values() if v["source"] == "tasks"} | \
+        {r["id"] for k, r in rts.items() if k[0] == "task_routine"}  # from the typed steps of every video
+    assert not any(s.startswith("P09_104") for i, row in ev.items() if i not in task_ids for s in row["linked"])
     assert bank.manifest()["participants"][P]["inferred"]["failed_steps"][0].startswith("video P09_104: ")
 
 

@@ -166,3 +166,15 @@ def test_a_memory_without_routines_renders(p37, tmp_path):
     shown = {a["data-count"]: int(a["data-value"]) for a in elements(dom, "div", **{"class": "count"})}
     assert (shown["routines"], shown["preferences"], shown["segments"]) == (0, 0, stats["segments"])
     assert "not consolidated" in dom and not elements(dom, "div", **{"class": "card"})
+
+
+def test_tasks_are_on_the_timeline_data_with_their_goals_and_stages(p37):
+    _, data, _ = p37
+    tasks = data["tasks"]
+    assert tasks, "a consolidated bank has tasks"
+    videos = {v["id"] for v in data["videos"]}
+    segments = {s["id"] for s in data["segments"]}
+    for t in tasks:
+        assert t["video"] in videos and t["goal"] and t["t_start"] <= t["t_end"]
+        assert set(t["segments"]) <= segments and set(t["stages"]) == {"setup", "main", "finish", "cleanup"}
+    assert [(t["video"], t["t_start"]) for t in tasks] == sorted((t["video"], t["t_start"]) for t in tasks)

@@ -207,7 +207,9 @@ def test_results_are_deterministic_and_json(small_bank, embedder):
     assert len(obj) <= 10 and all(set(o["score"]) >= {"vector", "keyword", "graph", "fused"} for o in obj)
     assert all(o["evidence"] and o["evidence"][0] == o["entity_id"] for o in obj)
     routines = outs[0][4]["routines"]
-    assert len(routines) <= 3 and all(r["supporting_episodes"] for r in routines)
+    tasks = [r for r in routines if r["kind"] == "task_routine"]  # added after the top k (TASK_EXTRA)
+    assert len(routines) - len(tasks) <= 3 and len(tasks) <= 5 and all(r["supporting_episodes"] for r in routines)
+    assert [r["kind"] for r in routines] == sorted((r["kind"] for r in routines), key=lambda k: k == "task_routine")
 
 
 def test_registry_schemas_and_argument_checks(hand_store, embedder):

@@ -1,0 +1,132 @@
+"""Options as claims about how a task is done, checked against the task-pattern records.
+
+An EAM-QA option about a routine or a method is often a claim about how a task is organised:
+the order of two steps ("empties it out before washing"), a staging place ("sets it aside on the
+counter, returns to it later"), batching ("retrieves one utensil as needed" against "lays out a
+set first"), repetition ("alternates stretching and folding"), setup ("opens the containers
+before filling them") or the carrier of a transfer ("scoops it with a spoon"). Consolidation
+writes one record per pattern found (`consolidate.patterns`); `evidence` turns each into a
+`Claim`. Here every option is read for the claims it makes, and each pattern record about the
+question's subject *supports* it (+), *contradicts* it (-) or does not speak to it (0), weighted
+by the record's share of held occurrences (n of m).
+
+Deterministic; the cues are word lists of how such claims are phrased, not question wordings.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from memora_graph.perceive.lexicon import Lexicon
+
+WEIGHT = 0.6  # what one fully held pattern record adds to (or takes from) an option's score
+MAX_SHIFT = 1.2  # the most the records move one option
+
+_CUES = {
+    "one": r"\bone at a time\b|\bas needed\b|\bas (?:the )?(?:task|recipe|step)s? requires?\b|\bone by one\b|"
+           r"\bindividually\b|\bfor the next\b|\beach (?:one|item|time)\b|\bone needed\b|\bsingle (?:item|utensil|one)\b",
+    "batch": r"\ball (?:of )?(?:the|them|items|utensils|containers)\b|\b(?:a|the|broad|full|whole) (?:\w+ )?set\b|"
+             r"\btogether\b|\bseveral\b|\bgathers?\b|\bcollects?\b|\blays? out\b|\bpile\b|\bin bulk\b|\bbatch\b|"
+             r"\bat once\b|\beverything\b|\bhandful\b|\bboth\b",
+    "repeat": r"\balternat\w*\b|\brepeat\w*\b|\bagain\b|\bpasses\b|\bback and forth\b|\bcycles?\b|\banother pass\b|"
+              r"\bseveral times\b|\bbetween \w+ing\b",
+    "once": r"\bonce\b|\bsingle\b|\bone continuous\b|\bwithout stopping\b|\bin one go\b|\bone (?:firm )?motion\b",
+    "staging": r"\bholding spot\b|\bstag(?:e|es|ed|ing)\b|\blanding\b|\breturns? (?:to|for) (?:it|them)\b|"
+               r"\bretrieves? (?:it|them)\b|\bpicks? (?:it|them) up again\b|\bcomes? back (?:to|for)\b|\btemporar\w+\b",
+    "direct": r"\bdirectly\b|\bstraight\b",
+    "first": r"\bfirst\b|\bbefore\b|\bsets? up\b|\bprepares?\b|\bready\b",
+}
+_CUE = {k: re.compile(v) for k, v in _CUES.items()}
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A pattern record as the reader checks options against it."""
+
+    family: str  # order | staging | batch | repetition | setup | carrier
+    way: str  # batch: one_at_a_time | batch; repetition: alternate | repeat; else ""
+    verbs: tuple[str | None, ...]  # the record's actions, in its order (verb classes)
+    nouns: tuple[str, ...]  # the object classes it is about
+    share: float  # n of m
+    ids: tuple[str, ...]
+
+
+def cues(option: str) -> set[str]:
+    low = option.lower()
+    return {k for k, rx in _CUE.items() if rx.search(low)}
+
+
+def _about(claim: Claim, subject: set[str]) -> bool:
+    """The record is about one of the question's objects (at class or head level)."""
+    return bool(subject & set(claim.nouns)) or \
+        bool({n.split(":")[0] for n in subject} & {n.split(":")[0] for n in claim.nouns})
+
+
+def _verb_at(clauses, verb: str | None, lex: Lexicon) -> int | None:
+    for i, c in enumerate(clauses):
+        if c.verb and verb and (c.verb == verb or lex.same_category(c.verb, verb)):
+            return i
+    return None
+
+
+def _ordered(option: str, lex: Lexicon):
+    """The option's actions in the order it says they happen (the clause parser already reads
+    "X after Y" as Y, then X)."""
+    return [c for c in lex.parse(option) if not c.negated and c.verb]
+
+
+def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
+    """+1 the record supports the option, -1 it contradicts it, 0 it does not speak to it."""
+    f = claim.family
+    if f == "batch":
+        want = "one" if claim.way == "one_at_a_time" else "batch"
+        other = "batch" if want == "one" else "one"
+        return (want in cue) - (other in cue) if (want in cue) != (other in cue) else 0.0
+    if f == "repetition":
+        if "repeat" in cue:
+            clauses = _ordered(option, lex)
+            hits = sum(_verb_at(clauses, v, lex) is not None for v in claim.verbs)
+            return 1.0 if hits else 0.5
+        return -0.5 if "once" in cue else 0.0
+    if f == "staging":
+        return 1.0 if "staging" in cue else 0.0
+    if f == "order" and len(claim.verbs) == 2:
+        clauses = _ordered(option, lex)
+        i, j = _verb_at(clauses, claim.verbs[0], lex), _verb_at(clauses, claim.verbs[1], lex)
+        if i is None or j is None or i == j:
+            return 0.0
+        return 1.0 if i < j else -1.0
+    if f == "setup":  # the option's first action is one the record sets up first, on the same object
+        clauses = _ordered(option, lex)
+        if "first" in cue and clauses and set(clauses[0].nouns) & set(claim.nouns) and \
+                any(_verb_at(clauses[:1], v, lex) is not None for v in claim.verbs):
+            return 1.0
+        return 0.0
+    if f == "carrier":  # the option names the tool that carried it ("directly" records say too little)
+        if claim.way == "directly" or len(claim.nouns) < 2:
+            return 0.0
+        opt_nouns = {n for c in lex.parse(option) for n in c.nouns}
+        return 1.0 if opt_nouns & set(claim.nouns[1:]) else 0.0
+    return 0.0
+
+
+def adjust(choices: list[str], claims: list[Claim], subject: set[str], lex: Lexicon) -> tuple[list[float], list[list[str]]]:
+    """Per option, how much the pattern records about the subject move its score, and their ids."""
+    shifts, ids = [0.0] * len(choices), [[] for _ in choices]
+    about = [c for c in claims if _about(c, subject)]
+    if not about:
+        return shifts, ids
+    for k, option in enumerate(choices):
+        cue = cues(option)
+        for c in about:
+            v = verdict(c, option, cue, lex)
+            if v:
+                shifts[k] += WEIGHT * v * c.share
+                if v > 0:
+                    ids[k] += list(c.ids[:3])
+        shifts[k] = max(-MAX_SHIFT, min(MAX_SHIFT, shifts[k]))
+    # a record that speaks the same way to every option tells them apart no better
+    if len(set(round(s, 6) for s in shifts)) == 1:
+        return [0.0] * len(choices), [[] for _ in choices]
+    return shifts, ids

@@ -1,0 +1,71 @@
+"""Records of task-level memory (no I/O): a task (one stretch of steps serving one goal) and a
+task pattern (how recurring tasks are done, one record per detector finding).
+
+Both are written through the same collector as every other inferred record: a task as a
+`Routine` row (source "task"), a recurring task's canonical stages as a `Routine` row (source
+"task_routine"), a pattern as a `Preference` row whose subtype is its family. So
+`get_routine_skill`, `get_preferences` and `search_patterns` return them with no new tool, and
+any processor (rule or model) gets them: they are computed from the typed stores alone.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from memora_graph.consolidate.records import StepAction
+
+Stage = Literal["setup", "main", "finish", "cleanup"]
+FAMILIES = ("canonical", "order", "staging", "batch", "repetition", "setup", "carrier")
+
+
+class _Record(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class TaskStep(_Record):
+    action: StepAction
+    stage: Stage
+    t: float
+    segment: str
+    text: str
+
+
+class Task(_Record):
+    id: str  # stable: participant + video + first segment
+    video: str
+    goal: str  # "wash up saucepan", "make coffee"
+    family: str  # cleanup | cooking | prep | setup | store
+    main_object: str
+    t_start: float
+    t_end: float
+    steps: list[TaskStep]
+    objects: list[str] = Field(default_factory=list)  # kinds, most handled first
+    tools: list[str] = Field(default_factory=list)
+    places: list[str] = Field(default_factory=list)  # place ids in the order first used
+    segments: list[str] = Field(default_factory=list)
+    entities: list[str] = Field(default_factory=list)
+
+    def stage(self, name: str) -> list[TaskStep]:
+        return [s for s in self.steps if s.stage == name]
+
+
+class TaskPattern(_Record):
+    family: str  # one of FAMILIES
+    key: tuple[str, ...]  # what makes it unique within its family
+    statement: str
+    goal: str = ""  # the recurring task it is about ("" for a pattern over every task)
+    objects: list[str] = Field(default_factory=list)
+    actions: list[StepAction] = Field(default_factory=list)  # the steps it speaks about, in the order it states
+    count: int = Field(ge=1)  # times it held
+    total: int = Field(ge=1)  # times it could have held
+    exceptions: list[str] = Field(default_factory=list)  # segment ids where it did not hold
+    evidence: list[str] = Field(default_factory=list)  # segment ids where it held
+    tasks: list[str] = Field(default_factory=list)
+    videos: dict[str, int] = Field(default_factory=dict)
+    detail: dict = Field(default_factory=dict)
+
+    @property
+    def confidence(self) -> float:
+        return round(self.count / self.total, 3)

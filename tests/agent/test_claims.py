@@ -1,0 +1,56 @@
+"""Options read as claims about how a task is done, checked against task-pattern records."""
+
+from __future__ import annotations
+
+import pytest
+
+from memora_graph.agent.claims import Claim, adjust, cues, verdict
+from memora_graph.agent.reading import _reordered
+from memora_graph.perceive.lexicon import Lexicon
+
+
+@pytest.fixture(scope="module")
+def lex():
+    return Lexicon.load()
+
+
+def _claim(family, way, verbs, nouns, share=1.0):
+    return Claim(family, way, tuple(verbs), tuple(nouns), share, (f"P03:pref:{family}",))
+
+
+def test_an_order_record_supports_its_order_and_contradicts_the_reverse(lex):
+    c = _claim("order", "", ["empty", "wash"], ["saucepan"])
+    assert verdict(c, "Empties it out before washing the saucepan.", cues("x"), lex) == 1.0
+    assert verdict(c, "Washes the saucepan, then empties it.", cues("x"), lex) == -1.0
+    assert verdict(c, "Washes the saucepan after emptying it.", cues("x"), lex) == 1.0  # "after" reverses
+    assert verdict(c, "Dries the saucepan with a towel.", cues("x"), lex) == 0.0  # does not speak to it
+
+
+def test_batch_repetition_and_staging_records(lex):
+    one = _claim("batch", "one_at_a_time", ["take"], ["spoon"])
+    a, b = "Retrieves one needed utensil from storage as the task requires.", "Lays out a broad utensil set before starting."
+    assert verdict(one, a, cues(a), lex) == 1.0 and verdict(one, b, cues(b), lex) == -1.0
+    rep = _claim("repetition", "alternate", ["stretch", "fold"], ["dough"])
+    x, y = "Alternates stretching the dough and folding it back in repeated passes.", "Folds the dough once and leaves it."
+    assert verdict(rep, x, cues(x), lex) == 1.0 and verdict(rep, y, cues(y), lex) < 0
+    stage = _claim("staging", "", ["put", "take"], ["bottle"])
+    z = "Uses the fridge as a short holding spot, then retrieves the bottle."
+    assert verdict(stage, z, cues(z), lex) == 1.0
+    assert verdict(stage, "Sets it aside to drain untouched.", cues("Sets it aside to drain untouched."), lex) == 0.0
+
+
+def test_only_records_about_the_subject_speak_and_agreement_everywhere_is_silence(lex):
+    opts = ["Retrieves one utensil as needed.", "Lays out a set of utensils first.", "Uses disposable tools.", "Keeps tools on the counter."]
+    c = _claim("batch", "one_at_a_time", ["take"], ["spoon"], share=0.5)
+    shifts, ids = adjust(opts, [c], {"knife"}, lex)
+    assert shifts == [0.0] * 4
+    shifts, ids = adjust(opts, [c], {"spoon"}, lex)
+    assert shifts[0] > 0 > shifts[1] and shifts[2] == shifts[3] == 0.0 and ids[0] == ["P03:pref:batch"]
+
+
+def test_records_reorder_the_options_but_keep_the_evidence_levels():
+    scores, support = [2.0, 1.5, 1.0, 0.5], [["a"], ["b"], [], []]
+    out, sup = _reordered(scores, support, [0.0, 0.8, 0.0, 0.0], [[], ["rec"], [], []])
+    assert sorted(out, reverse=True) == sorted(scores, reverse=True)
+    assert out[1] == 2.0 and out[0] == 1.5 and sup[1] == ["rec", "b"]
+    assert _reordered(scores, support, [0.0] * 4, [[]] * 4) == (scores, support)

@@ -1,0 +1,178 @@
+"""Task-level memory: videos cut into tasks, named by goal, with stages; one detector per pattern
+family on hand-built tasks; the tasks written to and read from a real bank, ids stable."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+from memora_graph.bank import Bank
+from memora_graph.consolidate import finish_participant, load_memory
+from memora_graph.consolidate.memory import MemoryStep, Obj, ParticipantMemory
+from memora_graph.consolidate.patterns import batch, canonical, carrier, detect_all, order, repetition, setup, staging
+from memora_graph.consolidate.tasks import PAUSE, cut, segment_tasks, video_tasks
+from memora_graph.store import Store
+
+SAUCEPAN = ("saucepan", "cookware", False)
+SPONGE = ("sponge", "cleaning equipment and material", False)
+TAP = ("tap", "fixture", True)
+DOUGH = ("dough", "baked goods and grains", False)
+SPOON = ("spoon", "cutlery", False)
+KNIFE = ("knife", "cutlery", False)
+ONION = ("onion", "vegetables", False)
+LEAF = ("leaf", "vegetables", False)
+BIN = ("bin", "fixture", True)
+
+
+def _step(video, t, verb, *objects, dest="", loc="sink_area", zone=""):
+    objs = [Obj(kind, f"P01:{kind}", cat, fixture) for kind, cat, fixture in objects]
+    return MemoryStep(video=video, segment=f"{video}#t{int(t // 10):04d}", t=t, verb=verb, objects=objs, location=loc,
+                      zone=zone, destination=dest, relation="INSIDE" if dest else "", narration=f"{verb} {objects[0][0]}")
+
+
+def _washing_up(video, t0):
+    """Empty the saucepan, then wash it with the sponge and rinse it: a cleanup task at the sink."""
+    return [_step(video, t0, "take", SAUCEPAN), _step(video, t0 + 2, "empty", SAUCEPAN, dest="sink"),
+            _step(video, t0 + 4, "turn-on", TAP), _step(video, t0 + 5, "take", SPONGE),
+            _step(video, t0 + 7, "wash", SAUCEPAN, SPONGE), _step(video, t0 + 9, "rinse", SAUCEPAN),
+            _step(video, t0 + 11, "turn-off", TAP), _step(video, t0 + 12, "put", SAUCEPAN, dest="drying_rack")]
+
+
+def _dough(video, t0):
+    """Stretch, fold, stretch, fold the dough on the counter."""
+    verbs = ["take", "stretch", "fold", "stretch", "fold", "stretch", "fold", "put"]
+    return [_step(video, t0 + 2 * i, v, DOUGH, loc="counter_area") for i, v in enumerate(verbs)]
+
+
+def test_a_pause_or_a_move_to_new_objects_starts_a_new_task():
+    steps = _washing_up("P01_101", 0.0) + _dough("P01_101", 20.0)  # moved to the counter, other objects
+    pieces = cut(steps)
+    assert [len(p) for p in pieces] == [8, 8]
+    later = _washing_up("P01_101", 0.0) + [_step("P01_101", 12 + PAUSE + 1, "wash", SAUCEPAN),
+                                           *(_step("P01_101", 12 + PAUSE + 2 + i, "rinse", SAUCEPAN) for i in range(3))]
+    assert len(cut(later)) == 2  # same objects, but after a pause
+    same = _washing_up("P01_101", 0.0) + [_step("P01_101", 14 + i, "rinse", SAUCEPAN, loc="counter_area") for i in range(4)]
+    assert len(cut(same)) == 1  # moved, but the objects continue
+
+
+def test_tasks_are_named_by_goal_with_stages_tools_places_and_stable_ids():
+    steps = _washing_up("P01_101", 0.0) + _dough("P01_101", 20.0)
+    wash, dough = video_tasks("P01", steps)
+    assert wash.goal == "wash up saucepan" and wash.family == "cleanup"
+    assert dough.goal == "cook dough" and dough.main_object == "dough"
+    assert [s.stage for s in wash.steps][:2] == ["setup", "setup"]  # take, empty: before the first wash... verb
+    assert "main" in {s.stage for s in wash.steps}
+    assert wash.tools == ["sponge"] and wash.places == ["sink_area"]
+    assert wash.segments[0] == "P01_101#t0000"
+    again = video_tasks("P01", list(reversed(steps)))  # same steps, any order in: same tasks, same ids
+    assert [t.id for t in again] == [wash.id, dough.id]
+
+
+def _tasks():
+    steps = []
+    for i, v in enumerate(["P01_101", "P01_102", "P01_103"]):
+        steps += _washing_up(v, 0.0) + _dough(v, 20.0)
+    return segment_tasks(ParticipantMemory("P01", segments=[{"id": s.segment, "video": s.video} for s in steps], steps=steps))
+
+
+def test_order_invariant_counts_n_of_m_and_names_the_exceptions():
+    tasks = _tasks()
+    # a fourth video washes before emptying: the exception
+    odd = video_tasks("P01", [_step("P01_104", 0, "wash", SAUCEPAN), _step("P01_104", 2, "empty", SAUCEPAN, dest="sink"),
+                              _step("P01_104", 4, "rinse", SAUCEPAN), _step("P01_104", 6, "put", SAUCEPAN)])
+    found = {p.key: p for p in order.detect(tasks + odd)}
+    p = found[("saucepan", "empty", "wash")]
+    assert (p.count, p.total) == (3, 4) and p.exceptions == ["P01_104#t0000"]
+    assert p.statement.startswith("Empties the saucepan before washing it (3 of 4")
+    assert ("saucepan", "take", "wash") not in found  # taking frames every action: not an invariant
+    assert ("dough", "stretch", "fold") not in found  # interleaved: a repetition, not an order
+
+
+def test_alternation_is_found_and_a_single_pass_is_not():
+    found = {p.key: p for p in repetition.detect(_tasks())}
+    alt = found[("alternate", "dough", "stretch", "fold")]
+    assert alt.count == 3 and alt.detail["cycles"] == 9
+    assert "Alternates stretching and folding the dough" in alt.statement
+    assert not any(k[0] == "alternate" and k[1] == "saucepan" for k in found)
+
+
+def test_one_at_a_time_against_a_batch():
+    def leaves(video, gathered):
+        if gathered:
+            verbs = [("take", LEAF, ""), ("take", LEAF, ""), ("take", LEAF, ""), ("insert", LEAF, "bin")]
+        else:
+            verbs = [("take", LEAF, ""), ("insert", LEAF, "bin"), ("take", LEAF, ""), ("insert", LEAF, "bin")]
+        return [_step(video, 2 * i, v, o, dest=d, loc="counter_area") for i, (v, o, d) in enumerate(verbs)]
+    one = [t for v in ("P01_101", "P01_102") for t in video_tasks("P01", leaves(v, False))]
+    found = {p.key: p for p in batch.detect(one)}
+    assert found[("carry", "leaf", "one")].statement.startswith("Handles the leaf one at a time")
+    many = [t for v in ("P01_101", "P01_102", "P01_103") for t in video_tasks("P01", leaves(v, True))]
+    found = {p.key: p for p in batch.detect(one + many)}
+    assert found[("carry", "leaf", "batch")].count == 3 and found[("carry", "leaf", "batch")].total == 5
+
+
+def test_staging_setup_carrier_and_canonical_stages():
+    tasks = []
+    for v in ("P01_101", "P01_102"):
+        steps = [_step(v, 0, "open", ("drawer", "fixture", True), loc="cabinet_area"),
+                 _step(v, 1, "take", KNIFE, loc="cabinet_area", zone="drawer"),
+                 _step(v, 3, "put", KNIFE, dest="board", loc="counter_area"),
+                 _step(v, 4, "take", ONION, loc="counter_area"), _step(v, 5, "cut", ONION, KNIFE, loc="counter_area"),
+                 _step(v, 7, "take", KNIFE, loc="counter_area"), _step(v, 8, "cut", ONION, KNIFE, loc="counter_area"),
+                 _step(v, 9, "scoop", ONION, SPOON, dest="pan", loc="counter_area")]
+        tasks += video_tasks("P01", steps)
+    assert {t.goal for t in tasks} == {"prepare onion"}
+    st = {p.key for p in staging.detect(tasks)}
+    assert ("knife", "board") in st
+    su = {p.key: p for p in setup.detect(tasks)}
+    assert su[("goal", "prepare onion")].count == 2
+    assert ("object", "open", "drawer") in su
+    ca = {p.key: p for p in carrier.detect(tasks)}
+    assert ca[("onion", "pan", "spoon")].statement.startswith("Transfers the onion into the pan with the spoon")
+    can = canonical.detect(tasks)[0]
+    assert can.detail["stages"]["main"][0] == "cut onion" and can.count == 2
+
+
+def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder):
+    src, _ = small_bank
+    shutil.copytree(src, tmp_path / "bank", ignore=shutil.ignore_patterns(".staging"))
+    bank = Bank(tmp_path / "bank")
+    p = "P37"
+    k = finish_participant(bank, p, embedder)
+    with Store(bank.db_path(p)) as s:
+        first = s.rows("tasks", participant=p)
+        prefs = s.rows("preferences", participant=p)
+    assert first and len(first) == len(k.tasks)
+    segments = {x for r in first for x in r["segments"]}
+    with Store(bank.db_path(p)) as s:
+        known = load_memory(s, p).segment_ids
+    assert segments <= known
+    assert {json.loads(r["stages"]).keys() == {"setup", "main", "finish", "cleanup"} for r in first} == {True}
+    assert k.counts()["tasks"] == len(first)
+    assert {x.family for x in k.patterns} <= {"canonical", "order", "staging", "batch", "repetition", "setup", "carrier"}
+    assert any(r.get("subtype") in {"order", "staging", "batch", "repetition", "setup", "carrier"} for r in prefs) or not \
+        [x for x in k.patterns if x.family != "canonical"]
+    finish_participant(bank, p, embedder)  # a rebuild: the same tasks, the same ids
+    with Store(bank.db_path(p)) as s:
+        assert s.rows("tasks", participant=p) == first
+    finish_participant(bank, p, embedder, episodic=True)
+    with Store(bank.db_path(p)) as s:
+        assert s.rows("tasks", participant=p) == []
+
+
+def test_incremental_consolidation_writes_the_tasks_and_patterns_a_full_run_writes(small_bank, tmp_path, embedder):
+    from memora_graph.consolidate.live import consolidate_bank_incremental
+
+    src, _ = small_bank
+    shutil.copytree(src, tmp_path / "bank", ignore=shutil.ignore_patterns(".staging"))
+    bank = Bank(tmp_path / "bank")
+    p = "P37"
+    full = finish_participant(bank, p, embedder)
+    with Store(bank.db_path(p)) as s:
+        tasks_full = s.rows("tasks", participant=p)
+    consolidate_bank_incremental(bank, [p], embedder)
+    consolidate_bank_incremental(bank, [p], embedder)  # a second run reads the folds (with their tasks) back
+    with Store(bank.db_path(p)) as s:
+        assert s.rows("tasks", participant=p) == tasks_full
+        kinds = {(r["source"], r["subtype"]) for r in s.rows("_tool_preferences", participant=p) if r["source"] == "tasks"}
+    assert kinds == {("tasks", x.family) for x in full.patterns if x.family != "canonical"}
