@@ -15,10 +15,23 @@ Deterministic; the cues are word lists of how such claims are phrased, not quest
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 
 from memora_graph.perceive.lexicon import Lexicon
+
+ENV = "MEMORA_TASK_CLAIMS"  # "on": the offline reader re-ranks options with the claims (off by default)
+
+
+def enabled() -> bool:
+    """Whether the offline reader re-ranks options with the task-pattern claims. Off by default:
+    on the calibration cohort the claims lifted MEMORA's EAM-QA on the development participants
+    (P01-P03: 60.2 -> 60.8) but lowered it on the held-out one (P04: 60.1 -> 58.6, SPref
+    60.8 -> 54.9), so they stay opt-in until they lift participants they were not developed on.
+    The records themselves are always written and served (tools, `ask`, `plan --from-task`)."""
+    return os.environ.get(ENV, "off").lower() in ("1", "on", "true", "yes")
+
 
 WEIGHT = 0.6  # what one fully held pattern record adds to (or takes from) an option's score
 MAX_SHIFT = 1.2  # the most the records move one option

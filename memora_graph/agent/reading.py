@@ -446,7 +446,7 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
                 if parsed[i][0] or sim:
                     sims[i] = sim
                     scores[i] += SEMANTIC * sim
-    if windows and not no_subject and intent.kind in ("routine", "preference"):
+    if windows and not no_subject and intent.kind in ("routine", "preference") and claims_enabled():
         scores, support = _reordered(scores, support, *task_claims(choices[:4], events, subject, lex))
     order = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
     best, second = scores[order[0]], scores[order[1]] if len(order) > 1 else 0.0
@@ -496,6 +496,12 @@ def _reordered(scores: list[float], support: list[list[str]], shifts: list[float
     for rank, i in enumerate(moved):
         out[i] = levels[rank]
     return out, [list(dict.fromkeys(claim_ids[i] + support[i])) if shifts[i] > 0 else support[i] for i in range(n)]
+
+
+def claims_enabled() -> bool:
+    from memora_graph.agent.claims import enabled
+
+    return enabled()
 
 
 def task_claims(choices: list[str], events: list[Event], subject: set[str], lex: Lexicon):

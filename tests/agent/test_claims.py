@@ -54,3 +54,33 @@ def test_records_reorder_the_options_but_keep_the_evidence_levels():
     assert sorted(out, reverse=True) == sorted(scores, reverse=True)
     assert out[1] == 2.0 and out[0] == 1.5 and sup[1] == ["rec", "b"]
     assert _reordered(scores, support, [0.0] * 4, [[]] * 4) == (scores, support)
+
+
+def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
+    """The claims re-rank the offline reader's options only with MEMORA_TASK_CLAIMS=on: on the
+    calibration cohort they lifted the development participants and lowered the held-out one, so
+    the default reader reads the task records as it reads any other record."""
+    from memora_graph.agent import reading
+
+    calls = []
+    real = reading.task_claims
+
+    def spy(*args):
+        calls.append(args)
+        return real(*args)
+
+    monkeypatch.setattr(reading, "task_claims", spy)
+    claim = _claim("order", "before", ("empty", "wash"), ("pan:sauce",))
+    events = [reading.Event("P03_101", 12.0 + k, verb, ("pan:sauce",), (f"P03_101#{k}",), 1.0, "log",
+                            text=f"{verb} saucepan") for k, verb in enumerate(["empty", "wash", "rinse", "dry"])]
+    events.append(reading.Event("", -1.0, "empty", ("pan:sauce",), ("P03:pref:order",), 1.0, "pattern",
+                                text="empties the saucepan before washing it", claim=claim))
+    question = "What is P03's approach to handling the saucepan during cleanup?"
+    choices = ["Empties it out before washing the saucepan.", "Washes the saucepan before emptying it.",
+               "Leaves the saucepan to soak overnight.", "Puts the saucepan straight in the cupboard."]
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
+    reading.score(question, choices, events, lex)
+    assert not calls
+    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
+    reading.score(question, choices, events, lex)
+    assert calls
