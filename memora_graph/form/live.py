@@ -192,17 +192,21 @@ def recover(bank: Bank, participant: str) -> bool:
         bank.update_manifest(lambda d: (d.get("writing", {}).pop(participant, None),
                                         d.pop("writing", None) if not d.get("writing") else None))
         return True
-    if side_files(db):
-        from memora_graph.files import probe
+    replayed = None
+    if side_files(db):  # a copy of the log first; then replayed into the file in a child process (a crash
+        from memora_graph.files import keep_log, replay  # there is an error here), its pool sized from the log
 
-        probe(db, participant)
+        kept = keep_log(db)
+        replayed = replay(db, participant)["replay"]
     bank.mark_writing(participant, mark.get("op") or OP)
-    with Store(db, read_only=False) as store:  # replays the log; the close checkpoints it into the file
+    with Store(db, read_only=False) as store:  # (a log left now is replayed here; the close checkpoints it)
         videos = [r["video"] for r in store.rows("_live_videos", participant=participant)]
     _record_videos(bank, participant, videos)
     bank.record_integrity(participant)
+    what = f" ({replayed['log_bytes'] / 1e6:.1f} MB, replayed in {replayed['seconds_with_checkpoint']:.1f} s; a " \
+           f"copy is in {kept})" if replayed else ""
     log.warning(f"{db}: recovered the writes of process {mark.get('pid')} ({mark.get('op')}, since "
-                f"{mark.get('since', '?')}) from its write-ahead log")
+                f"{mark.get('since', '?')}) from its write-ahead log{what}")
     return True
 
 
