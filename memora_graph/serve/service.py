@@ -230,7 +230,8 @@ class MemoryService:
 
     def __init__(self, bank: str | Path, participant: str | None = None, recipe: str = DEFAULT_RECIPE,
                  max_rows: int = MAX_ROWS, unconfined_cypher: bool = False, cypher_in_flight: int = CYPHER_IN_FLIGHT,
-                 cypher_queue: int = CYPHER_QUEUE, writable: bool = False, consolidate_every: int | None = None):
+                 cypher_queue: int = CYPHER_QUEUE, writable: bool = False, consolidate_every: int | None = None,
+                 checkpoint=None):
         """`unconfined_cypher`: offer the cypher tool even where the kernel cannot confine its
         child process (memora_graph/confine.py); by default it is offered only where it can.
         `writable` (one participant only) also serves the `remember` tool: this process then
@@ -240,7 +241,9 @@ class MemoryService:
         `absorb`), so the next call sees what was just remembered (no other process can
         open the database meanwhile: Kùzu locks it, so no confined child can either, and the cypher
         tool is then offered only with `unconfined_cypher`). `consolidate_every`: after that many
-        new segments, incremental consolidation runs in a background thread (consolidate/live.py)."""
+        new segments, incremental consolidation runs in a background thread (consolidate/live.py).
+        `checkpoint`: the writer's checkpoint schedule (a form/checkpoint.py `CheckpointPolicy`;
+        default: its defaults)."""
         from memora_graph.confine import mode
 
         self.writer = None
@@ -254,7 +257,8 @@ class MemoryService:
             participant = check_participant(participant, "--participant")
             # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
             # and commits and updates the readers' caches inside it
-            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb)
+            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb,
+                                     checkpoint=checkpoint)
         elif consolidate_every is not None:
             raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)
