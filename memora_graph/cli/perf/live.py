@@ -123,7 +123,12 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         echo(f"  {remembers} remembers")
         wall, cpu = zip(*[remember() for _ in range(remembers)])
         out.update(remember_p50_ms=_pct(wall, .5), remember_p95_ms=_pct(wall, .95), remember_cpu_p50_ms=_pct(cpu, .5),
-                   remember_cpu_p95_ms=_pct(cpu, .95))
+                   remember_cpu_p95_ms=_pct(cpu, .95), remember_p99_ms=_pct(wall, .99),
+                   remember_max_ms=round(max(wall), 2))
+        # the writer's checkpoints meanwhile (form/checkpoint.py): how many, and how long each held the writer
+        runs = [r for r in service.writer.checkpointer.runs if r["ok"]]
+        out.update(checkpoints=len(runs), checkpoint_max_s=round(max((r["seconds"] for r in runs), default=0.0), 2),
+                   checkpoint_policy=service.writer.checkpoint_policy.describe())
 
         def tool_times(rounds: int, by_tool: dict | None = None) -> list[float]:
             got = []
