@@ -189,6 +189,7 @@ def recover(bank: Bank, participant: str) -> bool:
     if mark.get("op") == "build":
         raise BankError(bank.interrupted_message(participant, mark))
     db = bank.db_path(participant)
+    t0 = time.perf_counter()
     if participant not in data["participants"]:  # killed while creating the participant: nothing acknowledged
         for f in [db, *side_files(db)]:
             f.unlink(missing_ok=True)
@@ -209,7 +210,7 @@ def recover(bank: Bank, participant: str) -> bool:
     what = f" ({replayed['log_bytes'] / 1e6:.1f} MB, replayed in {replayed['seconds_with_checkpoint']:.1f} s; a " \
            f"copy is in {kept})" if replayed else ""
     log.warning(f"{db}: recovered the writes of process {mark.get('pid')} ({mark.get('op')}, since "
-                f"{mark.get('since', '?')}) from its write-ahead log{what}")
+                f"{mark.get('since', '?')}) from its write-ahead log{what}; in {time.perf_counter() - t0:.1f} s")
     return True
 
 

@@ -74,28 +74,40 @@ def kill_after(bank: Path, participant: str, todo: list[dict], acks: int | None 
     return {"acked": acked, "log_bytes": at_kill, "seconds": time.perf_counter() - t0}
 
 
+def _children_cpu() -> float:
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
 def stored_keys(bank: Path, participant: str) -> tuple[dict[str, str], float]:
     """Open the participant's memory with a new writer (replaying any log), and its Remembered
     keys -> segments; with the seconds the writer took to open."""
     from memora_graph.form.live import LiveWriter
 
+    c0, k0 = time.process_time(), _children_cpu()
     t0 = time.perf_counter()
     with LiveWriter(bank, participant) as memory:
         opened = time.perf_counter() - t0
+        stored_keys.cpu_s = time.process_time() - c0 + _children_cpu() - k0
         rows = memory.store.query("MATCH (r:Remembered) WHERE r.participant = $p RETURN r.id AS id, "
                                   "r.segment AS segment", {"p": participant}).to_dicts()
     return {r["id"]: r["segment"] for r in rows}, opened
 
 
-def measure(n: int, work: Path, participant: str = "P09") -> dict:
+def measure(n: int, work: Path, participant: str = "P09", log_mb: float | None = None) -> dict:
+    """Kill a writer after `n` acknowledged moments (or, with `log_mb`, once its log holds that
+    many MB: the largest log the default schedule allows is just under 4 MB), then reopen."""
     from memora_graph.integrity.verify import verify_bank
 
-    bank = work / f"crash-{n}"
+    bank = work / (f"crash-{n}" if log_mb is None else f"crash-log-{log_mb:g}")
     if bank.exists():
         import shutil
 
         shutil.rmtree(bank)
-    got = kill_after(bank, participant, narrations(participant, n + 20), n)
+    got = kill_after(bank, participant, narrations(participant, n + 20), None if log_mb else n,
+                     log_bytes=int(log_mb * 1e6) if log_mb else None)
     db = bank / f"{participant}.kuzu"
     db_mb = db.stat().st_size / 1e6
     stored, opened = stored_keys(bank, participant)
@@ -103,6 +115,7 @@ def measure(n: int, work: Path, participant: str = "P09") -> dict:
     report = verify_bank(bank)
     return {"moments": len(got["acked"]), "log_mb_at_kill": round(got["log_bytes"] / 1e6, 2),
             "db_mb_at_kill": round(db_mb, 1), "write_s": round(got["seconds"], 1), "reopen_s": round(opened, 2),
+            "reopen_cpu_s": round(stored_keys.cpu_s, 2),
             "lost": len(lost), "verify": "ok" if report.ok else "; ".join(p for r in report.rows for p in r["problems"])}
 
 
@@ -110,11 +123,12 @@ if __name__ == "__main__":
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--moments", type=int, action="append", required=True)
+    ap.add_argument("--moments", type=int, action="append", default=[])
+    ap.add_argument("--log-mb", type=float, help="kill once the log holds this many MB (at most --moments[0] or 5,000)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/memora-crash"))
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
-    for n in args.moments:
+    for n in args.moments or [5000]:
         load = os.getloadavg()[0]
-        row = measure(n, args.work)
+        row = measure(n, args.work, log_mb=args.log_mb)
         print(json.dumps({**row, "load_start": round(load, 2), "load_end": round(os.getloadavg()[0], 2)}), flush=True)

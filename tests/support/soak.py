@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
 import statistics
 import threading
 import time
@@ -85,6 +86,15 @@ class _Round:
             pass
 
 
+def _cpu(pid: int) -> float:
+    """CPU seconds a process and its waited-for children (the replay's child) used so far."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return sum(int(f) for f in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
 def soak(bank: Path, seconds: float, kills: int = 5, seed: int = 38, participant: str = "P09",
          echo=print) -> dict:
     import signal
@@ -97,13 +107,15 @@ def soak(bank: Path, seconds: float, kills: int = 5, seed: int = 38, participant
     texts = [m["text"] for m in narrations(participant, 400)]
     next_start = [0.0, 0.0, 0.0]
     acked: dict[str, str] = {}
-    restarts, problems, logs, reads = [], [], [], 0
+    restarts, cpu, replays, problems, logs, reads = [], [], [], [], [], 0
     killed = 0
     t_end = time.monotonic() + seconds
     while time.monotonic() < t_end or killed < kills:
         t0 = time.perf_counter()
         server = ServerProcess(bank, participant, "--writable", "--token", TOKEN)
         restarts.append(time.perf_counter() - t0)
+        cpu.append(_cpu(server.proc.pid))
+        replays += [float(m.group(1)) for line in server.lines if (m := re.search(r"replayed in ([\d.]+) s", line))]
         rnd = _Round(server.url, texts, next_start, rng)
         threads = [threading.Thread(target=rnd.writer, args=(w,), daemon=True) for w in range(3)]
         threads += [threading.Thread(target=rnd.reader, args=(r,), daemon=True) for r in range(2)]
@@ -132,7 +144,7 @@ def soak(bank: Path, seconds: float, kills: int = 5, seed: int = 38, participant
             if not report.ok:
                 problems.append(f"after kill {killed} and --accept: verify: {report.rows}")
         echo(f"kill {killed}: {len(rnd.acked)} writes acknowledged ({len(acked)} in all), {rnd.reads} reads, log "
-             f"{logs[-1] / 1e6:.1f} MB; restart took {restarts[-1]:.1f} s")
+             f"{logs[-1] / 1e6:.1f} MB; restart took {restarts[-1]:.1f} s ({cpu[-1]:.1f} CPU-s)")
     t0 = time.perf_counter()
     server = ServerProcess(bank, participant, "--writable", "--token", TOKEN)
     restarts.append(time.perf_counter() - t0)
@@ -144,7 +156,8 @@ def soak(bank: Path, seconds: float, kills: int = 5, seed: int = 38, participant
     lost = sorted(k for k, s in acked.items() if stored.get(k) != s)
     return {"kills": killed, "acknowledged": len(acked), "lost": len(lost), "reads": reads,
             "restart_s_median": round(statistics.median(restarts), 2), "restart_s_max": round(max(restarts), 2),
-            "restarts_s": [round(r, 2) for r in restarts], "log_mb_at_kills": [round(b / 1e6, 2) for b in logs],
+            "restarts_s": [round(r, 2) for r in restarts], "restart_cpu_s": [round(c, 2) for c in cpu],
+            "replays_s": replays, "log_mb_at_kills": [round(b / 1e6, 2) for b in logs],
             "problems": problems, "lost_keys": lost[:10]}
 
 
