@@ -124,7 +124,7 @@ def replay(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict
     """Replay a database's write-ahead log into it in a child process (opened read-write with a
     buffer pool sized from the log, counted, checkpointed and closed), so a crash on a damaged
     log ends the child, not this process, and the log is replayed once. Keep a copy first
-    (`keep_log`). Returns what `probe` returns."""
+    (`keep_log`). Returns {"replay": what it took} (no row counts: the caller records the file next)."""
     return _child(db, participant, timeout, write=True)
 
 

@@ -114,11 +114,13 @@ def test_the_writer_checkpoints_by_moments_and_seconds_and_on_close(tmp_path):
     try:
         for m in moments(12):
             memory.remember(m)
-        deadline = time.monotonic() + 10
-        while len(memory.checkpointer.runs) < 2 and time.monotonic() < deadline:
+        deadline = time.monotonic() + 20  # until fewer than 5 moments wait for a checkpoint
+        while memory.checkpointer.moments >= 5 and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert [r["reason"] for r in memory.checkpointer.runs] == ["moments", "moments"]
-        assert all(r["ok"] and r["moments"] >= 5 for r in memory.checkpointer.runs)
+        with memory._lock:  # (held by a checkpoint from start to end)
+            runs, left = list(memory.checkpointer.runs), memory.checkpointer.moments
+        assert runs and {r["reason"] for r in runs} == {"moments"} and all(r["ok"] and r["moments"] >= 5 for r in runs)
+        assert sum(r["moments"] for r in runs) + left == 12
     finally:
         memory.close()
     assert not (bank / "P01.kuzu.wal").exists()  # a clean close checkpoints
