@@ -136,7 +136,9 @@ def soak(bank: Path, seconds: float, kills: int = 5, seed: int = 38, participant
             problems.append(f"round {killed}: {rnd.read_errors_alive} reads failed while the server was up")
         row = verify_bank(bank).rows[0]
         unexpected = [p for p in row["problems"] if "stopped without closing" not in p and "differ from" not in p]
-        if unexpected or row["hash"] != "ok" or not (row["wal"] == "none" or "recoverable" in row["wal"]):
+        # (the file itself differs from its last record once the writer has checkpointed: verify
+        # expects that of an interrupted write, and says so only through the problems above)
+        if unexpected or not (row["wal"] == "none" or "recoverable" in row["wal"]):
             problems.append(f"after kill {killed}: verify: {row}")
         if killed % 2 == 0:  # the documented repair, then verify must pass
             accept(bank, participant)
