@@ -6,7 +6,8 @@ its own or not (a foreign one crashes it too). So the bank records a sha256 of e
 file after every write, when the file is closed and checkpointed (no log or shadow file next to
 it), and checks the file against it before opening. A database whose content cannot be
 vouched for that way (an interrupted write with a log to replay) is first opened in a child
-process (`probe`), so that a crash there becomes an error message here.
+process (`probe`), so that a crash there becomes an error message here; a log is replayed into
+its database in a child process too (`replay`), after a copy of it is kept (`keep_log`).
 """
 
 from __future__ import annotations
@@ -14,14 +15,18 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from memora_graph.errors import BankError
 
 SIDE_SUFFIXES = (".wal", ".shadow")  # Kùzu's write-ahead log and the shadow pages of a checkpoint
 PROBE_TIMEOUT_S = 120
+RECOVERY = ".recovery"  # BANK/.recovery/<db>-<UTC time>-<pid>/: copies of logs taken before they were replayed
+KEEP_LOGS = 3  # copies kept per database (the oldest go)
 
 _HASHED: dict[tuple, str] = {}  # (path, size, mtime_ns, ctime_ns, inode) -> sha256, for this process
 
@@ -82,11 +87,50 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
+def keep_log(db: Path) -> Path | None:
+    """Copy a database's write-ahead log (and shadow file) into BANK/.recovery/ before anything
+    replays it into the database: what a repair started from, should it go wrong. Keeps the
+    newest `KEEP_LOGS` copies of this database's. Returns the copy's folder (None: no log)."""
+    db = Path(db)
+    sides = side_files(db)
+    if not sides:
+        return None
+    folder = db.parent / RECOVERY
+    dest = folder / f"{db.name}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}-{os.getpid()}"
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+        for side in sides:
+            shutil.copy2(side, dest / side.name)
+    except OSError as exc:
+        shutil.rmtree(dest, ignore_errors=True)
+        size = sum(s.stat().st_size for s in sides) / 1e6
+        raise BankError(f"{db}: could not keep a copy of {', '.join(s.name for s in sides)} ({size:.1f} MB) in "
+                        f"{folder} before replaying it ({exc.strerror or exc}); nothing was replayed. Free some "
+                        "space and retry.") from None
+    for old in sorted(p for p in folder.glob(f"{db.name}-*") if p.is_dir())[:-KEEP_LOGS]:
+        shutil.rmtree(old, ignore_errors=True)
+    return dest
+
+
 def probe(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict:
     """Open a database read-only in a child process (replaying its write-ahead log in memory, as
-    Kùzu does, without writing anything) and count its rows per table. Returns the counts, or
-    raises BankError naming the file when Kùzu fails or crashes on it."""
-    cmd = [sys.executable, "-m", "memora_graph.integrity.probe", str(db), participant, str(os.getpid())]
+    Kùzu does, without writing anything) and count its rows per table. Returns the counts (and,
+    under "replay", what replaying the log took: `memora_graph.integrity.probe`), or raises
+    BankError naming the file when Kùzu fails or crashes on it."""
+    return _child(db, participant, timeout, write=False)
+
+
+def replay(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict:
+    """Replay a database's write-ahead log into it in a child process (opened read-write with a
+    buffer pool sized from the log, counted, checkpointed and closed), so a crash on a damaged
+    log ends the child, not this process, and the log is replayed once. Keep a copy first
+    (`keep_log`). Returns {"replay": what it took} (no row counts: the caller records the file next)."""
+    return _child(db, participant, timeout, write=True)
+
+
+def _child(db: Path, participant: str, timeout: float, write: bool) -> dict:
+    cmd = [sys.executable, "-m", "memora_graph.integrity.probe", str(db), participant, str(os.getpid()),
+           *(["--write"] if write else [])]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[2]),
                                                                       os.environ.get("PYTHONPATH", "")]))}
     try:
@@ -94,13 +138,16 @@ def probe(db: Path, participant: str, timeout: float = PROBE_TIMEOUT_S) -> dict:
     except subprocess.TimeoutExpired:
         raise BankError(f"{db}: Kùzu did not finish opening it in {timeout:.0f} s, in a child process (stopped; a "
                         "damaged file can make it spin); it was not opened here") from None
-    sides = ", ".join(p.name for p in side_files(db))
+    sides = ", ".join(f"{p.name} ({p.stat().st_size / 1e6:.1f} MB)" for p in side_files(db))
     with_sides = f" with {sides}" if sides else ""
     if res.returncode < 0:
+        kept = f" A copy of the log was kept in {Path(db).parent / RECOVERY}." if write else ""
         raise BankError(f"{db}: Kùzu crashed (signal {-res.returncode}) opening it{with_sides}, in a child process; "
                         f"the file{' or its log' if sides else ''} is damaged or does not belong to it. "
-                        "Nothing was replayed or opened here.")
+                        f"Nothing was replayed or opened here.{kept}")
     if res.returncode != 0:
         why = (res.stdout.strip().splitlines() or res.stderr.strip().splitlines() or ["no output"])[-1]
+        if why.startswith(f"{db}: cannot be opened with its write-ahead log"):  # names the log, its size, what to do
+            raise BankError(why)
         raise BankError(f"{db}: cannot be opened{with_sides} ({why})")
     return json.loads(res.stdout)

@@ -86,6 +86,60 @@ def translate_error(exc: Exception, path: Path, cypher: str | None = None) -> St
     return StoreError(f"{path}: {msg}")
 
 
+def wal_path(db: Path) -> Path:
+    """Kùzu's write-ahead log of a database file."""
+    return Path(db).with_name(Path(db).name + ".wal")
+
+
+MB = 1 << 20
+REPLAY_FACTOR = 32  # buffer pool per byte of log, to start with (replay took 26-28: see replay_pool_bytes)
+REPLAY_MIN = 256 * MB
+
+
+def replay_pool_bytes(log_bytes: int) -> int:
+    """A buffer pool that leaves room to replay a write-ahead log of `log_bytes`: Kùzu keeps
+    every change replayed from the log in memory until the next checkpoint, and the smallest
+    pools that replayed live writers' logs were 26-28 bytes per byte of log (4.5 MB: 126 MB,
+    8.7 MB: 236 MB, 15.5 MB: between 360 and 420 MB; 256 MB, the cap before, failed on the
+    last). `memora_graph.integrity.probe` doubles it while Kùzu still says it is short."""
+    return max(REPLAY_MIN, REPLAY_FACTOR * log_bytes)
+
+
+def pool_full(exc: BaseException) -> bool:
+    """Whether Kùzu failed for want of buffer pool."""
+    low = str(exc).lower()
+    return "buffer pool is full" in low or "unable to allocate memory" in low
+
+
+class ReplayError(StoreError):
+    """A database that could not be opened with the write-ahead log next to it (`log_bytes`)."""
+
+    def __init__(self, message: str, log_bytes: int, short_of_pool: bool = False):
+        super().__init__(message)
+        self.log_bytes = log_bytes
+        self.short_of_pool = short_of_pool
+
+
+def replay_failure(db: Path, log_bytes: int, exc: BaseException, pool: int = 0) -> str:
+    """What to say when a database cannot be opened with its write-ahead log: the file, the
+    log and its size, why, and what to do."""
+    wal = wal_path(db)
+    why = str(translate_error(exc, db)).removeprefix(f"{db}: ")
+    head = f"{db}: cannot be opened with its write-ahead log {wal.name} ({log_bytes / MB:.1f} MB of changes since " \
+           f"its last checkpoint): {why}."
+    db = Path(db)
+    bank, who = (db.parent, db.stem) if re.fullmatch(r"P\d{2}", db.stem) else ("BANK", "PARTICIPANT")
+    if pool_full(exc):
+        given = f"the {pool / MB:.0f} MB buffer pool given" if pool else "the buffer pool this machine allows"
+        return (f"{head} Replaying the log needs more memory than {given} (about {REPLAY_FACTOR} x the log's "
+                f"size: {replay_pool_bytes(log_bytes) / MB:.0f} MB is expected to do). Nothing was changed: "
+                f"`memora verify {bank} --accept {who}` replays it on a machine with "
+                f"that much free memory (it sizes the pool from the log and keeps a copy of the log first).")
+    return (f"{head} Nothing was changed. The log may be damaged or belong to another database: keep a copy of "
+            f"{wal} before anything else; `memora verify {bank}` reports it; moving the log away opens the "
+            f"database as of its last checkpoint, losing the writes in the log.")
+
+
 _ABANDONED: list = []  # Kùzu handles of databases whose write ran out of space; never destroyed
 
 
@@ -94,12 +148,15 @@ class Store:
 
     def __init__(self, path: str | Path, read_only: bool = True, bulk: bool = False,
                  on_close: Callable[[Store], None] | None = None, on_fail: Callable[[Store], None] | None = None,
-                 buffer_pool_bytes: int = 0):
+                 buffer_pool_bytes: int = 0, auto_checkpoint: bool = True):
         """`bulk=True` (builds) defers checkpoints to `close()`: a commit then only appends to
         the write-ahead log, which is still replayed after a crash, so nothing committed is lost.
-        `on_close(store)` runs after a clean close (the bank records a written database's
-        integrity there); it does not run when the close failed: `on_fail(store)` does.
-        `buffer_pool_bytes` caps Kùzu's page cache (0: Kùzu's default, most of the memory)."""
+        `auto_checkpoint=False` does too (the live writer checkpoints on its own schedule, with
+        `checkpoint()`: Kùzu's automatic one runs inside COMMIT and, when it fails, fails a commit
+        that was kept). `on_close(store)` runs after a clean close (the bank records a written
+        database's integrity there); it does not run when the close failed: `on_fail(store)` does.
+        `buffer_pool_bytes` caps Kùzu's page cache (0: Kùzu's default, most of the memory); a
+        cap must leave room to replay the write-ahead log (`replay_pool_bytes`)."""
         self.path = Path(path)
         self.read_only = read_only
         self.on_close = on_close
@@ -111,12 +168,19 @@ class Store:
             # Kùzu would silently open a 0-byte file as a new, empty database.
             raise StoreError(f"{self.path}: empty file, not a database (a build that never started?). Delete it and rebuild.")
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        wal = wal_path(self.path)
+        log_bytes = wal.stat().st_size if wal.exists() else 0
         try:
-            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=not bulk,
+            self._db = kuzu.Database(str(self.path), read_only=read_only, auto_checkpoint=auto_checkpoint and not bulk,
                                      buffer_pool_size=buffer_pool_bytes)
             self._conn = kuzu.Connection(self._db)
         except RuntimeError as exc:
+            if log_bytes and "could not set lock" not in str(exc).lower():
+                raise ReplayError(replay_failure(self.path, log_bytes, exc, buffer_pool_bytes), log_bytes,
+                                  pool_full(exc)) from exc
             raise translate_error(exc, self.path) from exc
+        self.replayed_bytes = log_bytes  # the write-ahead log found (and replayed) on opening
+        self._readers = 0  # open reader() connections (a checkpoint waits for their transactions)
         self._in_tx = False
         self._prepared: dict[str, object] = {}
         self._catalog: dict[str, str] | None = None
@@ -129,10 +193,31 @@ class Store:
         only the connection."""
         other = Store.__new__(Store)
         other.path, other.read_only, other.on_close, other.on_fail, other._broken = self.path, True, None, None, None
-        other._db, other._shared = self._db, True
+        other._db, other._shared, other._owner = self._db, True, self
         other._conn = kuzu.Connection(self._db)
         other._in_tx, other._prepared, other._catalog = False, {}, None
+        other.replayed_bytes, other._readers = 0, 0
+        self._readers += 1
         return other
+
+    @property
+    def readers(self) -> int:
+        """Connections opened with `reader()` and not closed yet."""
+        return self._readers
+
+    def wal_bytes(self) -> int:
+        """The size of the write-ahead log now (what a crash would leave to replay)."""
+        try:
+            return wal_path(self.path).stat().st_size
+        except FileNotFoundError:
+            return 0
+
+    def checkpoint(self) -> None:
+        """Write the write-ahead log's changes into the database file and empty the log. Kùzu
+        waits (about 6 s at most, then fails) for the transactions of other connections."""
+        if self.read_only:
+            raise StoreError(f"{self.path}: open read-only; nothing to checkpoint")
+        self._execute("CHECKPOINT")
 
     def close(self) -> None:
         if self._broken is not None:  # abandoned after a full disk: nothing may touch these handles again
@@ -142,6 +227,10 @@ class Store:
             try:
                 if not self.read_only:
                     self._execute("CHECKPOINT")
+                owner = getattr(self, "_owner", None)
+                if owner is not None:
+                    owner._readers -= 1
+                    self._owner = None
                 self._conn.close()
                 if not getattr(self, "_shared", False):
                     self._db.close()

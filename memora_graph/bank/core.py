@@ -140,12 +140,13 @@ class Bank:
 
     # -- opening -------------------------------------------------------------------------
     def open(self, participant: str, read_only: bool = True, check: bool = True, *, verify: bool | None = None,
-             op: str = "write") -> Store:
+             op: str = "write", auto_checkpoint: bool = True) -> Store:
         """Open a participant's database after checking it (`check`): against its integrity
         record before Kùzu opens it, then its record counts against the manifest. `verify=False`
         (`--no-verify`; default: on unless MEMORA_NO_VERIFY is set) skips every check knowingly.
         A read-write store records the database's integrity again when it closes; until then the
-        manifest's write mark names `op` (a live writer's is "live")."""
+        manifest's write mark names `op` (a live writer's is "live"). `auto_checkpoint=False`: the
+        caller checkpoints (`Store.checkpoint`; the live writer's schedule, form/checkpoint.py)."""
         from memora_graph.store import Store
 
         data = self.manifest()
@@ -166,7 +167,7 @@ class Bank:
         if not read_only and not ours:
             self.mark_writing(participant, op)
         try:
-            store = Store(self.db_path(participant), read_only=read_only,
+            store = Store(self.db_path(participant), read_only=read_only, auto_checkpoint=auto_checkpoint,
                           on_close=None if read_only or ours else (lambda s: self.record_integrity(participant)),
                           on_fail=None if read_only or ours else (lambda s: self.abandon_writing(participant)))
         except BaseException:

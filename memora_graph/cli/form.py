@@ -7,6 +7,32 @@ import sys
 
 import click
 
+from memora_graph.form.checkpoint import DEFAULT_LOG_MB, DEFAULT_MOMENTS, DEFAULT_SECONDS
+
+
+def checkpoint_options(f):
+    """--checkpoint-mb / --checkpoint-moments / --checkpoint-seconds: the live writer's checkpoint
+    schedule (memora_graph/form/checkpoint.py), for `remember` and `serve --writable`."""
+    for option in reversed([
+        click.option("--checkpoint-mb", type=click.FloatRange(min=0), default=DEFAULT_LOG_MB, show_default=True,
+                     metavar="MB", help="Checkpoint the write-ahead log into the database file once it holds this "
+                                        "many MB (a restart after a crash replays at most about this much; 0: off)."),
+        click.option("--checkpoint-moments", type=click.IntRange(min=0), default=DEFAULT_MOMENTS, show_default=True,
+                     metavar="N", help="... or once N moments were committed since the last checkpoint (0: off)."),
+        click.option("--checkpoint-seconds", type=click.FloatRange(min=0), default=DEFAULT_SECONDS,
+                     show_default=True, metavar="S",
+                     help="... or once the oldest moment not checkpointed is S seconds old (0: off). A clean "
+                          "close always checkpoints."),
+    ]):
+        f = option(f)
+    return f
+
+
+def checkpoint_policy(checkpoint_mb: float, checkpoint_moments: int, checkpoint_seconds: float):
+    from memora_graph.form.checkpoint import CheckpointPolicy
+
+    return CheckpointPolicy(log_mb=checkpoint_mb, moments=checkpoint_moments, seconds=checkpoint_seconds)
+
 
 def _moment_or_segment(writer, obj: object, where: str):
     """A JSON object as a Moment ({video, start, end, text, id?}) or a segment record (the
@@ -45,10 +71,13 @@ def _moment_or_segment(writer, obj: object, where: str):
 @click.option("--jsonl", "stream", type=click.File("r"), metavar="FILE|-",
               help="A stream of such JSON objects, one per line ('-': stdin); each is acknowledged on stdout as "
                    "soon as it is committed.")
-def remember_cmd(bank, text, participant, video, start, end, key, record, stream):
+@checkpoint_options
+def remember_cmd(bank, text, participant, video, start, end, key, record, stream, checkpoint_mb, checkpoint_moments,
+                 checkpoint_seconds):
     """Remember what just happened: perceive a narration, embed it, run the online editor and commit.
 
-    Each moment is one committed transaction: once its line is printed it survives a crash.
+    Each moment is one committed transaction: once its line is printed it survives a crash (it is
+    in the write-ahead log, checkpointed into the database file on the --checkpoint-* schedule).
     The answer (one JSON line per moment) lists the editor's operations (ADD / UPDATE /
     DELETE / NOOP) with the entity ids; a moment already remembered under the same key (the
     video and start time, or --id) is answered again, marked "duplicate", and written nothing.
@@ -77,7 +106,8 @@ def remember_cmd(bank, text, participant, video, start, end, key, record, stream
         click.echo(json.dumps(done.as_dict(), ensure_ascii=False))
         sys.stdout.flush()
 
-    with LiveWriter(bank, participant) as writer:
+    policy = checkpoint_policy(checkpoint_mb, checkpoint_moments, checkpoint_seconds)
+    with LiveWriter(bank, participant, checkpoint=policy) as writer:
         if text is not None:
             emit(writer.remember(writer.moment(video, start, start if end is None else end, text, key)))
         elif record is not None:

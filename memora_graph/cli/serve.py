@@ -6,6 +6,8 @@ import sys
 
 import click
 
+from memora_graph.cli.form import checkpoint_options, checkpoint_policy
+
 
 def _recipes() -> list[str]:
     from memora_graph.retrieve.search import RECIPES
@@ -48,9 +50,10 @@ def _recipes() -> list[str]:
               help="Time budget of one tool call: past it the call is answered 'took too long' and its work is "
                    "stopped, while other clients go on being served (a remember is left to finish; a cypher call's "
                    "`timeout` is capped at it).")
+@checkpoint_options
 @click.pass_context
 def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_schemas, unconfined_cypher, writable, token,
-              consolidate_every, call_timeout):
+              consolidate_every, call_timeout, checkpoint_mb, checkpoint_moments, checkpoint_seconds):
     """Serve a memory bank to agents over the Model Context Protocol (MCP).
 
     The bank is opened read-only (unless --writable), checked against its integrity record, and
@@ -86,6 +89,10 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
         raise click.UsageError("--writable serves one participant's memory: add --participant P01")
     if consolidate_every and not writable:
         raise click.UsageError("--consolidate-every applies with --writable")
+    given_checkpoint = [f"--{p.replace('_', '-')}" for p in ("checkpoint_mb", "checkpoint_moments", "checkpoint_seconds")
+                        if ctx.get_parameter_source(p) is not click.core.ParameterSource.DEFAULT]
+    if given_checkpoint and not writable:
+        raise click.UsageError(f"{' and '.join(given_checkpoint)} apply with --writable")
     if writable and transport == "http" and not token:
         raise click.UsageError("--writable over HTTP needs --token TOKEN (or MEMORA_SERVE_TOKEN): clients send it as "
                                "`Authorization: Bearer TOKEN`")
@@ -102,7 +109,9 @@ def serve_cmd(ctx, bank, participant, transport, host, port, recipe, output_sche
 
         signal.signal(signal.SIGTERM, stop)
     service = MemoryService(bank, participant, recipe=recipe, unconfined_cypher=unconfined_cypher, writable=writable,
-                            consolidate_every=consolidate_every, call_timeout=call_timeout)
+                            consolidate_every=consolidate_every, call_timeout=call_timeout,
+                            checkpoint=checkpoint_policy(checkpoint_mb, checkpoint_moments, checkpoint_seconds)
+                            if writable else None)
     if not service.confinement.confined:
         click.echo(f"warning: ad-hoc Cypher {service.confinement.describe()}; "
                    + ("the cypher tool is offered anyway (--unconfined-cypher)" if service.cypher_offered

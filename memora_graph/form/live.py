@@ -12,7 +12,9 @@ everything the moment adds (segment, state events, editor operations, entity and
 in one Kùzu transaction, with a `Remembered` row under the client's key: a retried call (same
 video and start, or the same explicit id) returns its first answer and writes nothing. Once
 `remember` returns, the write is committed to Kùzu's write-ahead log: a killed process loses none
-of it, and the next writer replays it and records the database's integrity again.
+of it, and the next writer replays it and records the database's integrity again. The writer
+checkpoints the log into the database file on a schedule bounded by bytes, moments and seconds
+(form/checkpoint.py, `CheckpointPolicy`), so a restart replays little.
 
 One writer per participant database: the writer holds the participant's build lock and its
 write mark (op "live") for as long as it is open; a second writer, a build, or a reader in
@@ -40,6 +42,7 @@ from memora_graph.bank import Bank, pid_alive
 from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
 from memora_graph.form.build import entity_row, place_row
+from memora_graph.form.checkpoint import CheckpointPolicy, Checkpointer
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
 from memora_graph.files import side_files
@@ -188,23 +191,28 @@ def recover(bank: Bank, participant: str) -> bool:
     if mark.get("op") == "build":
         raise BankError(bank.interrupted_message(participant, mark))
     db = bank.db_path(participant)
+    t0 = time.perf_counter()
     if participant not in data["participants"]:  # killed while creating the participant: nothing acknowledged
         for f in [db, *side_files(db)]:
             f.unlink(missing_ok=True)
         bank.update_manifest(lambda d: (d.get("writing", {}).pop(participant, None),
                                         d.pop("writing", None) if not d.get("writing") else None))
         return True
-    if side_files(db):
-        from memora_graph.files import probe
+    replayed = None
+    if side_files(db):  # a copy of the log first; then replayed into the file in a child process (a crash
+        from memora_graph.files import keep_log, replay  # there is an error here), its pool sized from the log
 
-        probe(db, participant)
+        kept = keep_log(db)
+        replayed = replay(db, participant)["replay"]
     bank.mark_writing(participant, mark.get("op") or OP)
-    with Store(db, read_only=False) as store:  # replays the log; the close checkpoints it into the file
+    with Store(db, read_only=False) as store:  # (a log left now is replayed here; the close checkpoints it)
         videos = [r["video"] for r in store.rows("_live_videos", participant=participant)]
     _record_videos(bank, participant, videos)
     bank.record_integrity(participant)
+    what = f" ({replayed['log_bytes'] / 1e6:.1f} MB, replayed in {replayed['seconds_with_checkpoint']:.1f} s; a " \
+           f"copy is in {kept})" if replayed else ""
     log.warning(f"{db}: recovered the writes of process {mark.get('pid')} ({mark.get('op')}, since "
-                f"{mark.get('since', '?')}) from its write-ahead log")
+                f"{mark.get('since', '?')}) from its write-ahead log{what}; in {time.perf_counter() - t0:.1f} s")
     return True
 
 
@@ -221,10 +229,12 @@ class LiveWriter:
     """A participant's memory held open for writing, one moment at a time (see the module)."""
 
     def __init__(self, bank: str | Path, participant: str, embedder=None, reader: NarrationReader | None = None,
-                 lock_wait_s: float = 0.5, store_lock=None, on_commit=None):
+                 lock_wait_s: float = 0.5, store_lock=None, on_commit=None, checkpoint: CheckpointPolicy | None = None):
         """`store_lock`: taken around every use of the store (the readers of a server share it,
         so perception, embedding and the editor's decision run outside it); `on_commit(delta)`
-        runs inside it right after each commit (a server updates its readers' caches there)."""
+        runs inside it right after each commit (a server updates its readers' caches there).
+        `checkpoint`: when the write-ahead log is checkpointed (default `CheckpointPolicy()`:
+        4 MB, 1,000 moments or 60 s, whichever comes first; form/checkpoint.py)."""
         self.bank = Bank(bank)
         self._store_lock = store_lock if store_lock is not None else threading.RLock()
         self._on_commit = on_commit
@@ -233,6 +243,7 @@ class LiveWriter:
         self._stack = ExitStack()
         self._lock = threading.RLock()  # one remember at a time; readers of `store` take it too
         self.store: Store | None = None
+        self.checkpoint_policy = checkpoint or CheckpointPolicy()
         try:
             self._open(embedder, reader, lock_wait_s)
         except BaseException:
@@ -270,7 +281,7 @@ class LiveWriter:
             # --no-verify): what the persisted tool stores a server reads must have been computed from
             opened = self.bank.checked_sha256(p)
             try:
-                self.store = self.bank.open(p, read_only=False, op=OP)
+                self.store = self.bank.open(p, read_only=False, op=OP, auto_checkpoint=False)  # our schedule
             except StoreError as exc:
                 if "lock" in str(exc).lower():
                     raise WriterBusy(self._busy_message(str(exc))) from None
@@ -287,6 +298,8 @@ class LiveWriter:
             store, self.store = self.store, None
             store.close()
         self._stack.callback(self._close_store)
+        self.checkpointer = Checkpointer(self.checkpoint_policy, lambda: self.store, self._lock, self._store_lock)
+        self._stack.callback(self.checkpointer.stop)  # (before the store closes, which checkpoints)
         self.opened_sha256: str | None = opened
         self.commits = 0  # moments committed by this writer (a reader opened after one must not use stores)
         self._load()
@@ -356,6 +369,12 @@ class LiveWriter:
         with self._lock:
             self._stack.close()
 
+    def checkpoint(self) -> bool:
+        """Checkpoint the write-ahead log into the database file now (between remembers);
+        whether it succeeded (a failure is logged; the log keeps every commit)."""
+        with self._lock:
+            return self.store is not None and self.checkpointer.run("asked")
+
     def __enter__(self) -> LiveWriter:
         return self
 
@@ -420,6 +439,7 @@ class LiveWriter:
             except BaseException:
                 self._restore(snapshot)
                 raise
+            self.checkpointer.committed()  # wakes the checkpoint thread if a bound is reached
             n_actions = len(segment.activity.action_breakdown)
             v.turns, v.last_segment = turn + 1, segment.segment_id
             v.duration, v.actions = max(v.duration, segment.t_end), v.actions + n_actions

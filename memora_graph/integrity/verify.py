@@ -20,12 +20,13 @@ from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, pid_alive
 from memora_graph.bank.derived import sha256_file
 from memora_graph.errors import BankError
 from memora_graph.form.staging import Staging
-from memora_graph.files import file_kind, file_sha256, probe, side_files
+from memora_graph.files import RECOVERY, file_kind, file_sha256, keep_log, probe, replay, side_files
 from memora_graph.ids import PATTERN, is_participant_id
-from memora_graph.store import Store
+from memora_graph.integrity.probe import machine_pool
+from memora_graph.store import MB, Store, wal_path
 
 _DB = re.compile(rf"\A({PATTERN})\.kuzu(\.wal|\.shadow)?\Z")
-KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash"}
+KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash", RECOVERY}
 PROBE_TIMEOUT_S = 60
 
 
@@ -126,10 +127,15 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
                               "counts": store.rows("store_counts", participant=p)[0]}
             elif not integ or mark:  # nothing to vouch for it: opened in a child process only
                 counts = probe(db, p, timeout=PROBE_TIMEOUT_S)
+                replayed = counts.get("replay") or {}
+                if replayed.get("log_bytes"):  # its log replayed (read-only) there: how big, with how much memory
+                    row["wal"] = recoverable(replayed)
             else:  # known to differ from its record: Kùzu can crash or spin on it, and its rows are moot
                 row["tables"] = "not opened (differs from its record)"
         except BankError as exc:
             row["tables"] = "cannot be opened"
+            if any(s.suffix == ".wal" for s in sides):
+                row["wal"] = f"{wal_path(db).stat().st_size / 1e6:.1f} MB: cannot be replayed here"
             problems.append(str(exc))
     if counts is not None:
         tables = counts["tables"]
@@ -170,6 +176,13 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
     row["status"] = "ok" if not problems else "problem"
     row["problems"] = problems
     return row
+
+
+def recoverable(replayed: dict) -> str:
+    """What replaying a log took, in words: "15.5 MB: recoverable: replay needs 473 MB (...)"."""
+    pool = replayed.get("pool_bytes") or machine_pool()
+    return (f"{replayed['log_bytes'] / 1e6:.1f} MB: recoverable: replay needs {pool / MB:.0f} MB "
+            f"(the buffer pool it was replayed with, read-only, in {replayed.get('seconds', 0):.1f} s)")
 
 
 def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str]) -> str:
@@ -234,8 +247,12 @@ def accept(path: str | Path, participant: str) -> dict:
         raise BankError(f"{db}: its build was interrupted; resume it with `memora build {bank.path} --participants "
                         f"{participant}` rather than accepting half of it")
     bank.checked_db_file(participant)
-    probe(db, participant, timeout=PROBE_TIMEOUT_S)
+    if side_files(db):  # a copy of the log first, then replayed into the file in a child process (its
+        keep_log(db)    # buffer pool sized from the log; a crash there is an error here)
+        replay(db, participant, timeout=PROBE_TIMEOUT_S)
+    else:
+        probe(db, participant, timeout=PROBE_TIMEOUT_S)
     bank.mark_writing(participant, "accept")
-    with Store(db, read_only=False):  # replays the log, and checkpoints it into the file on close
+    with Store(db, read_only=False):  # (a log left now is replayed here) checkpointed into the file on close
         pass
     return bank.record_integrity(participant)

@@ -286,7 +286,7 @@ class MemoryService:
     def __init__(self, bank: str | Path, participant: str | None = None, recipe: str = DEFAULT_RECIPE,
                  max_rows: int = MAX_ROWS, unconfined_cypher: bool = False, cypher_in_flight: int = CYPHER_IN_FLIGHT,
                  cypher_queue: int = CYPHER_QUEUE, writable: bool = False, consolidate_every: int | None = None,
-                 call_timeout: float | None = DEFAULT_CALL_TIMEOUT, max_calls: int = MAX_CALLS):
+                 call_timeout: float | None = DEFAULT_CALL_TIMEOUT, max_calls: int = MAX_CALLS, checkpoint=None):
         """`unconfined_cypher`: offer the cypher tool even where the kernel cannot confine its
         child process (memora_graph/confine.py); by default it is offered only where it can.
         `writable` (one participant only) also serves the `remember` tool: this process then
@@ -299,7 +299,9 @@ class MemoryService:
         new segments, incremental consolidation runs in a background thread (consolidate/live.py).
         `call_timeout`: seconds a call may run before it is answered CallTimeout and its work is
         stopped (serve/budget.py; None: no budget, the call runs in the caller's thread);
-        `max_calls`: calls in flight at once, past which a call is refused as Busy."""
+        `max_calls`: calls in flight at once, past which a call is refused as Busy.
+        `checkpoint`: the writer's checkpoint schedule (a form/checkpoint.py `CheckpointPolicy`;
+        default: its defaults)."""
         from memora_graph.confine import mode
 
         self.writer = None
@@ -313,7 +315,8 @@ class MemoryService:
             participant = check_participant(participant, "--participant")
             # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
             # and commits and updates the readers' caches inside it
-            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb)
+            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb,
+                                     checkpoint=checkpoint)
         elif consolidate_every is not None:
             raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)

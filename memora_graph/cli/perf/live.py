@@ -31,6 +31,7 @@ from pathlib import Path
 import click
 import polars as pl
 
+from memora_graph.cli.form import checkpoint_options, checkpoint_policy
 from memora_graph.output import render
 
 TARGET_P50_MS, TARGET_P95_MS, TARGET_RATIO = 20.0, 50.0, 2.0
@@ -88,14 +89,14 @@ def _peak_rss_mb() -> float:
 
 
 def measure(bank: Path, participant: str, remembers: int, rate: float, tool_rounds: int, echo,
-            consolidation: bool = True) -> dict:
+            consolidation: bool = True, checkpoint=None) -> dict:
     from memora_graph.form.live import Moment
     from memora_graph.serve import MemoryService
     from memora_graph.cli.perf.serve import call_set
 
     texts = _narrations(participant, 2000)
     t0, c0 = time.perf_counter(), time.process_time()
-    service = MemoryService(bank, participant, writable=True)  # the readers' stores written first if stale
+    service = MemoryService(bank, participant, writable=True, checkpoint=checkpoint)  # stores written first if stale
     opened = {"open_s": round(time.perf_counter() - t0, 2), "open_cpu_s": round(time.process_time() - c0, 2),
               "tool_stores": "written" if service._views[participant].persisted_written else
               ("read" if service._views[participant]._persisted is not None else "none (Kùzu)")}
@@ -123,7 +124,12 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         echo(f"  {remembers} remembers")
         wall, cpu = zip(*[remember() for _ in range(remembers)])
         out.update(remember_p50_ms=_pct(wall, .5), remember_p95_ms=_pct(wall, .95), remember_cpu_p50_ms=_pct(cpu, .5),
-                   remember_cpu_p95_ms=_pct(cpu, .95))
+                   remember_cpu_p95_ms=_pct(cpu, .95), remember_p99_ms=_pct(wall, .99),
+                   remember_max_ms=round(max(wall), 2))
+        # the writer's checkpoints meanwhile (form/checkpoint.py): how many, and how long each held the writer
+        runs = [r for r in service.writer.checkpointer.runs if r["ok"]]
+        out.update(checkpoints=len(runs), checkpoint_max_s=round(max((r["seconds"] for r in runs), default=0.0), 2),
+                   checkpoint_policy=service.writer.checkpoint_policy.describe())
 
         def tool_times(rounds: int, by_tool: dict | None = None) -> list[float]:
             got = []
@@ -198,7 +204,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
 
 
 def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float, str], remembers: int, rate: float,
-             tool_rounds: int, echo=print, consolidation: bool = True) -> list[dict]:
+             tool_rounds: int, echo=print, consolidation: bool = True, checkpoint=None) -> list[dict]:
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     for hours in sizes:
@@ -213,7 +219,8 @@ def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float
             shutil.rmtree(run)
         shutil.copytree(base, run)  # the measured writes never touch the base (or a given) bank
         echo(f"{tag}: measuring on {run}")
-        row = {"hours": hours, **measure(run, participant, remembers, rate, tool_rounds, echo, consolidation)}
+        row = {"hours": hours, **measure(run, participant, remembers, rate, tool_rounds, echo, consolidation,
+                                         checkpoint)}
         saved.write_text(json.dumps(row))
         rows.append(row)
         shutil.rmtree(run, ignore_errors=True)
@@ -237,7 +244,9 @@ def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float
                    "recomputes the whole memory per run, so at 1,000 h it is most of the run's time: "
                    "--no-consolidation measures remember and the tools only.")
 @click.option("--json", "as_json", is_flag=True, help="Print the rows as JSON.")
-def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds, consolidation, as_json):
+@checkpoint_options
+def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds, consolidation, as_json, checkpoint_mb,
+                  checkpoint_moments, checkpoint_seconds):
     """Live memory: remember latency, tool latency while remembering, incremental consolidation.
 
     \b
@@ -246,6 +255,7 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
       memora perf live --sizes 10 --work /tmp/perf-live
       memora perf live --sizes 10,100 --bank 10=/path/to/bank-10h --remembers 300 --json
       memora perf live --sizes 1000 --bank 1000=/path/to/bank-1000h --no-consolidation
+      memora perf live --sizes 10 --remembers 1000 --no-consolidation --checkpoint-mb 0 --checkpoint-moments 0
     """
     given: dict[float, str] = {}
     for b in banks:
@@ -259,7 +269,8 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
     except ValueError:
         raise click.UsageError(f"--sizes {sizes}: expected hours like 10,100") from None
     rows = run_live(participant, hours, Path(work), given, remembers, rate, tool_rounds,
-                    echo=lambda s: click.echo(s, err=True), consolidation=consolidation)
+                    echo=lambda s: click.echo(s, err=True), consolidation=consolidation,
+                    checkpoint=checkpoint_policy(checkpoint_mb, checkpoint_moments, checkpoint_seconds))
     if as_json:
         click.echo(json.dumps(rows, indent=2))
         return
