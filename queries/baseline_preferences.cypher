@@ -5,5 +5,5 @@ MATCH (f:Preference)
 WHERE f.participant = $participant
 OPTIONAL MATCH (f)-[:SUPPORTED_BY]->(s:Segment)
 RETURN f.id AS id, f.subtype AS subtype, f.statement AS statement, f.keywords AS keywords, f.objects AS objects,
-       f.confidence AS confidence, collect(s.id) AS segments
+       f.confidence AS confidence, f.source AS source, collect(s.id) AS segments
 ORDER BY id

@@ -5,5 +5,5 @@ MATCH (r:Routine)
 WHERE r.participant = $participant
 OPTIONAL MATCH (r)-[:SUPPORTED_BY]->(s:Segment)
 RETURN r.id AS id, r.goal AS goal, r.activity_type AS activity_type, r.canonical_steps AS canonical_steps,
-       r.key_objects AS key_objects, r.count AS count, r.confidence AS confidence, collect(s.id) AS segments
+       r.key_objects AS key_objects, r.count AS count, r.confidence AS confidence, r.source AS source, collect(s.id) AS segments
 ORDER BY id

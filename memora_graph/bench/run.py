@@ -44,6 +44,7 @@ from memora_graph.bench.items import (
     DEFAULT_TEMPERATURE, KINDS, RunSummary, make_policy, one_torch_thread, read_records, record_path, run_item, run_plan,
 )
 from memora_graph.bench.tasks import BenchSuite, load_suite
+from memora_graph.consolidate.task_records import TASK_SOURCES
 from memora_graph.errors import MemoraError
 from memora_graph.stats import memory_formation
 
@@ -93,10 +94,15 @@ def task_set_hash(suite: BenchSuite) -> str:
 
 def scoring_memory(bank: Path, participant: str) -> dict[str, Any]:
     """What the planning metrics read from the participant's MEMORA bank (routines, preferences,
-    object names); stored in the run so the report needs only the run directory."""
+    object names); stored in the run so the report needs only the run directory. The task memory's
+    records (how tasks are done: sources in TASK_SOURCES) are left out: they are what a memory
+    offers a planner, not the yardstick it is scored against, which stays the one every earlier run
+    was scored with."""
     with Bank(bank).open(participant) as store:
-        routines = store.rows("baseline_routines", participant=participant)
-        prefs = store.rows("baseline_preferences", participant=participant)
+        routines = [r for r in store.rows("baseline_routines", participant=participant)
+                    if r.get("source") not in TASK_SOURCES]
+        prefs = [p for p in store.rows("baseline_preferences", participant=participant)
+                 if p.get("source") not in TASK_SOURCES]
         objects = store.rows("baseline_entities", participant=participant)
     return {
         "routines": [{"goal": r["goal"], "canonical_steps": [{"action": s} for s in r["canonical_steps"] or []],

@@ -23,6 +23,7 @@ from collections import Counter
 
 import numpy as np
 
+from memora_graph.consolidate.task_records import TASK_SOURCES  # Routine / Preference rows of the task memory
 from memora_graph.perceive.vocab import PLACE_NAMES
 from memora_graph.records import segment_id
 from memora_graph.retrieve.args import (
@@ -465,7 +466,6 @@ def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> Repl
 
 
 TASK_EXTRA = 5  # task-level records a routine or preference search adds after its top k (see _with_tasks)
-TASK_SOURCES = frozenset({"task_routine", "tasks"})  # Routine / Preference rows of the task memory
 
 
 def _with_tasks(view: MemoryView, table: str, rows: dict, cands: dict, k: int) -> list:
