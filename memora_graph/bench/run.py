@@ -144,6 +144,10 @@ def run_bench(
     instead (bench/ray.py); the records are the same."""
     t_start = time.perf_counter()
     concurrency = resolve_concurrency(concurrency, backend)  # a bad value fails before anything is written
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown or not kinds:
+        raise MemoraError(f"--kinds: unknown task kind(s) {', '.join(unknown) or '(none given)'}; "
+                          f"choose from {', '.join(KINDS)}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     bank = Path(bank)

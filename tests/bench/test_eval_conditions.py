@@ -121,3 +121,18 @@ def test_a_damaged_baseline_cache_is_rebuilt_not_trusted(family, small_bank, tmp
     assert again == first
     assert cached.read_text()[:100] != cached.read_text(), "the cache was written whole again"
     assert get_family(family).open(bank, "P37").search("wash the plate").model_dump(mode="json") == first
+
+
+def test_an_unknown_task_kind_is_refused_before_anything_is_written(small_bank, tmp_path):
+    """`--kinds planning` (not a kind) names the kinds there are, instead of a KeyError traceback
+    after the run directory was created."""
+    from click.testing import CliRunner
+
+    from memora_graph.cli import main
+
+    bank, _ = small_bank
+    out = tmp_path / "run"
+    res = CliRunner().invoke(main, ["bench", "run", str(bank), "--out", str(out), "--participants", "P37",
+                                    "--conditions", "no_memory", "--kinds", "planning"])
+    assert res.exit_code == 1 and "unknown task kind(s) planning" in res.output and "eam_qa" in res.output
+    assert not out.exists()
