@@ -33,6 +33,19 @@ def enabled() -> bool:
     return os.environ.get(ENV, "off").lower() in ("1", "on", "true", "yes")
 
 
+def is_task_record(rec) -> bool:
+    """A record of the task memory (consolidate/tasks.py, consolidate/patterns/): a recurring task's
+    stages (a routine of kind "task_routine") or how tasks are done (a preference whose subtype is a
+    pattern family). The offline reader and planner read them only when asked (`enabled()`, `plan
+    --from-task`): served by the tools, they change no default answer or plan."""
+    from memora_graph.consolidate.task_records import FAMILIES
+
+    kind = getattr(rec, "kind", None)
+    if kind == "task_routine" and hasattr(rec, "routine_id"):
+        return True
+    return hasattr(rec, "preference_id") and getattr(rec, "subtype", None) in FAMILIES
+
+
 WEIGHT = 0.6  # what one fully held pattern record adds to (or takes from) an option's score
 MAX_SHIFT = 1.2  # the most the records move one option
 

@@ -33,6 +33,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
+from memora_graph.agent.claims import is_task_record
 from memora_graph.baselines.flat1d import FlatHit
 from memora_graph.baselines.graph2d import GraphNode
 from memora_graph.perceive.lexicon import Lexicon
@@ -253,6 +254,8 @@ def procedures(calls: list[dict[str, Any]], lex: Lexicon) -> list[Procedure]:
         if not isinstance(result, ToolResult):
             continue
         for kind, rec in result.records():
+            if is_task_record(rec):  # a task's stages are planned from only with `plan --from-task` (task_plan.py)
+                continue
             if isinstance(rec, RoutineRecord) and rec.canonical_steps:
                 p = routine_procedure(rec, lex)
             else:
@@ -561,4 +564,4 @@ def ground(draft: list[dict[str, Any]], found: dict[str, Grounding], goal_object
 def preferences_of(calls: list[dict[str, Any]]) -> list[PreferenceRecord]:
     return [rec for c in calls if c["name"] in ("get_preferences", "search_patterns", "search")
             and isinstance(c.get("result"), ToolResult)
-            for _, rec in c["result"].records() if isinstance(rec, PreferenceRecord)]
+            for _, rec in c["result"].records() if isinstance(rec, PreferenceRecord) and not is_task_record(rec)]

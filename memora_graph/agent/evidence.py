@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 import re
 
-from memora_graph.agent.claims import Claim
+from memora_graph.agent.claims import Claim, is_task_record
+from memora_graph.agent.claims import enabled as claims_enabled
 from memora_graph.agent.reading import Event
 from memora_graph.baselines.flat1d import FlatHit
 from memora_graph.baselines.graph2d import GraphNode
@@ -114,6 +115,8 @@ def _step_action(a: Action, lex: Lexicon) -> tuple[str | None, tuple[str, ...]]:
 
 
 def _record_events(kind: str, rec, lex: Lexicon) -> list[Event]:
+    if is_task_record(rec) and not claims_enabled():  # the task memory speaks to the reader only when asked
+        return []
     if isinstance(rec, ActivityRecord):
         return _activity_events(rec, lex)
     if isinstance(rec, ObjectRecord):
