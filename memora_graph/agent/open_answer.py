@@ -7,8 +7,8 @@
 
 `open_parse.parse_open` says what is asked; this module reads it from the stores:
 
-- the activity log (every segment's narrated steps, `queries/_open_action_log.cypher`), read at
-  EPIC class level: each step's action, its object, and where it went (a narrated destination
+- the activity log (every segment's narrated steps, kept as columns with the tool stores:
+  retrieve/steps.py, agent/steplog.py), read at EPIC class level: each step's action, its object, and where it went (a narrated destination
   of the furniture, storage, appliance, container, cookware, crockery, rubbish or utensil kind);
 - the consolidated stores: storage preferences (where something is usually kept), habits (what
   follows a trigger) and routines (the ordered steps of a goal), used where they speak to the
@@ -24,17 +24,17 @@ absent from this person's memory.
 
 from __future__ import annotations
 
-import bisect
 import json
 import math
 from collections import Counter
-from dataclasses import dataclass
 from typing import Literal
 
 from pydantic import BaseModel, Field
 
 from memora_graph.agent.open_parse import OpenQuestion, fix_keys, noun_classes, parse_open
+from memora_graph.agent.steplog import LogStep, StepLog, Steps
 from memora_graph.perceive.lexicon import Lexicon
+from memora_graph.retrieve.steps import StepRows
 
 NOT_IN_MEMORY = "not in memory"
 # EPIC noun categories of where things are put or taken from (a narration's second object)
@@ -126,18 +126,6 @@ class OpenAnswer(BaseModel):
 
 # -- the activity log ---------------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class LogStep:
-    video: str
-    t: float
-    segment: str
-    verb: str | None
-    objects: tuple[str, ...]  # the step's own object classes
-    nouns: tuple[str, ...]  # every class the narration names
-    place: str | None  # where it went / came from
-    text: str
-
-
 def noun_words(noun: str) -> str:
     parts = [p for p in noun.replace("_", " ").split(":") if p]
     return " ".join(parts[1:] + parts[:1]) if parts else noun
@@ -169,67 +157,37 @@ def _step_classes(narration: str, obj: str, action: str, lex: Lexicon) -> tuple:
     return verb, tuple(dict.fromkeys(objects)), tuple(nouns), _place_of(objects, nouns, lex, said)
 
 
-def _segment_steps(seg: dict, lex: Lexicon, seen: dict | None = None) -> list[LogStep]:
-    """The narrated steps of one activity record (id, video, t_start, action_breakdown) as classes.
-    `seen` keeps each distinct step wording's classes across calls: a person's narrations repeat
-    (115,079 steps in 36,003 segments at 100 h), and parsing each again was nearly all of the
-    first `ask`'s time (5.9 CPU-s at 100 h)."""
-    seen = {} if seen is None else seen
-    out: list[LogStep] = []
-    try:
-        steps = json.loads(seg["action_breakdown"] or "[]")
-    except (TypeError, ValueError):
-        steps = []
-    t0 = float(seg["t_start"] or 0.0)
-    for s in steps:
-        narration = str(s.get("narration") or "")
-        obj = str(s.get("object") or "")
-        action = str(s.get("action") or "")
-        key = (narration, obj, action)
-        classes = seen.get(key)
-        if classes is None:
-            classes = seen[key] = _step_classes(narration, obj, action, lex)
-        try:
-            t = t0 + float(s.get("timestamp") or 0.0)
-        except (TypeError, ValueError):
-            t = t0
-        out.append(LogStep(seg["video"], t, seg["id"], *classes, narration or f"{s.get('action', '')} {obj}".strip()))
-    return out
-
-
-def action_log(view, lex: Lexicon) -> list[LogStep]:
-    """Every narrated step in the person's memory as classes, in (video, time) order; read once
-    per open view. A server's reader notes the segments remembered since
-    (`view._open_log_pending`, MemoryView.absorb): their steps are put in their place (after
-    the steps of equal video and time, as the stable sort of a whole read puts a later turn's)."""
+def action_log(view, lex: Lexicon) -> StepLog:
+    """Every narrated step in the person's memory as classes, in (video, time) order
+    (agent/steplog.py): the steps are the columns kept with the tool stores (`view.steps`,
+    retrieve/steps.py, with the segments remembered since in their place); each distinct step
+    wording's classes are computed once per view (a person's narrations repeat: 1,151,204 steps
+    in 31,977 wordings at 1,000 h)."""
+    rows = view.steps
     cached = view.__dict__.get("_open_action_log")
-    if cached is not None:
-        pending = view.__dict__.pop("_open_log_pending", None)
-        if pending:
-            for seg in view.by_id("_tool_segment", pending):
-                for step in _segment_steps(seg, lex, view.__dict__.setdefault("_open_log_words", {})):
-                    bisect.insort_right(cached, step, key=lambda s: (s.video, s.t))
+    if cached is not None and cached.rows is rows:
         return cached
-    view.__dict__.pop("_open_log_pending", None)
-    out: list[LogStep] = []
-    seen = view.__dict__["_open_log_words"] = {}
-    for seg in view.fetch("_open_action_log"):
-        out += _segment_steps(seg, lex, seen)
-    out.sort(key=lambda s: (s.video, s.t))
-    view.__dict__["_open_action_log"] = out
-    return out
+    log = step_log(rows, lex, view.__dict__.setdefault("_open_log_words", {}), cached)
+    view.__dict__["_open_action_log"] = log
+    return log
 
 
-def _runs(log: list[LogStep]) -> list[list[LogStep]]:
-    """Consecutive steps of one video with the same action, collapsed (a run is one event)."""
-    runs: list[list[LogStep]] = []
-    for s in log:
-        key = (s.video, s.verb, s.objects[:1])
-        if runs and (runs[-1][0].video, runs[-1][0].verb, runs[-1][0].objects[:1]) == key:
-            runs[-1].append(s)
-        else:
-            runs.append([s])
-    return runs
+def step_log(rows: StepRows, lex: Lexicon, seen: dict | None = None, grown_from: StepLog | None = None) -> StepLog:
+    """The log of `rows` with each wording's classes (`_step_classes`), kept in `seen` by wording
+    across calls; `grown_from`: the log of the same rows before segments were added (its
+    wordings' classes are reused when they are the first of these)."""
+    seen = {} if seen is None else seen
+    n = len(grown_from.classes) if grown_from is not None else 0
+    if n and grown_from.rows.words[:n] != rows.words[:n]:
+        grown_from, n = None, 0
+    classes = list(grown_from.classes) if n else []
+    for narration, obj, action, _ in rows.words[n:]:
+        key = (narration, obj, action)
+        c = seen.get(key)
+        if c is None:
+            c = seen[key] = _step_classes(narration, obj, action, lex)
+        classes.append(c)
+    return StepLog(rows, classes, grown_from if n else None)
 
 
 def clock(seconds: float) -> str:
@@ -274,17 +232,22 @@ def _matches(s: LogStep, q: OpenQuestion, loose: bool = False) -> bool:
     return True
 
 
-def _records(log: list[LogStep], q: OpenQuestion, ids: list[str]) -> list[LogLine]:
+def _records(log: StepLog, q: OpenQuestion, ids: list[str]) -> list[LogLine]:
     """The steps of the cited segments that the question is about (else the segment's steps)."""
-    wanted = set(ids)
-    steps = [s for s in log if s.segment in wanted]
+    steps = list(log.of_segments(ids))
     about = [s for s in steps if _matches(s, q, loose=True)] or [s for s in steps if set(_subject(q)) & set(s.nouns)]
     return [LogLine(video=s.video, time_seconds=round(s.t, 2), text=s.text, segment_id=s.segment)
             for s in (about or steps)][:MAX_EVIDENCE]
 
 
-def _ids(steps: list[LogStep]) -> list[str]:
+def _ids(steps: list[LogStep] | Steps) -> list[str]:
+    if isinstance(steps, Steps):
+        return steps.segment_ids(MAX_EVIDENCE)
     return list(dict.fromkeys(s.segment for s in steps))[:MAX_EVIDENCE]
+
+
+def _videos(steps: Steps) -> list[str]:
+    return steps.videos()
 
 
 # -- answering -----------------------------------------------------------------------------------------
@@ -310,7 +273,7 @@ def _nim(base: dict, reason: str, detail: str, **features) -> OpenAnswer:
                       features={"nim": 1.0, **features})
 
 
-def _not_in_memory(view, participant: str, q: OpenQuestion, log: list[LogStep], base: dict) -> OpenAnswer | None:
+def _not_in_memory(view, participant: str, q: OpenQuestion, log: StepLog, base: dict) -> OpenAnswer | None:
     if q.kind == "general":
         return _nim(base, "general_knowledge", "the question asks about the world, not about what this person did")
     others = [p for p in q.persons if p != participant]
@@ -321,8 +284,7 @@ def _not_in_memory(view, participant: str, q: OpenQuestion, log: list[LogStep], 
         return _nim(base, "absent_subject", f"no video {', '.join(missing)} in {participant}'s memory")
     if q.kind in ("activity", "state") and q.videos:
         return None
-    nouns = {n for s in log for n in s.nouns}
-    verbs = {s.verb for s in log if s.verb}
+    nouns, verbs = log.nouns, log.verbs
     subject = _subject(q)
     if not subject and (not q.verbs or set(q.verbs) <= GENERIC_VERBS):
         what = ", ".join(q.unknown) if q.unknown else "what the question names"
@@ -341,11 +303,11 @@ def _features(support: int, share: float = 1.0, margin: float = 1.0, fallback: b
             "fallback": 1.0 if fallback else 0.0, "exact": 1.0 if exact else 0.0}
 
 
-def _place(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _place(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
     subject = _subject(q)
     noun = subject[0] if subject else None
     verbs = TAKE_VERBS if q.source else PUT_VERBS
-    cands = [s for s in log if s.place and noun in s.objects and s.verb in verbs and s.place != noun]
+    cands = log.where(lambda s: s.place and noun in s.objects and s.verb in verbs and s.place != noun)
     what = noun_words(noun) if noun else "it"
     if cands:
         if q.order in ("last", "first"):
@@ -382,7 +344,7 @@ def _place(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
                           evidence=[p["id"], *p.get("supporting_episodes", [])[:5]], support=pv.count,
                           detail="a consolidated storage preference", features=_features(pv.count, 1.0, 1.0, True, False))
     if not q.source:  # where it is taken from is where it is kept
-        taken = [s for s in log if s.place and noun in s.objects and s.verb in TAKE_VERBS and s.place != noun]
+        taken = log.where(lambda s: s.place and noun in s.objects and s.verb in TAKE_VERBS and s.place != noun)
         if taken:
             counts = Counter(c.place for c in taken)
             best, n = counts.most_common(1)[0]
@@ -405,7 +367,7 @@ def _place(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
                           f" at {clock(float(e.get('last_seen') or 0))})", in_memory=True, place=pv, evidence=[e["id"]],
                           support=int(e.get("n_observations") or 0), detail="the object's last recorded location",
                           features=_features(int(e.get("n_observations") or 0), 0.5, 0.0, True, False))
-    seen = [s for s in log if noun in s.nouns and s.place and s.place != noun]
+    seen = log.where(lambda s: noun in s.nouns and s.place and s.place != noun)
     if seen:
         s = seen[-1] if q.order != "first" else seen[0]
         pv = PlaceValue(place=s.place, name=noun_words(s.place), video=s.video, time_seconds=round(s.t, 2), count=1)
@@ -436,17 +398,17 @@ def _storage_prefs(view, noun: str | None, lex: Lexicon) -> list[dict]:
     return sorted(out, key=lambda p: -(p.get("count") or 0))
 
 
-def _time(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q)]
+def _time(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
+    hits = log.where(lambda s: _matches(s, q))
     exact = True
     if not hits:
-        hits = [s for s in log if _matches(s, q, loose=True)]
+        hits = log.where(lambda s: _matches(s, q, loose=True))
         exact = False
     if not hits:
         return _never(q, base)
     s = hits[0] if q.order == "first" else hits[-1]
     word = "first" if q.order == "first" else "last"
-    videos = list(dict.fromkeys(h.video for h in hits))
+    videos = _videos(hits)
     m = MomentValue(video=s.video, time_seconds=round(s.t, 2), clock=clock(s.t))
     return OpenAnswer(**base, kind="time", answer=f"{s.video} at {m.clock} ({word} of {len(hits)} times, in "
                       f"{len(videos)} videos)", in_memory=True, moment=m, evidence=[s.segment], support=len(hits),
@@ -461,11 +423,11 @@ def _never(q: OpenQuestion, base: dict) -> OpenAnswer:
                       features=_features(0, 0.0, 0.0))
 
 
-def _count(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q)]
+def _count(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
+    hits = log.where(lambda s: _matches(s, q))
     if not hits:
         return _never(q, base)
-    videos = list(dict.fromkeys(h.video for h in hits))
+    videos = _videos(hits)
     n = len(videos) if q.unit == "videos" else len(hits)
     unit = "videos" if q.unit == "videos" else "times"
     asked = action_text(q.verb, _subject(q)[0] if _subject(q) else None)
@@ -474,11 +436,11 @@ def _count(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
                       detail=f"counted {len(hits)} records of '{asked}'", features=_features(len(hits), 1.0, 1.0))
 
 
-def _yesno(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q, loose=True)]
+def _yesno(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
+    hits = log.where(lambda s: _matches(s, q, loose=True))
     if not hits:
         return _never(q, base)
-    videos = list(dict.fromkeys(h.video for h in hits))
+    videos = _videos(hits)
     return OpenAnswer(**base, kind="yesno", answer=f"yes ({len(hits)} times in {len(videos)} videos; last in "
                       f"{hits[-1].video} at {clock(hits[-1].t)}: {hits[-1].text})", in_memory=True, yes=True,
                       evidence=_ids(hits), support=len(hits), detail=hits[-1].text, features=_features(len(hits)))
@@ -489,20 +451,19 @@ def _shares(counts: Counter, total: int) -> list[ActionShare]:
             for (v, n), c in counts.most_common(MAX_ACTIONS)]
 
 
-def _next(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    runs = _runs(log)
+def _next(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
     subject = _subject(q)
     counts: Counter = Counter()
-    ids: dict = {}
-    follows: dict = {}
-    for a, b in zip(runs, runs[1:]):
-        s = a[0]
-        if a[0].video != b[0].video or (q.verb and s.verb != q.verb) or (subject and subject[0] not in s.objects):
-            continue
-        key = (b[0].verb, b[0].objects[0] if b[0].objects else "")
+    follows: dict = {}  # the first few steps of each following action
+    after = log.runs_followed(lambda s: not ((q.verb and s.verb != q.verb) or (subject and subject[0] not in s.objects)))
+    pairs = log._pairs()[0]
+    for p, k in zip(after.tolist(), log.pair_ids(after).tolist()):
+        key = pairs[k]
         counts[key] += 1
-        ids.setdefault(key, []).append(b[0].segment)
-        follows.setdefault(key, []).append(b[0])
+        shown = follows.setdefault(key, [])
+        if len(shown) < 5:
+            shown.append(log.step(p))
+    ids = {key: [st.segment for st in sts] for key, sts in follows.items()}
     if not counts:
         return _never(q, base) if q.verb else _actions(view, q, log, lex, base)
     total = sum(counts.values())
@@ -518,12 +479,12 @@ def _next(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -
                       features=_features(acts[0].count, acts[0].share, margin, exact=False))
 
 
-def _actions(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _actions(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
     subject = _subject(q)
-    hits = [s for s in log if (not subject or subject[0] in s.nouns) and _verb_ok(q.verb, s.verb, True)]
+    hits = log.where(lambda s: (not subject or subject[0] in s.nouns) and _verb_ok(q.verb, s.verb, True))
     if not hits:
         return _never(q, base)
-    counts = Counter((s.verb, s.objects[0] if s.objects else "") for s in hits)
+    counts = log.action_counts(hits)
     acts = _shares(counts, len(hits))
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
     return OpenAnswer(**base, kind="actions", answer="; ".join(f"{a.text} ({a.share:.0%})" for a in acts),
@@ -532,7 +493,7 @@ def _actions(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict
                       features=_features(acts[0].count, acts[0].share, margin, exact=False))
 
 
-def _routine(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _routine(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
     subject = set(_subject(q))
     best, best_score = None, 0.0
     for r in view.routines.values():
@@ -556,15 +517,8 @@ def _routine(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict
                           detail=f"the consolidated routine '{best.get('goal')}'",
                           features=_features(n, float(best.get("confidence") or 0.5), 1.0, exact=False))
     # no routine: the steps that most often surround the goal action in the episodes
-    runs = _runs(log)
-    windows: Counter = Counter()
-    for i, run in enumerate(runs):
-        s = run[0]
-        if (q.verb and s.verb != q.verb) or (subject and not subject & set(s.objects)):
-            continue
-        seq = tuple((r[0].verb, r[0].objects[0] if r[0].objects else "") for r in runs[max(0, i - 1):i + 3]
-                    if r[0].video == s.video)
-        windows[seq] += 1
+    windows: Counter = Counter(log.run_windows(
+        lambda s: not ((q.verb and s.verb != q.verb) or (subject and not subject & set(s.objects))), 1, 2))
     if not windows:
         return _never(q, base)
     seq, n = windows.most_common(1)[0]
@@ -574,7 +528,7 @@ def _routine(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict
                       features=_features(n, n / sum(windows.values()), 0.0, True, False))
 
 
-def _state(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _state(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
     video = q.videos[0] if q.videos else None
     if video is None:
         return _actions(view, q, log, lex, base)
@@ -606,9 +560,9 @@ def _state(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) 
                       detail=f"the state history of {video} {at}")
 
 
-def _activity(view, q: OpenQuestion, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _activity(view, q: OpenQuestion, log: StepLog, lex: Lexicon, base: dict) -> OpenAnswer:
     video = q.videos[0]
-    steps = [s for s in log if s.video == video]
+    steps = list(log.of_video(video))
     subject = set(_subject(q))
     if subject:
         steps = [s for s in steps if subject & set(s.nouns)] or steps
