@@ -82,13 +82,13 @@ def test_named_queries_of_a_writable_server_read_a_snapshot_without_the_readers_
             service.call("remember", {"text": text, "video": "kitchen-1", "start": 2.0 * i})
         got = {}
         with service._lock:  # the readers' lock, as a remember holds it while it commits
-            t = threading.Thread(target=lambda: got.update(service.call("query_baseline_segments", {})), daemon=True)
+            t = threading.Thread(target=lambda: got.update(service.call("query_baseline_segments", {"video": "kitchen-1"})), daemon=True)
             t.start()
             t.join(30)
             assert not t.is_alive(), "the named query waited for the readers' lock"
         assert got["row_count"] == 3 and {r["video"] for r in got["rows"]} == {"kitchen-1"}
         service.call("remember", {"text": "close the fridge", "video": "kitchen-1", "start": 9.0})
-        assert service.call("query_baseline_segments", {})["row_count"] == 4, "the next snapshot holds the new moment"
+        assert service.call("query_baseline_segments", {"video": "kitchen-1"})["row_count"] == 4, "the next snapshot holds the new moment"
     finally:
         service.close()
     assert verify_bank(tmp_path / "bank").ok
