@@ -25,3 +25,14 @@ def test_baseline_records_come_a_video_at_a_time_and_together_are_every_record(s
         assert {r["video"] for r in events[v]} <= {v} and {r["video"] for r in segments[v]} <= {v}
         assert [r["t"] for r in events[v]] == sorted(r["t"] for r in events[v])
         assert [r["turn"] for r in segments[v]] == sorted(r["turn"] for r in segments[v])
+
+
+def test_inferred_evidence_reads_one_record_by_id(small_bank):
+    bank, _ = small_bank
+    with Bank(bank).open("P37") as store:
+        every = store.rows("_explore_evidence", participant="P37")
+        assert every, "the small bank holds routines and preferences"
+        for r in every[:: max(1, len(every) // 10)]:
+            assert store.rows("inferred_evidence", participant="P37", id=r["id"]) == [r]
+        assert store.rows("inferred_evidence", participant="P09", id=every[0]["id"]) == []
+        assert store.rows("inferred_evidence", participant="P37", id="P37:routine:none") == []
