@@ -7,7 +7,9 @@ document lengths, memory-mapped `.npy`), every segment row as `_tool_segment` re
 embedding matrix (scanned
 instead of every row: search.py, `VectorTable.sims`), the observation graph (entity <-> segment arrays and
 co-occurrence counts, memory-mapped `.npy`), the history index (every entity's history summary and
-history in order, memory-mapped `.npy`: retrieve/history.py) and the rows of the small participant-wide tool
+history in order, memory-mapped `.npy`: retrieve/history.py), the activity log's steps (video, time,
+segment and wording of every narrated step, memory-mapped `.npy`, and the distinct wordings: what
+`ask` reads, retrieve/steps.py) and the rows of the small participant-wide tool
 queries (entity registry, places, videos, routines, preferences, inferred links). Nothing is
 parsed or rebuilt whole at open: at 1,000 h the JSON postings and observation rows took 7 s.
 
