@@ -41,6 +41,7 @@ if TYPE_CHECKING:
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 log = logging.getLogger("memora_graph.integrity")
 TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
+STEPS_PENDING_MAX = 512  # remembered segments held for the activity log's next read before they are put in
 
 
 # Views whose loaded data `warm` froze (gc.freeze is process-wide: the permanent generation holds
@@ -564,7 +565,10 @@ class MemoryView:
         loaded.pop("videos", None)
         if "_steps" in loaded or (self._persisted is not None and self._persisted.has_steps()):
             row = delta.get("segment_row") or {}  # the activity log's steps (retrieve/steps.py) take it in when read
-            loaded.setdefault("_steps_pending", []).append(row if "action_breakdown" in row else sid)
+            pending = loaded.setdefault("_steps_pending", [])
+            pending.append(row if "action_breakdown" in row else sid)
+            if len(pending) >= STEPS_PENDING_MAX:  # a long stream with no `ask`: folded in now and then, not held
+                _ = self.steps
         self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
         self._history_absorbed(delta)  # entities whose history grew

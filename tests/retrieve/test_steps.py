@@ -108,3 +108,24 @@ def test_the_reader_filters_and_runs_give_what_a_scan_of_the_steps_gives(lex):
     ids = [steps[3].segment, steps[-1].segment, "nope"]
     assert list(log.of_segments(ids)) == [s for s in steps if s.segment in ids]
     assert log.nouns == {n for s in steps for n in s.nouns} and log.verbs == {s.verb for s in steps if s.verb}
+
+
+def test_a_writable_servers_log_takes_remembered_moments_in_and_holds_few_pending(tmp_path, monkeypatch, lex):
+    """Remembered moments reach the readers' log from the writer's rows (no read of the log), in
+    the order a fresh read of the database gives; a long stream with no `ask` is folded in every
+    STEPS_PENDING_MAX moments rather than held."""
+    from memora_graph.retrieve import view as view_mod
+    from memora_graph.serve import MemoryService
+
+    monkeypatch.setattr(view_mod, "STEPS_PENDING_MAX", 3)
+    texts = ["put the kettle on the counter", "take the knife from the drawer", "open the fridge", "wash the plate"]
+    with MemoryService(tmp_path / "bank", "P01", writable=True) as service:
+        service.call("remember", {"text": "open the cupboard", "video": "v2", "start": 1.0})
+        view = service._views["P01"]
+        service.call("ask", {"question": "Where does P01 keep the kettle?"})  # the log read once
+        for i in range(8):
+            service.call("remember", {"text": texts[i % 4], "video": ["v2", "v1", "v3"][i % 3], "start": 2.0 + i})
+            assert len(view.__dict__.get("_steps_pending", [])) < 3
+        got = step_log(view.steps, lex)
+        whole = StepRows.build(view.store.fetch("_open_action_log", participant="P01"))
+        assert list(got) == list(step_log(whole, lex)) and len(got) == 9
