@@ -84,11 +84,15 @@ def cache_or_build(bank_path: str | Path, participant: str, name: str, version: 
     return make(mode, built, vectors)
 
 
+# whole-participant reads: the public queries of these give a video at a time (issue 36)
+_WHOLE = {"segments": "_baseline_segments_all", "state_events": "_baseline_state_events_all"}
+
+
 def load_records(bank: Bank, participant: str) -> dict[str, list[dict]]:
     """The participant's records through the named baseline queries (one read-only open)."""
     with bank.open(participant) as store:
         return {
-            name: store.rows(f"baseline_{name}", participant=participant)
+            name: store.rows(_WHOLE.get(name, f"baseline_{name}"), participant=participant)
             for name in ("segments", "state_events", "entities", "places", "routines", "preferences")
         }
 

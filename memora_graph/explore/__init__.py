@@ -30,7 +30,7 @@ def explorer_data(bank_path: str | Path, participant: str) -> dict:
     bank = Bank(bank_path)
     with bank.open(participant) as store:
         data = {key: store.fetch(name, participant=participant) for key, name in _QUERIES.items()}
-        evidence = {r["id"]: sorted(set(r["linked"])) for r in store.fetch("inferred_evidence", participant=participant)}
+        evidence = {r["id"]: sorted(set(r["linked"])) for r in store.fetch("_explore_evidence", participant=participant)}
         links: dict[str, list[str]] = {}
         for r in store.fetch("_tool_inferred_links", participant=participant):
             links.setdefault(r["id"], []).append(r["entity"])

@@ -246,6 +246,8 @@ class MemoryService:
         self.writer = None
         self.consolidator = None
         self._lock = threading.Lock()
+        self._named_lock = threading.Lock()  # the named queries' own connection (a writable server's)
+        self._named_reader = None
         if writable:
             if participant is None:
                 raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
@@ -314,6 +316,10 @@ class MemoryService:
     def close(self) -> None:
         if self.consolidator is not None:
             self.consolidator.stop()
+        with self._named_lock:
+            if self._named_reader is not None:
+                self._named_reader.close()
+                self._named_reader = None
         with self._lock:
             for view in self._views.values():
                 view.close()
@@ -517,6 +523,15 @@ class MemoryService:
 
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+            if self.writer is not None:
+                # a second connection on the writer's database (Kùzu serves it the last committed
+                # snapshot): a named query that scans the memory for seconds does not hold the
+                # readers' lock, so remembers and the other tools do not wait for it
+                with self._named_lock:
+                    if self._named_reader is None:
+                        self._named_reader = self.writer.store.reader()
+                    frame = self._named_reader.run(name, participant=participant, **arguments)
+                return _rows(frame, participant, self.max_rows)
             with self._lock:
                 frame = self._view(participant).store.run(name, participant=participant, **arguments)
             return _rows(frame, participant, self.max_rows)

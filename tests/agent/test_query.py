@@ -193,21 +193,24 @@ def test_scoped_generator_gold_and_the_counterfactual_check(small_bank):
 
 
 def test_vocabulary_takes_remembered_steps_in_as_a_fresh_read_would(small_bank, lex):
-    """A live view's vocabulary grows with the steps remembered since (no re-read), and equals the
-    vocabulary of the whole log read at once."""
-    from memora_graph.agent.query.log import action_log
+    """A live view's vocabulary grows with the steps remembered since (only theirs are read), and
+    equals the vocabulary of the whole log read at once."""
+    from memora_graph.agent.query.log import step_log
     from memora_graph.agent.query.vocabulary import Vocabulary
+    from memora_graph.retrieve.steps import StepRows
 
     with MemoryView.open(small_bank[0], "P37") as view:
-        log = action_log(view, lex)
-        whole = Vocabulary.of(view, lex, log)
+        whole = Vocabulary.of(view, lex)
         words, names = dict(whole.words), {c: dict(n) for c, n in whole.names.items()}
-        view.__dict__["_query_vocabulary"] = None  # start again from half the log ...
-        half = log[: len(log) // 2]
-        rest = log[len(log) // 2:]
-        view.__dict__.pop("_query_vocab_log", None)
+        segs = view.fetch("_open_action_log")
+        for key in ("_query_vocabulary", "_query_vocab_read"):  # start again from half the log ...
+            view.__dict__.pop(key)
+        half = step_log(StepRows.build(segs[: len(segs) // 2]), lex)
         grown = Vocabulary.of(view, lex, half)
-        view.__dict__["_open_log_added"].extend(rest)  # ... as a live view notes remembered steps
-        view.__dict__["_query_vocab_log"] = log
-        grown = Vocabulary.of(view, lex, log)
-        assert dict(grown.words) == words and {c: dict(n) for c, n in grown.names.items()} == names
+        assert dict(grown.words) != words
+        log = step_log(half.rows.added(segs[len(segs) // 2:]), lex, {}, half)  # ... as a live view remembers
+        again = Vocabulary.of(view, lex, log)
+        assert again is grown  # taken in, not read again
+        assert dict(again.words) == words and {c: dict(n) for c, n in again.names.items()} == names
+
+
