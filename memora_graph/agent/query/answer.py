@@ -200,7 +200,7 @@ def _scoped(log: StepLog, q: Query, view, anchor: _Ask | None, vocab_lex) -> Ste
         lex = vocab_lex
         cls = [n for n in ev.objects if n in lex.noun_keys] or [c for o in ev.objects for c in lex.noun_classes(o)][:1]
         ask = _Ask(query=q, kind="next", verbs=[v for v in [_verb_class(ev.verb, lex)] if v], nouns=cls)
-        hit = out.mask(lambda s: _matches(s, ask, loose=True))
+        hit = out.mask(_matcher(ask, True))
         t, v = out.t, out.video_ix
         marks = np.full(len(rows.videos), np.inf if side == "after" else -np.inf)
         if side == "after":  # after the event's first time in the video
@@ -250,19 +250,27 @@ def _says(text: str, word: str) -> bool:
 
 
 def _matches(s: LogStep, q: _Ask, loose: bool = False) -> bool:
+    return _matcher(q, loose)(s)
+
+
+def _matcher(q: _Ask, loose: bool = False):
+    """Whether a step is what `q` asks about, as a function of the step (what the query fixes is
+    read once: the log's filters call it once per distinct wording)."""
     subject = _subject(q)
-    if not _verb_ok(q.verb, s.verb, loose):
-        return False
-    if q.surface and not any(_says(s.text, w) for w in q.surface):
-        return False
-    generic = q.verb is None or q.verb in GENERIC_VERBS
-    if subject and not (set(subject[:1]) & set(s.objects) or (generic and set(subject[:1]) & set(s.nouns))):
-        return False
-    if q.place and q.place in subject[1:] and q.place not in s.nouns:
-        return False
-    if q.place and q.place not in subject and q.place not in s.nouns:
-        return False
-    return True
+    first = subject[0] if subject else None
+    want, surface, place = q.verb, tuple(q.surface), q.place
+    generic = want is None or want in GENERIC_VERBS
+    need_place = bool(place) and (place in subject[1:] or place not in subject)
+
+    def match(s: LogStep) -> bool:
+        if not _verb_ok(want, s.verb, loose):
+            return False
+        if surface and not any(_says(s.text, w) for w in surface):
+            return False
+        if first is not None and not (first in s.objects or (generic and first in s.nouns)):
+            return False
+        return not (need_place and place not in s.nouns)
+    return match
 
 
 def _records(log: StepLog, q: _Ask, ids: list[str]) -> list[LogLine]:
@@ -545,10 +553,10 @@ def _storage_prefs(view, noun: str | None, lex: Lexicon) -> list[dict]:
 
 
 def _time(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = log.where(lambda s: _matches(s, q))
+    hits = log.where(_matcher(q))
     exact = True
     if not hits:
-        hits = log.where(lambda s: _matches(s, q, loose=True))
+        hits = log.where(_matcher(q, True))
         exact = False
     if not hits:
         return _never(q, base)
@@ -574,7 +582,7 @@ def _never(q: _Ask, base: dict) -> OpenAnswer:
 
 
 def _count(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = log.where(lambda s: _matches(s, q))
+    hits = log.where(_matcher(q))
     if not hits:
         return _never(q, base)
     videos = hits.videos()
@@ -587,9 +595,9 @@ def _count(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
 
 
 def _yesno(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = log.where(lambda s: _matches(s, q))
+    hits = log.where(_matcher(q))
     if not hits and q.query.scope.empty():  # over all memory, a put of any kind answers "did P put X"
-        hits = log.where(lambda s: _matches(s, q, loose=True))
+        hits = log.where(_matcher(q, True))
     if not hits:
         return _never(q, base)
     if q.widened:  # "has P22 ever used a wok?": no row says wok; the class (pan) is the widened reading
@@ -609,13 +617,20 @@ def _shares(counts: Counter, total: int) -> list[ActionShare]:
             for (v, n), c in counts.most_common(MAX_ACTIONS)]
 
 
-def _trigger(s: LogStep, t: _Ask) -> bool:
+def _triggers(t: _Ask):
+    """Whether a step is the anchor event `t`, as a function of the step."""
     subject = _subject(t)
-    if t.verb and t.verb not in GENERIC_VERBS and s.verb != t.verb:
-        return False
-    if subject and subject[0] not in s.objects:
-        return False
-    return not t.surface or any(_says(s.text, w) for w in t.surface)
+    first = subject[0] if subject else None
+    verb = t.verb if t.verb and t.verb not in GENERIC_VERBS else None
+    surface = tuple(t.surface)
+
+    def trigger(s: LogStep) -> bool:
+        if verb is not None and s.verb != verb:
+            return False
+        if first is not None and first not in s.objects:
+            return False
+        return not surface or any(_says(s.text, w) for w in surface)
+    return trigger
 
 
 def _around(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict, after: bool) -> OpenAnswer:
@@ -624,11 +639,11 @@ def _around(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict, a
     a, b = log.run_pairs()  # each two runs of one video that follow each other, in order
     if not after:
         a, b = b, a
-    trig = whole.word_mask(lambda s: _trigger(s, anchor))
+    trig = whole.word_mask(_triggers(anchor))
     word = whole.rows.word
     keep = trig[word[a]] & ~trig[word[b]]  # the event itself again is no answer
     if q.nouns or q.surface or (q.verb and q.verb not in GENERIC_VERBS):
-        keep &= whole.word_mask(lambda s: _matches(s, q, loose=True))[word[b]]
+        keep &= whole.word_mask(_matcher(q, True))[word[b]]
     got = Steps(whole, b[keep])
     counts = got.action_counts()
     if not counts:
@@ -658,10 +673,10 @@ def _while(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict) ->
     whole = log.log
     t, v = log.t, log.video_ix
     starts, ends = log.run_starts(), log.run_ends()
-    runs = log.runs_where(lambda s: _trigger(s, anchor))
+    runs = log.runs_where(_triggers(anchor))
     if not len(runs) and anchor.verb and _subject(anchor):  # "while the kettle boils": the kettle's events
         anchor = _Ask(query=anchor.query, kind=anchor.kind, nouns=anchor.nouns, surface=anchor.surface)
-        runs = log.runs_where(lambda s: _trigger(s, anchor))
+        runs = log.runs_where(_triggers(anchor))
     if not len(runs):
         return _never(anchor, base)
     # each run's span, a few seconds either side; a step is in one when it is in their union (per video)
@@ -675,9 +690,9 @@ def _while(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict) ->
         at = np.flatnonzero(v == video)
         k = np.searchsorted(a, t[at], "right") - 1  # the last span starting at or before the step
         inside[at] = (k >= 0) & (t[at] <= b[np.maximum(k, 0)])
-    keep = inside & ~log.mask(lambda s: _trigger(s, anchor))
+    keep = inside & ~log.mask(_triggers(anchor))
     if q.nouns or q.surface:
-        keep &= log.mask(lambda s: _matches(s, q, loose=True))
+        keep &= log.mask(_matcher(q, True))
     hits = log.keep(keep)
     if not hits:
         return OpenAnswer(**base, kind="actions", answer="nothing else recorded while it happened", in_memory=True,
@@ -706,7 +721,7 @@ def _instead(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict) 
     whole = log.log
     word, run_key = whole.rows.word, whole.run_keys()
     a, b = log.run_pairs()  # each two runs of one video that follow each other, in order
-    trig = whole.word_mask(lambda s: _trigger(s, anchor))
+    trig = whole.word_mask(_triggers(anchor))
     before = Counter(dict(first_order_counts(run_key[word[a[trig[word[b]]]]])))
     contexts = np.asarray([k for k, _ in before.most_common(3)], dtype=np.int64)
     verb = anchor.verb
@@ -716,7 +731,8 @@ def _instead(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict) 
     how = "in the same place in the sequence"
     if not got:
         subj = (_subject(anchor) or [None])[0]
-        got = log.where(lambda x: bool(x.objects) and not _trigger(x, anchor) and
+        trigger = _triggers(anchor)
+        got = log.where(lambda x: bool(x.objects) and not trigger(x) and
                         (not verb or verb in GENERIC_VERBS or x.verb == verb) and lex.same_category(x.objects[0], subj))
         how = "the same action on things of the same kind"
     alt = got.action_counts()
@@ -765,7 +781,7 @@ def _ordinal(n: int | None) -> str:
 
 def _one_step(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """The first / last / nth thing done in the scope (of the subject, when there is one)."""
-    steps = log.where(lambda s: _matches(s, q, loose=True)) if (q.nouns or q.surface or q.verbs) else log
+    steps = log.where(_matcher(q, True)) if (q.nouns or q.surface or q.verbs) else log
     if not steps:
         return _never(q, base) if (q.nouns or q.verbs) else OpenAnswer(
             **base, kind="activity", answer="nothing recorded there", in_memory=True, features=_features(0, 0.0, 0.0))
@@ -803,7 +819,7 @@ def _duration(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer
         return OpenAnswer(**base, kind="duration", answer=f"{clock(total)} ({total:.0f} s from the first to the last "
                           f"step, {counted(len(spans), 'video')})", in_memory=True, seconds=round(total, 1), count=round(total),
                           evidence=_ids(Steps(log.log, log.at[[0, -1]])), support=len(log), features=_features(len(log)))
-    idx = np.flatnonzero(log.mask(lambda s: _matches(s, q, loose=True)))
+    idx = np.flatnonzero(log.mask(_matcher(q, True)))
     v, t = log.video_ix, log.t
     nxt = idx + 1
     has = nxt < len(log)
