@@ -109,11 +109,15 @@ def _recorded(record: dict | None, key: str, files: dict[str, bytes]) -> bool:
     return all(record["files"].get(n) == sha256_bytes(b) for n, b in files.items())
 
 
+# whole-participant reads: the public queries of these give a video at a time (issue 36)
+_WHOLE = {"segments": "_baseline_segments_all", "state_events": "_baseline_state_events_all"}
+
+
 def load_records(bank: Bank, participant: str) -> dict[str, list[dict]]:
     """The participant's records through the named baseline queries (one read-only open)."""
     with bank.open(participant) as store:
         return {
-            name: store.rows(f"baseline_{name}", participant=participant)
+            name: store.rows(_WHOLE.get(name, f"baseline_{name}"), participant=participant)
             for name in ("segments", "state_events", "entities", "places", "routines", "preferences")
         }
 

@@ -31,7 +31,7 @@ def explorer_data(bank_path: str | Path, participant: str) -> dict:
     bank = Bank(bank_path)
     with bank.open(participant) as store:
         data = {key: store.fetch(name, participant=participant) for key, name in _QUERIES.items()}
-        evidence = {r["id"]: sorted(set(r["linked"])) for r in store.fetch("inferred_evidence", participant=participant)}
+        evidence = {r["id"]: sorted(set(r["linked"])) for r in store.fetch("_explore_evidence", participant=participant)}
         # tasks on the timeline (a bank consolidated before task memory has no Task table: none shown)
         data["tasks"] = [{**t, "stages": json.loads(t["stages"] or "{}"), "steps": None}
                          for t in store.fetch("tasks", participant=participant)] if "Task" in store.tables() else []

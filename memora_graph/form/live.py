@@ -531,7 +531,8 @@ class LiveWriter:
             self._place_vecs.update(pp.id for pp in new_places + restated)
             delta = {"segment": sid, "video": seg.video_id, "entities": sorted(result.touched),
                      "segment_row": {"id": sid, "emb": seg_vec, "summary": seg_row["summary"],
-                                     "narrative": seg_row["narrative"]},
+                                     "narrative": seg_row["narrative"], "video": seg.video_id,
+                                     "t_start": seg.t_start, "action_breakdown": seg_row["action_breakdown"]},
                      "places": [pp.location_id for pp in new_places + changed_places],
                      "observations": [(ev["entity"], ev["location"]) for ev in result.events if ev["action"]],
                      "history": sorted({ev["entity"] for ev in result.events}),  # whose state history grew

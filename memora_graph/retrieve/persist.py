@@ -7,7 +7,9 @@ document lengths, memory-mapped `.npy`), every segment row as `_tool_segment` re
 embedding matrix (scanned
 instead of every row: search.py, `VectorTable.sims`), the observation graph (entity <-> segment arrays and
 co-occurrence counts, memory-mapped `.npy`), the history index (every entity's history summary and
-history in order, memory-mapped `.npy`: retrieve/history.py) and the rows of the small participant-wide tool
+history in order, memory-mapped `.npy`: retrieve/history.py), the activity log's steps (video, time,
+segment and wording of every narrated step, memory-mapped `.npy`, and the distinct wordings: what
+`ask` reads, retrieve/steps.py) and the rows of the small participant-wide tool
 queries (entity registry, places, videos, routines, preferences, inferred links). Nothing is
 parsed or rebuilt whole at open: at 1,000 h the JSON postings and observation rows took 7 s.
 
@@ -52,8 +54,11 @@ from memora_graph.retrieve.history import HistoryIndex
 from memora_graph.retrieve.rows import ARRAYS as KEYED_ARRAYS
 from memora_graph.retrieve.rows import KeyedRows
 from memora_graph.retrieve.search import TABLES, Bm25, VectorTable
+from memora_graph.retrieve.steps import ARRAYS as STEP_ARRAYS
+from memora_graph.retrieve.steps import StepRows
 
-FORMAT = 3  # 3: the history index (retrieve/history.py), the distinct rows of large vector tables
+FORMAT = 4  # 3: the history index (retrieve/history.py), the distinct rows of large vector tables; 4: the
+# activity log's steps (retrieve/steps.py)
 RACY_S = 2.0  # a file changed this close to its verification is hashed again
 STAMP_WAIT_BYTES = 64 << 20  # the writer waits out RACY_S for its young files when they hold this much
 DIRNAME = "tools-{participant}"
@@ -255,6 +260,12 @@ class PersistedStores:
     def history(self) -> HistoryIndex:
         return self._read("history.json", lambda p: HistoryIndex.from_arrays(*self._arrays("history", HISTORY_ARRAYS)))
 
+    def has_steps(self) -> bool:
+        return "steps.json" in self.meta.get("files", {})
+
+    def steps(self) -> StepRows:
+        return self._read("steps.json", lambda p: StepRows.from_arrays(*self._arrays("steps", STEP_ARRAYS)))
+
     def _read(self, name: str, read):
         """`read(path)` of a checked file; a file whose hash was recorded but which does not
         read (truncated, then recorded again by hand) is damaged, not a traceback."""
@@ -344,6 +355,7 @@ def write(view, bank_path: str | Path, db_sha256: str, embed_model: str | None, 
         if release:
             view.release()
         put_arrays("history", *HistoryIndex.build(view.frame("_tool_history_all")).arrays())
+        put_arrays("steps", *StepRows.build(view.frame("_open_action_log").iter_rows(named=True)).arrays())
         for query, (every, group, order) in KEYED_QUERIES.items():
             frame = view.frame(every)
             rows = KeyedRows.build(frame) if group is None else KeyedRows.build_grouped(frame, group, order)

@@ -32,6 +32,7 @@ from memora_graph.retrieve.graph import ObservationGraph
 from memora_graph.retrieve.history import HistoryIndex, HistoryParts, appended_parts, outline_parts
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
     VectorTable
+from memora_graph.retrieve.steps import StepRows
 
 if TYPE_CHECKING:
     from memora_graph.retrieve.persist import PersistedStores
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
 _HNSW_TABLES = ("segment", "entity")  # the tables schema/indexes/hnsw.cypher indexes
 log = logging.getLogger("memora_graph.integrity")
 TOOL_STORES_ENV = "MEMORA_TOOL_STORES"  # "0": read Kùzu, never the persisted stores
+STEPS_PENDING_MAX = 512  # remembered segments held for the activity log's next read before they are put in
 
 
 # Views whose loaded data `warm` froze (gc.freeze is process-wide: the permanent generation holds
@@ -566,14 +568,41 @@ class MemoryView:
             bm25.pop("place", None)
             self._changed("place")
         loaded.pop("videos", None)
-        if "_open_action_log" in loaded:  # the typed reader's action log (agent/query/log.py) takes it in
-            loaded.setdefault("_open_log_pending", []).append(sid)
+        if "_steps" in loaded or (self._persisted is not None and self._persisted.has_steps()):
+            row = delta.get("segment_row") or {}  # the activity log's steps (retrieve/steps.py) take it in when read
+            pending = loaded.setdefault("_steps_pending", [])
+            pending.append(row if "action_breakdown" in row else sid)
+            if len(pending) >= STEPS_PENDING_MAX:  # a long stream with no `ask`: folded in now and then, not held
+                _ = self.steps
         self._changed(rows=("_tool_videos",))
         loaded.setdefault("_keys_added", set()).update((sid, delta.get("video")))  # rows the kept ones lack
         self._history_absorbed(delta)  # entities whose history grew
         graph = self._grown("graph")
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
+
+    @property
+    def steps(self) -> StepRows:
+        """Every narrated step of the participant as columns (retrieve/steps.py): from the
+        persisted stores (else read from the database once), with the segments remembered since
+        (`absorb`) put in their place when next read."""
+        loaded = self.__dict__
+        rows = loaded.get("_steps")
+        if rows is None:
+            if self._persisted is not None and self._persisted.has_steps():
+                rows = self._from_persisted(lambda p: p.steps())
+            if rows is None:  # the database holds every remembered segment already
+                loaded.pop("_steps_pending", None)
+                rows = StepRows.build(self.store.fetch_frame("_open_action_log", participant=self.participant)
+                                      .iter_rows(named=True))
+        pending = loaded.pop("_steps_pending", None)
+        if pending:
+            ids = [p for p in pending if isinstance(p, str)]
+            read = {r["id"]: r for r in self.by_id("_tool_segment", ids)} if ids else {}
+            rows = rows.added([p if not isinstance(p, str) else read[p] for p in pending
+                               if not isinstance(p, str) or p in read])
+        loaded["_steps"] = rows
+        return rows
 
     def _entities_absorbed(self, ids: list[str], written: dict[str, dict]) -> bool | None:
         """Bring the loaded entity registry and entity vectors up to date with the entities a

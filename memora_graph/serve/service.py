@@ -307,6 +307,8 @@ class MemoryService:
         self.writer = None
         self.consolidator = None
         self._lock = threading.Lock()
+        self._named_lock = threading.Lock()  # the named queries' own connection (a writable server's)
+        self._named_reader = None
         if writable:
             if participant is None:
                 raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
@@ -389,6 +391,10 @@ class MemoryService:
     def close(self) -> None:
         if self.consolidator is not None:
             self.consolidator.stop()
+        with self._named_lock:
+            if self._named_reader is not None:
+                self._named_reader.close()
+                self._named_reader = None
         for participant, guard in self._guards.items():
             # a call stuck in one long C call past its budget still holds its lock: its view is left open
             if guard.lock.acquire(timeout=5.0):
@@ -633,6 +639,15 @@ class MemoryService:
 
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
+            if self.writer is not None:
+                # a second connection on the writer's database (Kùzu serves it the last committed
+                # snapshot): a named query that scans the memory for seconds does not hold the
+                # readers' lock, so remembers and the other tools do not wait for it
+                with self._named_lock:
+                    if self._named_reader is None:
+                        self._named_reader = self.writer.store.reader()
+                    frame = self._named_reader.run(name, participant=participant, **arguments)
+                return _rows(frame, participant, self.max_rows)
             with self._guards[participant].lock, self._guards[participant].owned():
                 frame = self._view(participant).store.run(name, participant=participant, **arguments)
             return _rows(frame, participant, self.max_rows)

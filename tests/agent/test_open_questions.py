@@ -292,7 +292,8 @@ def test_the_served_ask_tool_returns_the_typed_answer(small_bank):
 def test_the_action_log_reads_each_step_by_its_own_words_when_wordings_repeat(lex):
     """The log parses each distinct step wording once: steps that share a narration but not their
     object or action still get their own classes, as parsing every step afresh gives them."""
-    from memora_graph.agent.query.log import _segment_steps
+    from memora_graph.agent.query.log import _step_classes, step_log
+    from memora_graph.retrieve.steps import StepRows
 
     def seg(i, steps):
         return {"id": f"P07_101#t{i:04d}", "video": "P07_101", "t_start": 10.0 * i, "action_breakdown": json.dumps(steps)}
@@ -305,8 +306,9 @@ def test_the_action_log_reads_each_step_by_its_own_words_when_wordings_repeat(le
                 {"narration": "put the knife in the drawer", "object": "knife", "action": "put", "timestamp": 4.0}]),
     ]
     seen: dict = {}
-    shared = [s for g in segments for s in _segment_steps(g, lex, seen)]
-    afresh = [s for g in segments for s in _segment_steps(g, lex)]
-    assert shared == afresh and len(seen) == 4
+    shared = list(step_log(StepRows.build(segments), lex, seen))
+    afresh = [_step_classes(s["narration"], s["object"], s["action"], lex)
+              for g in segments for s in json.loads(g["action_breakdown"])]
+    assert [(s.verb, s.objects, s.nouns, s.place) for s in shared] == afresh and len(seen) == 4
     assert [s.objects[0] for s in shared[:3]] == ["knife", "spoon", "knife"]
     assert shared[1].verb != shared[2].verb and [s.t for s in shared] == [1.0, 12.0, 13.0, 20.5, 24.0]

@@ -193,21 +193,69 @@ def test_scoped_generator_gold_and_the_counterfactual_check(small_bank):
 
 
 def test_vocabulary_takes_remembered_steps_in_as_a_fresh_read_would(small_bank, lex):
-    """A live view's vocabulary grows with the steps remembered since (no re-read), and equals the
-    vocabulary of the whole log read at once."""
-    from memora_graph.agent.query.log import action_log
+    """A live view's vocabulary grows with the steps remembered since (only theirs are read), and
+    equals the vocabulary of the whole log read at once."""
+    from memora_graph.agent.query.log import step_log
     from memora_graph.agent.query.vocabulary import Vocabulary
+    from memora_graph.retrieve.steps import StepRows
 
     with MemoryView.open(small_bank[0], "P37") as view:
-        log = action_log(view, lex)
-        whole = Vocabulary.of(view, lex, log)
+        whole = Vocabulary.of(view, lex)
         words, names = dict(whole.words), {c: dict(n) for c, n in whole.names.items()}
-        view.__dict__["_query_vocabulary"] = None  # start again from half the log ...
-        half = log[: len(log) // 2]
-        rest = log[len(log) // 2:]
-        view.__dict__.pop("_query_vocab_log", None)
+        segs = view.fetch("_open_action_log")
+        for key in ("_query_vocabulary", "_query_vocab_read"):  # start again from half the log ...
+            view.__dict__.pop(key)
+        half = step_log(StepRows.build(segs[: len(segs) // 2]), lex)
         grown = Vocabulary.of(view, lex, half)
-        view.__dict__["_open_log_added"].extend(rest)  # ... as a live view notes remembered steps
-        view.__dict__["_query_vocab_log"] = log
-        grown = Vocabulary.of(view, lex, log)
-        assert dict(grown.words) == words and {c: dict(n) for c, n in grown.names.items()} == names
+        assert dict(grown.words) != words
+        log = step_log(half.rows.added(segs[len(segs) // 2:]), lex, {}, half)  # ... as a live view remembers
+        again = Vocabulary.of(view, lex, log)
+        assert again is grown  # taken in, not read again
+        assert dict(again.words) == words and {c: dict(n) for c, n in again.names.items()} == names
+
+
+
+
+def test_every_operation_reads_a_grown_log_as_a_fresh_read(small_bank, lex):
+    """The typed query reads the log as columns (query/steplog.py): the operations that scan it
+    (relations, first / last / nth step, duration, scopes by video, window, moment and event)
+    answer from a log grown by remembered segments (`StepRows.added`) as from the whole log read
+    at once, and they answer (no operation falls over on the columns)."""
+    from collections import Counter
+
+    from memora_graph.agent.query.log import action_log
+    from memora_graph.retrieve.steps import StepRows
+
+    def answers(view) -> list[dict]:
+        log = list(action_log(view, lex))
+        acts = [k for k, _ in Counter((s.verb, s.objects[0]) for s in log if s.verb and s.objects).most_common(3)]
+        video = sorted(view.videos)[0]
+        out = []
+        for (v, o), (v2, o2) in zip(acts, acts[1:] + acts[:1]):
+            subj, anchor = {"verb": v, "objects": [o]}, {"verb": v2, "objects": [o2]}
+            queries = [{"operation": op, "subject": subj} for op in ("where", "when", "count", "exists", "list",
+                                                                     "steps", "duration")]
+            queries += [{"operation": "list", "relation": rel, "anchor": anchor}
+                        for rel in ("after", "before", "while", "instead_of")]
+            queries += [{"operation": "list", "relation": "instead_of", "anchor": {"objects": [o2]}},
+                        {"operation": "next", "subject": subj}, {"operation": "previous", "subject": subj},
+                        {"operation": "list", "selector": "nth", "nth": 2, "subject": subj},
+                        {"operation": "list", "selector": "last", "scope": {"videos": [video]}},
+                        {"operation": "list", "scope": {"videos": [video], "at": 60}},
+                        {"operation": "count", "subject": subj, "scope": {"videos": [video], "start": 10, "end": 200}},
+                        {"operation": "count", "subject": subj, "scope": {"after": anchor}},
+                        {"operation": "duration", "scope": {"session": 1}},
+                        {"operation": "steps", "subject": {"objects": [o], "goal": f"make {o}"}}]
+            for q in queries:
+                a = recall(view, "P37", q, lex)
+                assert a.kind and a.answer, q
+                out.append(a.model_dump(mode="json"))
+        return out
+
+    with MemoryView.open(small_bank[0], "P37") as view:
+        whole = answers(view)
+    with MemoryView.open(small_bank[0], "P37") as view:
+        segs = view.fetch("_open_action_log")
+        view.__dict__["_steps"] = StepRows.build(segs[: len(segs) // 3]).added(segs[len(segs) // 3:])
+        grown = answers(view)
+    assert grown == whole and len(whole) > 40

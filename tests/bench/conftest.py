@@ -57,7 +57,7 @@ def tiny_tasks(tmp_path_factory, small_bank):
     bank, _ = small_bank
     videos = Bank(bank).manifest()["participants"]["P37"]["videos"]
     with Bank(bank).open("P37") as store:
-        seg = store.rows("baseline_segments", participant="P37")
+        seg = store.rows("_baseline_segments_all", participant="P37")
     summary = max((s["summary"] for s in seg if s["summary"]), key=len).split(";")[0].strip()
     root = tmp_path_factory.mktemp("tasks")
     q = lambda qid, text, choices, answer, unans, **kw: {  # noqa: E731

@@ -153,7 +153,7 @@ def test_every_routine_and_preference_has_existing_supporting_evidence(small_ban
     total = 0
     for p in SMALL:
         with bank.open(p) as store:
-            rows = store.rows("inferred_evidence", participant=p)
+            rows = store.rows("_explore_evidence", participant=p)
             counts = store.rows("_inferred_counts", participant=p)[0]
         assert len(rows) == counts["routines"] + counts["preferences"]
         for r in rows:
@@ -175,7 +175,7 @@ def test_rerun_is_idempotent_and_episodic_clears(small_bank, tmp_path, embedder)
 
     def snapshot():
         with Store(bank.db_path(p)) as s:
-            return s.rows("inferred_evidence", participant=p), s.rows("routines", participant=p)
+            return s.rows("_explore_evidence", participant=p), s.rows("routines", participant=p)
 
     before = snapshot()
     finish_participant(bank, p, embedder)

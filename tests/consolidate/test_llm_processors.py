@@ -127,7 +127,7 @@ def segment_of(video: str, line: str) -> str:
 
 
 def evidence(store: Store) -> dict[str, dict]:
-    return {r["id"]: r for r in store.rows("inferred_evidence", participant=P)}
+    return {r["id"]: r for r in store.rows("_explore_evidence", participant=P)}
 
 
 def by_statement(store: Store) -> dict[str, dict]:

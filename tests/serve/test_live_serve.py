@@ -69,6 +69,31 @@ def test_remember_tool_in_process_and_reads_see_it(tmp_path):
         MemoryService(bank, None, writable=True)
 
 
+def test_named_queries_of_a_writable_server_read_a_snapshot_without_the_readers_lock(tmp_path):
+    """A writable server's named queries (`query_*`) run on a second connection to the writer's
+    database: they see every acknowledged remember, and they run while the readers' lock is held
+    (a remember committing, another tool reading), so a query scanning the memory for seconds
+    holds up neither the writer nor the other tools."""
+    import threading
+
+    service = MemoryService(tmp_path / "bank", "P01", writable=True)
+    try:
+        for i, text in enumerate(["put the kettle on the counter", "open the fridge", "take the milk"]):
+            service.call("remember", {"text": text, "video": "kitchen-1", "start": 2.0 * i})
+        got = {}
+        with service._lock:  # the readers' lock, as a remember holds it while it commits
+            t = threading.Thread(target=lambda: got.update(service.call("query_baseline_segments", {"video": "kitchen-1"})), daemon=True)
+            t.start()
+            t.join(30)
+            assert not t.is_alive(), "the named query waited for the readers' lock"
+        assert got["row_count"] == 3 and {r["video"] for r in got["rows"]} == {"kitchen-1"}
+        service.call("remember", {"text": "close the fridge", "video": "kitchen-1", "start": 9.0})
+        assert service.call("query_baseline_segments", {"video": "kitchen-1"})["row_count"] == 4, "the next snapshot holds the new moment"
+    finally:
+        service.close()
+    assert verify_bank(tmp_path / "bank").ok
+
+
 def _client(url: str, token: str | None):
     headers = {"Authorization": f"Bearer {token}"} if token else {}
     return Client(streamable_http_client(url, http_client=create_mcp_http_client(headers=headers)))
@@ -376,4 +401,7 @@ def test_perf_live_without_consolidation(stored_bank, tmp_path):
     row = json.loads(got.stdout)[0]
     assert row["tool_stores"] == "read" and row["remember_cpu_p50_ms"] > 0 and row["peak_rss_mb"] > 0
     assert "consolidate_per_100_s" not in row and "search_objects" in row["tool_idle_p95_by_tool_ms"]
+    assert row["ask_idle_p95_ms"] == row["tool_idle_p95_by_tool_ms"]["ask"] and row["plan_stream_p95_ms"] > 0
+    named = {n: v for n, v in row["tool_idle_p95_by_tool_ms"].items() if n.startswith("query_")}
+    assert row["named_query_worst"] in named and row["named_query_worst_p95_ms"] >= max(named.values())
     assert sorted(p.name for p in stored_bank.rglob("*")) == before, "the given bank is never written"

@@ -44,7 +44,7 @@ CALLS = {
     "cypher": {"query": "MATCH (e:Entity) WHERE e.participant = $participant RETURN e.object_id AS id ORDER BY id "
                         "LIMIT 3"},
 }
-NAMED_VALUES = {"object": "carrot", "video": "P37_101"}
+NAMED_VALUES = {"object": "carrot", "video": "P37_101", "id": "P37:routine:none"}
 
 
 def expected_tools() -> list[str]:

@@ -9,8 +9,9 @@
 
 A query (`query.model`) is compiled onto the stores:
 
-- the activity log (`query.log`: every segment's narrated steps at EPIC class level), cut to the
-  query's scope first (videos, a session, a time window, before / after an event), then read by the
+- the activity log (`query.log`: every segment's narrated steps at EPIC class level, kept as
+  columns with the tool stores; filters run once per distinct wording, runs by array
+  comparison: query/steplog.py), cut to the query's scope first (videos, a session, a time window, before / after an event), then read by the
   operation with the selector (first / last / nth / usual / all) and the relation (the actions
   after, before, while or instead of an anchor event);
 - the subject resolved in the person's own words (`query.vocabulary`): exact, fuzzy, or widened
@@ -33,7 +34,10 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
-from memora_graph.agent.query.log import LogStep, action_runs, action_log, clock, noun_words
+import numpy as np
+
+from memora_graph.agent.query.log import LogStep, StepLog, Steps, action_log, clock, noun_words
+from memora_graph.agent.query.steplog import first_order_counts
 from memora_graph.agent.query.model import (
     Action, ActionShare, LogLine, MomentValue, ObjectStateEvent, OpenAnswer, PlaceValue, Query, RoutineStep, Subject,
 )
@@ -131,9 +135,9 @@ def _resolve_objects(objects: list[str], words: list[str], vocab: Vocabulary, le
     return classes, surface, "; ".join(notes), unknown
 
 
-def _compile(q: Query, view, participant: str, vocab: Vocabulary, lex: Lexicon, log: list[LogStep]) -> _Ask:
+def _compile(q: Query, view, participant: str, vocab: Vocabulary, lex: Lexicon, log: StepLog) -> _Ask:
     s = q.subject
-    log_nouns = {n for st in log for n in st.nouns}
+    log_nouns = log.nouns
     classes, surface, widened, unknown = _resolve_objects(list(s.objects), list(s.words), vocab, lex, participant,
                                                           log_nouns)
     order = {"first": "first", "last": "last"}.get(q.selector, "usual")
@@ -150,7 +154,7 @@ def _compile(q: Query, view, participant: str, vocab: Vocabulary, lex: Lexicon, 
                 unknown=[w for w in q.unknown if not vocab.says(w)] + unknown)
 
 
-def _anchor_ask(q: Query, participant: str, vocab: Vocabulary, lex: Lexicon, log: list[LogStep]) -> _Ask | None:
+def _anchor_ask(q: Query, participant: str, vocab: Vocabulary, lex: Lexicon, log: StepLog) -> _Ask | None:
     a = q.anchor
     if a is None:
         return None
@@ -169,35 +173,42 @@ def _session_videos(view, scope) -> list[str]:
     return videos[i - 1:i] if 1 <= i <= len(videos) else []
 
 
-def _scoped(log: list[LogStep], q: Query, view, anchor: _Ask | None, vocab_lex) -> list[LogStep]:
+def _scoped(log: StepLog, q: Query, view, anchor: _Ask | None, vocab_lex) -> Steps:
     """The log cut to the query's scope (videos, session, window, before / after an event)."""
     sc = q.scope
+    rows = log.rows
     videos = set(sc.videos) | set(_session_videos(view, sc))
-    out = [s for s in log if s.video in videos] if videos else log
+    if videos:  # the log is in video order: each video's steps are one range of it
+        parts = [np.arange(*rows.video_range(v)) for v in sorted(videos)]
+        out = Steps(log, np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64))
+    else:
+        out = log.all
     if sc.start is not None:
-        out = [s for s in out if s.t >= sc.start - 1e-6]
+        out = out.keep(out.t >= sc.start - 1e-6)
     if sc.end is not None:
-        out = [s for s in out if s.t <= sc.end + 1e-6]
+        out = out.keep(out.t <= sc.end + 1e-6)
     if sc.at is not None:
         if q.operation == "list":
-            near = [s for s in out if abs(s.t - sc.at) <= NEAR]
-            out = near or sorted(out, key=lambda s: abs(s.t - sc.at))[:5]
+            near = np.abs(out.t - sc.at) <= NEAR
+            out = out.keep(near) if near.any() else \
+                Steps(log, out.at[np.argsort(np.abs(out.t - sc.at), kind="stable")[:5]])
         else:
-            out = [s for s in out if s.t <= sc.at + 1e-6]
+            out = out.keep(out.t <= sc.at + 1e-6)
     for side, ev in (("after", sc.after), ("before", sc.before)):
         if ev is None:
             continue
         lex = vocab_lex
         cls = [n for n in ev.objects if n in lex.noun_keys] or [c for o in ev.objects for c in lex.noun_classes(o)][:1]
         ask = _Ask(query=q, kind="next", verbs=[v for v in [_verb_class(ev.verb, lex)] if v], nouns=cls)
-        marks: dict[str, list[float]] = {}
-        for s in out:
-            if _matches(s, ask, loose=True):
-                marks.setdefault(s.video, []).append(s.t)
-        if side == "after":
-            out = [s for s in out if s.video in marks and s.t > min(marks[s.video])]
-        else:
-            out = [s for s in out if s.video in marks and s.t < max(marks[s.video])]
+        hit = out.mask(_matcher(ask, True))
+        t, v = out.t, out.video_ix
+        marks = np.full(len(rows.videos), np.inf if side == "after" else -np.inf)
+        if side == "after":  # after the event's first time in the video
+            np.minimum.at(marks, v[hit], t[hit])
+            out = out.keep(t > marks[v])
+        else:  # before its last
+            np.maximum.at(marks, v[hit], t[hit])
+            out = out.keep(t < marks[v])
     return out
 
 
@@ -239,31 +250,40 @@ def _says(text: str, word: str) -> bool:
 
 
 def _matches(s: LogStep, q: _Ask, loose: bool = False) -> bool:
+    return _matcher(q, loose)(s)
+
+
+def _matcher(q: _Ask, loose: bool = False):
+    """Whether a step is what `q` asks about, as a function of the step (what the query fixes is
+    read once: the log's filters call it once per distinct wording)."""
     subject = _subject(q)
-    if not _verb_ok(q.verb, s.verb, loose):
-        return False
-    if q.surface and not any(_says(s.text, w) for w in q.surface):
-        return False
-    generic = q.verb is None or q.verb in GENERIC_VERBS
-    if subject and not (set(subject[:1]) & set(s.objects) or (generic and set(subject[:1]) & set(s.nouns))):
-        return False
-    if q.place and q.place in subject[1:] and q.place not in s.nouns:
-        return False
-    if q.place and q.place not in subject and q.place not in s.nouns:
-        return False
-    return True
+    first = subject[0] if subject else None
+    want, surface, place = q.verb, tuple(q.surface), q.place
+    generic = want is None or want in GENERIC_VERBS
+    need_place = bool(place) and (place in subject[1:] or place not in subject)
+
+    def match(s: LogStep) -> bool:
+        if not _verb_ok(want, s.verb, loose):
+            return False
+        if surface and not any(_says(s.text, w) for w in surface):
+            return False
+        if first is not None and not (first in s.objects or (generic and first in s.nouns)):
+            return False
+        return not (need_place and place not in s.nouns)
+    return match
 
 
-def _records(log: list[LogStep], q: _Ask, ids: list[str]) -> list[LogLine]:
+def _records(log: StepLog, q: _Ask, ids: list[str]) -> list[LogLine]:
     """The steps of the cited segments that the question is about (else the segment's steps)."""
-    wanted = set(ids)
-    steps = [s for s in log if s.segment in wanted]
+    steps = list(log.of_segments(ids))
     about = [s for s in steps if _matches(s, q, loose=True)] or [s for s in steps if set(_subject(q)) & set(s.nouns)]
     return [LogLine(video=s.video, time_seconds=round(s.t, 2), text=s.text, segment_id=s.segment)
             for s in (about or steps)][:MAX_EVIDENCE]
 
 
-def _ids(steps: list[LogStep]) -> list[str]:
+def _ids(steps: list[LogStep] | Steps) -> list[str]:
+    if isinstance(steps, Steps):
+        return steps.segment_ids(MAX_EVIDENCE)
     return list(dict.fromkeys(s.segment for s in steps))[:MAX_EVIDENCE]
 
 
@@ -321,7 +341,7 @@ def recall(view, participant: str, query: Query | dict, lex: Lexicon | None = No
             answer = _not_in_memory(view, participant, q, ask, anchor, log, base)
             if answer is None:
                 scoped = _scoped(log, q, view, anchor, lex)
-                answer = _dispatch(view, q, ask, anchor, scoped, log, lex, base)
+                answer = _dispatch(view, q, ask, anchor, scoped, log.all, lex, base)
                 if ask.widened:
                     answer.widened = ask.widened
                     answer.answer = f"{answer.answer} ({ask.widened})"
@@ -349,7 +369,7 @@ def _normal(q: Query) -> Query:
     return q
 
 
-def _dispatch(view, q: Query, ask: _Ask, anchor: _Ask | None, log: list[LogStep], whole: list[LogStep], lex: Lexicon,
+def _dispatch(view, q: Query, ask: _Ask, anchor: _Ask | None, log: Steps, whole: Steps, lex: Lexicon,
               base: dict) -> OpenAnswer:
     op = q.operation
     if q.relation in ("after", "before") and anchor is not None:
@@ -387,7 +407,7 @@ def _nim(base: dict, reason: str, detail: str, **features) -> OpenAnswer:
                       features={"nim": 1.0, **features})
 
 
-def _not_in_memory(view, participant: str, q: Query, ask: _Ask, anchor: _Ask | None, log: list[LogStep],
+def _not_in_memory(view, participant: str, q: Query, ask: _Ask, anchor: _Ask | None, log: StepLog,
                    base: dict) -> OpenAnswer | None:
     if q.world:
         return _nim(base, "general_knowledge", "the question asks about the world, not about what this person did")
@@ -398,8 +418,7 @@ def _not_in_memory(view, participant: str, q: Query, ask: _Ask, anchor: _Ask | N
         return _nim(base, "absent_subject", f"no video {', '.join(missing)} in {participant}'s memory")
     if q.scope.session is not None and not _session_videos(view, q.scope):
         return _nim(base, "absent_subject", f"{participant}'s memory has {len(view.videos)} sessions")
-    nouns = {n for s in log for n in s.nouns}
-    verbs = {s.verb for s in log if s.verb}
+    nouns, verbs = log.nouns, log.verbs
     if anchor is not None and q.relation:
         asub = _subject(anchor)
         if asub and asub[0] not in nouns:
@@ -434,16 +453,16 @@ def _features(support: int, share: float = 1.0, margin: float = 1.0, fallback: b
             "fallback": 1.0 if fallback else 0.0, "exact": 1.0 if exact else 0.0}
 
 
-def _place(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _place(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     subject = _subject(q)
     noun = subject[0] if subject else None
     verbs = TAKE_VERBS if q.source else PUT_VERBS
-    cands = [s for s in log if s.place and noun in s.objects and s.verb in verbs and s.place != noun]
+    cands = log.where(lambda s: s.place and noun in s.objects and s.verb in verbs and s.place != noun)
     what = _name(noun) if noun else "it"
     if cands:
         if q.order in ("last", "first"):
             s = cands[-1] if q.order == "last" else cands[0]
-            total = Counter(c.place for c in cands)
+            total = cands.count_by(lambda c: c.place)
             pv = PlaceValue(place=s.place, name=_name(s.place), video=s.video, time_seconds=round(s.t, 2),
                             count=total[s.place], share=round(total[s.place] / len(cands), 3))
             word = "last" if q.order == "last" else "first"
@@ -452,17 +471,18 @@ def _place(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
             return OpenAnswer(**base, kind="place", answer=text, in_memory=True, place=pv, evidence=[s.segment],
                               support=len(cands), detail=f"{counted(len(cands), 'placement')} of the {what} in memory",
                               features=_features(len(cands), 1.0, 1.0))
-        counts = Counter(c.place for c in cands)
+        counts = cands.count_by(lambda c: c.place)
         (best, n), *rest = counts.most_common()
         share = n / len(cands)
         margin = share - (rest[0][1] / len(cands) if rest else 0.0)
-        last = [c for c in cands if c.place == best][-1]
+        at_best = cands.where(lambda c: c.place == best)
+        last = at_best[-1]
         pv = PlaceValue(place=best, name=_name(best), video=last.video, time_seconds=round(last.t, 2), count=n,
                         share=round(share, 3))
         prefs = _storage_prefs(view, noun, lex)
         text = f"{pv.name} ({n} of {len(cands)} times, {share:.0%}; last in {last.video} at {clock(last.t)})"
         return OpenAnswer(**base, kind="place", answer=text, in_memory=True, place=pv,
-                          evidence=_ids([c for c in cands if c.place == best]) + [p["id"] for p in prefs][:3],
+                          evidence=_ids(at_best) + [p["id"] for p in prefs][:3],
                           support=n, detail=f"where the {what} was {'taken from' if q.source else 'put'}, by count",
                           features=_features(n, share, margin, exact=False))
     if not q.query.scope.empty():
@@ -477,15 +497,16 @@ def _place(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
                           evidence=[p["id"], *p.get("supporting_episodes", [])[:5]], support=pv.count,
                           detail="a consolidated storage preference", features=_features(pv.count, 1.0, 1.0, True, False))
     if not q.source:  # where it is taken from is where it is kept
-        taken = [s for s in log if s.place and noun in s.objects and s.verb in TAKE_VERBS and s.place != noun]
+        taken = log.where(lambda s: s.place and noun in s.objects and s.verb in TAKE_VERBS and s.place != noun)
         if taken:
-            counts = Counter(c.place for c in taken)
+            counts = taken.count_by(lambda c: c.place)
             best, n = counts.most_common(1)[0]
-            last = [c for c in taken if c.place == best][-1]
+            at_best = taken.where(lambda c: c.place == best)
+            last = at_best[-1]
             pv = PlaceValue(place=best, name=_name(best), video=last.video, time_seconds=round(last.t, 2), count=n,
                             share=round(n / len(taken), 3))
             return OpenAnswer(**base, kind="place", answer=f"{pv.name} (taken from there {n} of {len(taken)} times)",
-                              in_memory=True, place=pv, evidence=_ids([c for c in taken if c.place == best]),
+                              in_memory=True, place=pv, evidence=_ids(at_best),
                               support=n, detail=f"no placement of the {what} recorded; where it was taken from",
                               features=_features(n, n / len(taken), 0.0, True, False))
     ents = [e for e in view.entities.values() if e.get("status") == "active" and noun in
@@ -500,7 +521,7 @@ def _place(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
                           f" at {clock(float(e.get('last_seen') or 0))})", in_memory=True, place=pv, evidence=[e["id"]],
                           support=int(e.get("n_observations") or 0), detail="the object's last recorded location",
                           features=_features(int(e.get("n_observations") or 0), 0.5, 0.0, True, False))
-    seen = [s for s in log if noun in s.nouns and s.place and s.place != noun]
+    seen = log.where(lambda s: noun in s.nouns and s.place and s.place != noun)
     if seen:
         s = seen[-1] if q.order != "first" else seen[0]
         pv = PlaceValue(place=s.place, name=_name(s.place), video=s.video, time_seconds=round(s.t, 2), count=1)
@@ -531,11 +552,11 @@ def _storage_prefs(view, noun: str | None, lex: Lexicon) -> list[dict]:
     return sorted(out, key=lambda p: -(p.get("count") or 0))
 
 
-def _time(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q)]
+def _time(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
+    hits = log.where(_matcher(q))
     exact = True
     if not hits:
-        hits = [s for s in log if _matches(s, q, loose=True)]
+        hits = log.where(_matcher(q, True))
         exact = False
     if not hits:
         return _never(q, base)
@@ -545,7 +566,7 @@ def _time(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAn
                           in_memory=True, support=len(hits), evidence=_ids(hits), features=_features(len(hits), 0.5, 0.0))
     s = hits[nth - 1] if nth else hits[0] if q.order == "first" else hits[-1]
     word = _ordinal(nth) if nth else "first" if q.order == "first" else "last"
-    videos = list(dict.fromkeys(h.video for h in hits))
+    videos = hits.videos()
     m = MomentValue(video=s.video, time_seconds=round(s.t, 2), clock=clock(s.t))
     return OpenAnswer(**base, kind="time", answer=f"{s.video} at {m.clock} ({word} of {counted(len(hits), 'time')}, in "
                       f"{counted(len(videos), 'video')})", in_memory=True, moment=m, evidence=[s.segment], support=len(hits),
@@ -560,11 +581,11 @@ def _never(q: _Ask, base: dict) -> OpenAnswer:
                       features=_features(0, 0.0, 0.0))
 
 
-def _count(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q)]
+def _count(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
+    hits = log.where(_matcher(q))
     if not hits:
         return _never(q, base)
-    videos = list(dict.fromkeys(h.video for h in hits))
+    videos = hits.videos()
     n = len(videos) if q.unit == "videos" else len(hits)
     unit = "video" if q.unit == "videos" else "time"
     asked = _text(q.verb, _label(q))
@@ -573,10 +594,10 @@ def _count(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
                       detail=f"counted {counted(len(hits), 'record')} of '{asked}'", features=_features(len(hits), 1.0, 1.0))
 
 
-def _yesno(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
-    hits = [s for s in log if _matches(s, q)]
+def _yesno(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
+    hits = log.where(_matcher(q))
     if not hits and q.query.scope.empty():  # over all memory, a put of any kind answers "did P put X"
-        hits = [s for s in log if _matches(s, q, loose=True)]
+        hits = log.where(_matcher(q, True))
     if not hits:
         return _never(q, base)
     if q.widened:  # "has P22 ever used a wok?": no row says wok; the class (pan) is the widened reading
@@ -585,7 +606,7 @@ def _yesno(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
                           in_memory=True, yes=False, evidence=_ids(hits), support=len(hits),
                           detail=f"the person never names it so; its class {_name(cls)} is recorded",
                           features=_features(len(hits), 0.5, 0.0, exact=False))
-    videos = list(dict.fromkeys(h.video for h in hits))
+    videos = hits.videos()
     return OpenAnswer(**base, kind="yesno", answer=f"yes ({counted(len(hits), 'time')} in {counted(len(videos), 'video')}; last in "
                       f"{hits[-1].video} at {clock(hits[-1].t)}: {hits[-1].text})", in_memory=True, yes=True,
                       evidence=_ids(hits), support=len(hits), detail=hits[-1].text, features=_features(len(hits)))
@@ -596,45 +617,50 @@ def _shares(counts: Counter, total: int) -> list[ActionShare]:
             for (v, n), c in counts.most_common(MAX_ACTIONS)]
 
 
-def _trigger(s: LogStep, t: _Ask) -> bool:
+def _triggers(t: _Ask):
+    """Whether a step is the anchor event `t`, as a function of the step."""
     subject = _subject(t)
-    if t.verb and t.verb not in GENERIC_VERBS and s.verb != t.verb:
-        return False
-    if subject and subject[0] not in s.objects:
-        return False
-    return not t.surface or any(_says(s.text, w) for w in t.surface)
+    first = subject[0] if subject else None
+    verb = t.verb if t.verb and t.verb not in GENERIC_VERBS else None
+    surface = tuple(t.surface)
+
+    def trigger(s: LogStep) -> bool:
+        if verb is not None and s.verb != verb:
+            return False
+        if first is not None and first not in s.objects:
+            return False
+        return not surface or any(_says(s.text, w) for w in surface)
+    return trigger
 
 
-def _around(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base: dict, after: bool) -> OpenAnswer:
+def _around(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict, after: bool) -> OpenAnswer:
     """The actions right after (or before) the anchor event, by how often they follow (precede) it."""
-    runs = action_runs(log)
-    counts: Counter = Counter()
-    ids: dict = {}
-    seen: dict = {}
-    pairs = zip(runs, runs[1:]) if after else ((b, a) for a, b in zip(runs, runs[1:]))
-    for a, b in pairs:
-        if a[0].video != b[0].video or not _trigger(a[0], anchor):
-            continue
-        if _trigger(b[0], anchor):
-            continue  # the event itself again is no answer
-        if (q.nouns or q.surface or (q.verb and q.verb not in GENERIC_VERBS)) and not _matches(b[0], q, loose=True):
-            continue
-        key = (b[0].verb, b[0].objects[0] if b[0].objects else "")
-        counts[key] += 1
-        ids.setdefault(key, []).append(b[0].segment)
-        seen.setdefault(key, []).append(b[0])
+    whole = log.log
+    a, b = log.run_pairs()  # each two runs of one video that follow each other, in order
+    if not after:
+        a, b = b, a
+    trig = whole.word_mask(_triggers(anchor))
+    word = whole.rows.word
+    keep = trig[word[a]] & ~trig[word[b]]  # the event itself again is no answer
+    if q.nouns or q.surface or (q.verb and q.verb not in GENERIC_VERBS):
+        keep &= whole.word_mask(_matcher(q, True))[word[b]]
+    got = Steps(whole, b[keep])
+    counts = got.action_counts()
     if not counts:
         return _never(anchor, base) if anchor.verb else _actions(view, anchor, log, lex, base)
+    top = [key for key, _ in counts.most_common(MAX_ACTIONS)]
+    names, keys = whole.pairs()[0], whole.pair_ids(got.at)
+    seen = {key: list(got.keep(keys == names.index(key))[:5]) for key in top}  # the first few of each action
     total = sum(counts.values())
     acts = _shares(counts, total)
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
     subject = _subject(anchor)
     trig = _text(anchor.verb, subject[0] if subject else (anchor.surface[0] if anchor.surface else None))
     text = "; ".join(f"{a.text} ({a.share:.0%})" for a in acts)
-    shown = [st for key, _ in counts.most_common(MAX_ACTIONS) for st in seen[key][:5]]
+    shown = [st for key in top for st in seen[key]]
     word = "followed" if after else "came just before"
     return OpenAnswer(**base, kind="next", answer=text, in_memory=True, actions=acts, records=[_line(x) for x in shown],
-                      evidence=list(dict.fromkeys(i for a in counts.most_common(MAX_ACTIONS) for i in ids[a[0]][:5])),
+                      evidence=list(dict.fromkeys(st.segment for key in top for st in seen[key])),
                       support=acts[0].count, detail=f"what {word} '{trig}' in {total} cases",
                       features=_features(acts[0].count, acts[0].share, margin, exact=False))
 
@@ -642,96 +668,108 @@ def _around(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base:
 WHILE_SLACK = 5.0  # seconds either side of the anchor's run that count as "while"
 
 
-def _while(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _while(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """The actions done during the anchor event (its runs, a few seconds either side)."""
-    runs = action_runs(log)
-    spans = [(r[0].video, r[0].t - WHILE_SLACK, r[-1].t + WHILE_SLACK) for r in runs if _trigger(r[0], anchor)]
-    if not spans and anchor.verb and _subject(anchor):  # "while the kettle boils": the kettle's events
+    whole = log.log
+    t, v = log.t, log.video_ix
+    starts, ends = log.run_starts(), log.run_ends()
+    runs = log.runs_where(_triggers(anchor))
+    if not len(runs) and anchor.verb and _subject(anchor):  # "while the kettle boils": the kettle's events
         anchor = _Ask(query=anchor.query, kind=anchor.kind, nouns=anchor.nouns, surface=anchor.surface)
-        spans = [(r[0].video, r[0].t - WHILE_SLACK, r[-1].t + WHILE_SLACK) for r in runs if _trigger(r[0], anchor)]
-    if not spans:
+        runs = log.runs_where(_triggers(anchor))
+    if not len(runs):
         return _never(anchor, base)
-    by_video: dict[str, list[tuple[float, float]]] = {}
-    for v, a, b in spans:
-        by_video.setdefault(v, []).append((a, b))
-    hits = [s for s in log if s.video in by_video and any(a <= s.t <= b for a, b in by_video[s.video])
-            and not _trigger(s, anchor) and (not (q.nouns or q.surface) or _matches(s, q, loose=True))]
+    # each run's span, a few seconds either side; a step is in one when it is in their union (per video)
+    span_v = v[starts[runs]]
+    lo, hi = t[starts[runs]] - WHILE_SLACK, t[ends[runs]] + WHILE_SLACK
+    inside = np.zeros(len(log), dtype=bool)
+    for video in np.unique(span_v).tolist():
+        mine = span_v == video
+        order = np.argsort(lo[mine], kind="stable")
+        a, b = lo[mine][order], np.maximum.accumulate(hi[mine][order])  # the furthest end of the spans so far
+        at = np.flatnonzero(v == video)
+        k = np.searchsorted(a, t[at], "right") - 1  # the last span starting at or before the step
+        inside[at] = (k >= 0) & (t[at] <= b[np.maximum(k, 0)])
+    keep = inside & ~log.mask(_triggers(anchor))
+    if q.nouns or q.surface:
+        keep &= log.mask(_matcher(q, True))
+    hits = log.keep(keep)
     if not hits:
         return OpenAnswer(**base, kind="actions", answer="nothing else recorded while it happened", in_memory=True,
                           support=0, features=_features(0, 0.0, 0.0))
-    counts = Counter((s.verb, s.objects[0] if s.objects else "") for s in hits)
+    counts = hits.action_counts()
     acts = _shares(counts, len(hits))
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
     return OpenAnswer(**base, kind="actions", answer="; ".join(f"{a.text} ({a.share:.0%})" for a in acts),
                       in_memory=True, actions=acts, evidence=_ids(hits), support=acts[0].count,
-                      detail=f"what was done during {len(spans)} occurrences of the event",
+                      detail=f"what was done during {len(runs)} occurrences of the event",
                       features=_features(acts[0].count, acts[0].share, margin, exact=False))
 
 
-def _instead(view, q: _Ask, anchor: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _first_segments(steps: Steps, keys: list[tuple], n: int = 5) -> dict[tuple, list[str]]:
+    """The segments of the first `n` of `steps` with each action (verb, first object) of `keys`."""
+    names, of = steps.log.pairs()[0], steps.log.pair_ids(steps.at)
+    return {k: [s.segment for s in steps.keep(of == names.index(k))[:n]] for k in keys}
+
+
+def _instead(view, q: _Ask, anchor: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """What takes the anchor's place: the same action on another object, after the same action
     that usually precedes the anchor (else the same action on other objects)."""
     obj = (_subject(anchor) or [None])[0]
     if obj and (not anchor.verb or anchor.verb in GENERIC_VERBS):
         return _instead_object(view, q, anchor, obj, log, lex, base)
-    runs = action_runs(log)
-    before = Counter((a[0].verb, a[0].objects[:1]) for a, b in zip(runs, runs[1:])
-                     if a[0].video == b[0].video and _trigger(b[0], anchor))
-    contexts = {k for k, _ in before.most_common(3)}
+    whole = log.log
+    word, run_key = whole.rows.word, whole.run_keys()
+    a, b = log.run_pairs()  # each two runs of one video that follow each other, in order
+    trig = whole.word_mask(_triggers(anchor))
+    before = Counter(dict(first_order_counts(run_key[word[a[trig[word[b]]]]])))
+    contexts = np.asarray([k for k, _ in before.most_common(3)], dtype=np.int64)
     verb = anchor.verb
-    alt: Counter = Counter()
-    ids: dict = {}
-    for a, b in zip(runs, runs[1:]):
-        x = b[0]
-        if a[0].video != x.video or _trigger(x, anchor) or not x.objects:
-            continue
-        if verb and verb not in GENERIC_VERBS and x.verb != verb:
-            continue
-        if (a[0].verb, a[0].objects[:1]) not in contexts:
-            continue
-        alt[(x.verb, x.objects[0])] += 1
-        ids.setdefault((x.verb, x.objects[0]), []).append(x.segment)
+    fits = whole.word_mask(lambda x: bool(x.objects) and not (verb and verb not in GENERIC_VERBS and x.verb != verb))
+    keep = ~trig[word[b]] & fits[word[b]] & np.isin(run_key[word[a]], contexts)
+    got = Steps(whole, b[keep])
     how = "in the same place in the sequence"
-    if not alt:
-        for x in log:
-            if x.objects and not _trigger(x, anchor) and (not verb or verb in GENERIC_VERBS or x.verb == verb) and \
-                    lex.same_category(x.objects[0], (_subject(anchor) or [None])[0]):
-                alt[(x.verb, x.objects[0])] += 1
-                ids.setdefault((x.verb, x.objects[0]), []).append(x.segment)
+    if not got:
+        subj = (_subject(anchor) or [None])[0]
+        trigger = _triggers(anchor)
+        got = log.where(lambda x: bool(x.objects) and not trigger(x) and
+                        (not verb or verb in GENERIC_VERBS or x.verb == verb) and lex.same_category(x.objects[0], subj))
         how = "the same action on things of the same kind"
+    alt = got.action_counts()
     if not alt:
         return OpenAnswer(**base, kind="actions", answer="nothing recorded in its place", in_memory=True,
                           features=_features(0, 0.0, 0.0))
     total = sum(alt.values())
     acts = _shares(alt, total)
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
+    top = [k for k, _ in alt.most_common(MAX_ACTIONS)]
+    ids = _first_segments(got, top)
     return OpenAnswer(**base, kind="actions", answer="; ".join(f"{a.text} ({a.share:.0%})" for a in acts),
                       in_memory=True, actions=acts, support=acts[0].count,
-                      evidence=list(dict.fromkeys(i for k, _ in alt.most_common(MAX_ACTIONS) for i in ids[k][:5])),
+                      evidence=list(dict.fromkeys(i for k in top for i in ids[k])),
                       detail=f"instead of it: {how}", features=_features(acts[0].count, acts[0].share, margin, exact=False))
 
 
-def _instead_object(view, q: _Ask, anchor: _Ask, obj: str, log: list[LogStep], lex: Lexicon,
+def _instead_object(view, q: _Ask, anchor: _Ask, obj: str, log: Steps, lex: Lexicon,
                     base: dict) -> OpenAnswer:
     """Objects of the anchor's kind used for what the anchor is used for ("instead of the knife")."""
-    uses = Counter(s.verb for s in log if obj in s.objects and s.verb)
+    uses = log.where(lambda s: obj in s.objects and s.verb).count_by(lambda s: s.verb)
     top = {v for v, _ in uses.most_common(3) if v not in ("take", "put", "move", "hold")} or \
         {v for v, _ in uses.most_common(3)}
-    alt: Counter = Counter()
-    ids: dict = {}
-    for s in log:
-        if s.verb in top and s.objects and s.objects[0] != obj and lex.same_category(s.objects[0], obj):
-            alt[(s.verb, s.objects[0])] += 1
-            ids.setdefault((s.verb, s.objects[0]), []).append(s.segment)
+    got = log.where(lambda s: s.verb in top and bool(s.objects) and s.objects[0] != obj and
+                    lex.same_category(s.objects[0], obj))
+    alt = got.action_counts()
     if not alt:
         return OpenAnswer(**base, kind="actions", answer=f"nothing of its kind used in place of the {_name(obj)}",
                           in_memory=True, features=_features(0, 0.0, 0.0))
     total = sum(alt.values())
     acts = _shares(alt, total)
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
+    keys = [k for k, _ in alt.most_common(MAX_ACTIONS)]
+    ids = _first_segments(got, keys)
     return OpenAnswer(**base, kind="actions", answer="; ".join(f"{a.text} ({a.share:.0%})" for a in acts),
                       in_memory=True, actions=acts, support=acts[0].count,
-                      evidence=list(dict.fromkeys(i for k, _ in alt.most_common(MAX_ACTIONS) for i in ids[k][:5])),
+                      evidence=list(dict.fromkeys(i for k in keys for i in ids[k])),
                       detail=f"things of the {_name(obj)}'s kind used for what it is used for "
                              f"({', '.join(sorted(top))})", features=_features(acts[0].count, acts[0].share, margin,
                                                                               exact=False))
@@ -741,9 +779,9 @@ def _ordinal(n: int | None) -> str:
     return {1: "first", 2: "second", 3: "third"}.get(n or 0, f"{n}th")
 
 
-def _one_step(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _one_step(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """The first / last / nth thing done in the scope (of the subject, when there is one)."""
-    steps = [s for s in log if _matches(s, q, loose=True)] if (q.nouns or q.surface or q.verbs) else list(log)
+    steps = log.where(_matcher(q, True)) if (q.nouns or q.surface or q.verbs) else log
     if not steps:
         return _never(q, base) if (q.nouns or q.verbs) else OpenAnswer(
             **base, kind="activity", answer="nothing recorded there", in_memory=True, features=_features(0, 0.0, 0.0))
@@ -764,38 +802,43 @@ def _one_step(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> Op
 DURATION_CAP = 60.0  # seconds: a step's duration runs to the next step, at most this long
 
 
-def _duration(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _duration(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """Seconds spent on the subject (each matching step until the next step of its video), or
     the span of the scope's log when no subject is named."""
     if not (q.nouns or q.surface or q.verbs):
         if not log:
             return OpenAnswer(**base, kind="duration", answer="nothing recorded there", in_memory=True,
                               features=_features(0, 0.0, 0.0))
-        spans: dict[str, tuple[float, float]] = {}
-        for s in log:
-            a, b = spans.get(s.video, (s.t, s.t))
-            spans[s.video] = (min(a, s.t), max(b, s.t))
+        v, t = log.video_ix, log.t
+        first = log.keep(np.r_[True, v[1:] != v[:-1]]).video_ix.tolist()
+        lo, hi = np.full(len(log.log.rows.videos), np.inf), np.full(len(log.log.rows.videos), -np.inf)
+        np.minimum.at(lo, v, t)
+        np.maximum.at(hi, v, t)
+        spans = {k: (float(lo[k]), float(hi[k])) for k in first}  # each video's first and last step, in order
         total = sum(b - a for a, b in spans.values())
         return OpenAnswer(**base, kind="duration", answer=f"{clock(total)} ({total:.0f} s from the first to the last "
                           f"step, {counted(len(spans), 'video')})", in_memory=True, seconds=round(total, 1), count=round(total),
-                          evidence=_ids(log[:1] + log[-1:]), support=len(log), features=_features(len(log)))
-    total, hits = 0.0, []
-    for i, s in enumerate(log):
-        if not _matches(s, q, loose=True):
-            continue
-        nxt = log[i + 1] if i + 1 < len(log) and log[i + 1].video == s.video else None
-        total += min(DURATION_CAP, (nxt.t - s.t) if nxt else 2.0)
-        hits.append(s)
+                          evidence=_ids(Steps(log.log, log.at[[0, -1]])), support=len(log), features=_features(len(log)))
+    idx = np.flatnonzero(log.mask(_matcher(q, True)))
+    v, t = log.video_ix, log.t
+    nxt = idx + 1
+    has = nxt < len(log)
+    has[has] = v[nxt[has]] == v[idx[has]]  # the next step of its video
+    spent = np.minimum(DURATION_CAP, np.where(has, t[np.minimum(nxt, len(log) - 1)] - t[idx], 2.0))
+    total = 0.0
+    for x in spent.tolist():  # added in order, as the answer always added them
+        total += x
+    hits = log.keep(idx)
     if not hits:
         return _never(q, base)
-    videos = len({h.video for h in hits})
+    videos = len(hits.videos())
     return OpenAnswer(**base, kind="duration", answer=f"{clock(total)} ({total:.0f} s over {counted(len(hits), 'step')} in "
                       f"{counted(videos, 'video')})", in_memory=True, seconds=round(total, 1), count=round(total), evidence=_ids(hits),
                       support=len(hits), detail="each step until the next one, at most 60 s",
                       features=_features(len(hits), 1.0, 1.0))
 
 
-def _place_in_scope(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict, noun: str | None,
+def _place_in_scope(view, q: _Ask, log: Steps, lex: Lexicon, base: dict, noun: str | None,
                     what: str) -> OpenAnswer:
     """Where the object was in the scope when no placement there says so: its state history at
     the moment asked (a video's), else the place it was last seen with there."""
@@ -812,7 +855,7 @@ def _place_in_scope(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict,
                                   f"{clock(st.time_seconds)})", in_memory=True, place=pv, evidence=[st.event_id],
                                   support=1, detail="the object's state history at the moment asked",
                                   features=_features(1, 0.5, 0.0, True, False))
-    seen = [s for s in log if noun in s.nouns and s.place and s.place != noun]
+    seen = log.where(lambda s: noun in s.nouns and s.place and s.place != noun)
     if seen:
         s = seen[-1] if q.order != "first" else seen[0]
         pv = PlaceValue(place=s.place, name=_name(s.place), video=s.video, time_seconds=round(s.t, 2), count=1)
@@ -824,12 +867,12 @@ def _place_in_scope(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict,
                       in_memory=True, detail="nothing in the scope says where it was", features=_features(0, 0.0, 0.0, True))
 
 
-def _actions(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _actions(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     subject = _subject(q)
-    hits = [s for s in log if (not subject or subject[0] in s.nouns) and _verb_ok(q.verb, s.verb, True)]
+    hits = log.where(lambda s: (not subject or subject[0] in s.nouns) and _verb_ok(q.verb, s.verb, True))
     if not hits:
         return _never(q, base)
-    counts = Counter((s.verb, s.objects[0] if s.objects else "") for s in hits)
+    counts = hits.action_counts()
     acts = _shares(counts, len(hits))
     margin = acts[0].share - (acts[1].share if len(acts) > 1 else 0.0)
     return OpenAnswer(**base, kind="actions", answer="; ".join(f"{a.text} ({a.share:.0%})" for a in acts),
@@ -841,7 +884,7 @@ def _actions(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> Ope
 ROUTINE_SIMILARITY = 0.5  # a routine found for a goal no class names must be at least this close
 
 
-def _routine(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _routine(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """The steps of a goal: the retrieval tool `get_routine_skill` (so what improves routines there
     improves this), the best routine that shares the goal's objects; else the sequence that most
     often surrounds the goal's action in the episodes."""
@@ -874,15 +917,8 @@ def _routine(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> Ope
         if episode is not None:
             return _episode_answer(q, episode, base)
     # no routine: the steps that most often surround the goal action in the episodes
-    runs = action_runs(log)
-    windows: Counter = Counter()
-    for i, run in enumerate(runs):
-        s = run[0]
-        if (q.verb and s.verb != q.verb) or (subject and not subject & set(s.objects)):
-            continue
-        seq = tuple((r[0].verb, r[0].objects[0] if r[0].objects else "") for r in runs[max(0, i - 1):i + 3]
-                    if r[0].video == s.video)
-        windows[seq] += 1
+    windows: Counter = Counter(log.run_windows(
+        lambda s: not ((q.verb and s.verb != q.verb) or (subject and not subject & set(s.objects))), 1, 2))
     if not windows:
         return _never(q, base)
     seq, n = windows.most_common(1)[0]
@@ -896,41 +932,41 @@ MAX_STEPS = 12
 LEAD, TRAIL = 6, 3  # steps before the goal object's first mention and after its last
 
 
-def _episode(q: _Ask, log: list[LogStep]) -> list[LogStep] | None:
+def _episode(q: _Ask, log: Steps) -> Steps | None:
     """The steps of the video that names the goal's object most, from its first mention to its last."""
     subject = set(_subject(q))
-    hits = [s for s in log if subject & set(s.nouns) or any(_says(s.text, w) for w in q.surface)]
-    if not hits:
+    hit = log.mask(lambda s: subject & set(s.nouns) or any(_says(s.text, w) for w in q.surface))
+    if not hit.any():
         return None
-    video = Counter(h.video for h in hits).most_common(1)[0][0]
-    mine = [h for h in hits if h.video == video]
-    steps = [s for s in log if s.video == video]
-    first = next(i for i, s in enumerate(steps) if s is mine[0])
-    last = next(i for i, s in enumerate(steps) if s is mine[-1])
+    v = log.video_ix
+    video = Counter(dict(first_order_counts(v[hit]))).most_common(1)[0][0]
+    steps = np.flatnonzero(v == video)  # the video's steps (indexes into the scope's)
+    mine = np.flatnonzero(hit & (v == video))
+    first, last = np.searchsorted(steps, mine[0]), np.searchsorted(steps, mine[-1])
     # with what leads up to it (the kettle filled before the teabag goes in) and what closes it
-    return steps[max(0, first - LEAD):last + 1 + TRAIL]
+    return Steps(log.log, log.at[steps[max(0, first - LEAD):last + 1 + TRAIL]])
 
 
-def _episode_answer(q: _Ask, episode: list[LogStep], base: dict) -> OpenAnswer:
-    runs = action_runs(episode)
-    seq = [(r[0].verb, r[0].objects[0] if r[0].objects else "", r[0]) for r in runs]
-    shown = seq[:MAX_STEPS]
-    steps = [RoutineStep(order=i + 1, verb=v or "", noun=o, text=st.text) for i, (v, o, st) in enumerate(shown)]
+def _episode_answer(q: _Ask, episode: Steps, base: dict) -> OpenAnswer:
+    starts = episode.run_starts()
+    shown = [episode[int(i)] for i in starts[:MAX_STEPS]]
+    steps = [RoutineStep(order=i + 1, verb=st.verb or "", noun=st.objects[0] if st.objects else "", text=st.text)
+             for i, st in enumerate(shown)]
     video = episode[0].video
     cut = ""
-    if len(seq) > len(shown):
-        t = shown[-1][2].t
-        cut = (f"cut: {len(shown)} of {len(seq)} steps shown; ask what happened in {video} between {clock(t)} and "
+    if len(starts) > len(shown):
+        t = shown[-1].t
+        cut = (f"cut: {len(shown)} of {len(starts)} steps shown; ask what happened in {video} between {clock(t)} and "
                f"{clock(episode[-1].t)} for the rest")
     return OpenAnswer(**base, kind="routine", answer=" -> ".join(x.text for x in steps) +
                       f" ({video}, {clock(episode[0].t)}-{clock(episode[-1].t)}; no consolidated routine)" +
                       (f" ({cut})" if cut else ""), in_memory=True, steps=steps, cut=cut, support=1,
-                      evidence=_ids(episode), records=[_line(x[2]) for x in shown],
+                      evidence=_ids(episode), records=[_line(x) for x in shown],
                       detail=f"the episode of {video} that names it most, no routine consolidated for it",
                       features=_features(1, 0.5, 0.0, True, False))
 
 
-def _state(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _state(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """The objects' state and place in a video at a moment (its end when none is asked); without a
     video, the last one ("is the fridge open now?")."""
     videos = list(q.videos) or _session_videos(view, q.query.scope) or sorted(view.videos)[-1:]
@@ -965,13 +1001,13 @@ def _state(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenA
                       detail=f"the state history of {video} {at}")
 
 
-def _activity(view, q: _Ask, log: list[LogStep], lex: Lexicon, base: dict) -> OpenAnswer:
+def _activity(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     """The scope's log in order (about the subject, when one is named); a long one is cut, saying so."""
-    steps = list(log)
+    steps = log
     subject = set(_subject(q))
     if subject or q.surface:
-        steps = [s for s in steps if subject & set(s.nouns) or any(_says(s.text, w) for w in q.surface)] or steps
-    where = ", ".join(dict.fromkeys(s.video for s in steps)) or "the scope asked"
+        steps = steps.where(lambda s: subject & set(s.nouns) or any(_says(s.text, w) for w in q.surface)) or steps
+    where = ", ".join(steps.videos()) or "the scope asked"
     if not steps:
         return OpenAnswer(**base, kind="activity", answer=f"nothing recorded in {where}", in_memory=True,
                           features=_features(0, 0.0, 0.0))

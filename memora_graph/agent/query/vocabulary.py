@@ -18,6 +18,8 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from memora_graph.perceive.lexicon import Lexicon
 
 _WORD = re.compile(r"[a-z][a-z0-9]*")
@@ -41,41 +43,48 @@ class Vocabulary:
 
     @classmethod
     def of(cls, view, lex: Lexicon, log=None) -> Vocabulary:
-        """The vocabulary of the person `view` holds, cached on the view; a live view's remembered
-        steps (`log.action_log` notes them) are added as they come, not read again with the rest."""
+        """The vocabulary of the person `view` holds, cached on the view. A live view's log grows
+        by the segments remembered since (retrieve/steps.py, `StepRows.added`: they come after
+        the segments read); only their steps are added, not the whole log read again."""
         from memora_graph.agent.query.log import action_log
 
         log = action_log(view, lex) if log is None else log
-        cached = view.__dict__.get("_query_vocabulary")
-        added = view.__dict__.get("_open_log_added")
-        if cached is not None and added is not None and view.__dict__.get("_query_vocab_log") is log:
-            # the same log, grown by a live view's remembered steps: only those are read
-            if added:
-                cached._add(added, lex, view.__dict__.setdefault("_query_vocab_text", {}))
-                added.clear()
+        rows = log.rows
+        known = view.__dict__
+        cached = known.get("_query_vocabulary")
+        read = known.get("_query_vocab_read")  # (the rows' lineage, segments read)
+        seen = known.setdefault("_query_vocab_text", {})
+        if cached is not None and read is not None and read[0] is rows.lineage and len(rows.segments) >= read[1]:
+            if len(rows.segments) > read[1]:  # the same log, grown by remembered segments: only theirs are read
+                new = np.flatnonzero(rows.segment >= read[1])
+                cached._add(log, new[np.argsort(rows.segment[new], kind="stable")], lex, seen)
+                known["_query_vocab_read"] = (rows.lineage, len(rows.segments))
             return cached
         vocab = cls(Counter(), {}, {})
-        vocab._add(log, lex, view.__dict__.setdefault("_query_vocab_text", {}))
-        view.__dict__["_query_vocabulary"] = vocab
-        view.__dict__["_query_vocab_log"] = log
-        view.__dict__["_open_log_added"] = []
+        vocab._add(log, np.arange(len(rows)), lex, seen)
+        known["_query_vocabulary"] = vocab
+        known["_query_vocab_read"] = (rows.lineage, len(rows.segments))
         return vocab
 
-    def _add(self, steps, lex: Lexicon, seen: dict) -> None:
-        """Count the words and names of these narrated steps (`seen` keeps each wording's reading)."""
-        for s in steps:
-            text = s.text.lower()
+    def _add(self, log, at: np.ndarray, lex: Lexicon, seen: dict) -> None:
+        """Count the words and names of the narrated steps at positions `at` of `log` (a
+        `StepLog`; `seen` keeps each wording's reading)."""
+        rows, classes = log.rows, log.classes
+        for w, sg in zip(rows.word[at].tolist(), rows.segment[at].tolist()):
+            text = rows.words[w][3].lower()
+            nouns = classes[w][2]
+            segment = rows.segments[sg]
             parsed = seen.get(text)
             if parsed is None:
                 parsed = seen[text] = _phrases(lex, _WORD.findall(text))
-            for w, c in parsed:
-                if c is None or " " in w:
-                    self.words[w] += 1
-                segs = self.segments.setdefault(w, [])
-                if len(segs) < 20 and (not segs or segs[-1] != s.segment):
-                    segs.append(s.segment)
-                if c is not None and c in s.nouns:
-                    self.names.setdefault(c, Counter())[w] += 1
+            for w_, c in parsed:
+                if c is None or " " in w_:
+                    self.words[w_] += 1
+                segs = self.segments.setdefault(w_, [])
+                if len(segs) < 20 and (not segs or segs[-1] != segment):
+                    segs.append(segment)
+                if c is not None and c in nouns:
+                    self.names.setdefault(c, Counter())[w_] += 1
 
     def says(self, word: str) -> int:
         return self.words.get(word.lower(), 0)

@@ -35,6 +35,7 @@ from memora_graph.cli.form import checkpoint_options, checkpoint_policy
 from memora_graph.output import render
 
 TARGET_P50_MS, TARGET_P95_MS, TARGET_RATIO = 20.0, 50.0, 2.0
+TARGET_READ_MS = 200.0  # ask, plan and every named query, idle and while remembering (p95)
 SKIP_TOOLS = ("cypher",)  # a child process per call in a read-only server; its own benchmark is `perf serve`
 
 
@@ -79,6 +80,22 @@ def prepare_bank(participant: str, hours: float, work: Path, given: str | None, 
         build_bank(base, [participant], synth / "annotations.csv", jobs=1)
         (work / f"base-{tag}.done").touch()
     return base
+
+
+def _read_figures(idle_by: dict[str, list[float]], busy_by: dict[str, list[float]]) -> dict:
+    """The figures the read targets name: `ask` and `plan` p95, idle and while remembering, and
+    the slowest named query (a `query_*` tool) with its p95 (targets: <= 200 ms each)."""
+    out = {}
+    for tool in ("ask", "plan"):
+        if tool in idle_by:
+            out[f"{tool}_idle_p95_ms"] = _pct(idle_by[tool], .95)
+            out[f"{tool}_stream_p95_ms"] = _pct(busy_by.get(tool, [0.0]), .95)
+    named = {n: max(_pct(v, .95), _pct(busy_by.get(n, [0.0]), .95)) for n, v in idle_by.items() if n.startswith("query_")}
+    if named:
+        worst = max(named, key=named.get)
+        out.update(named_query_worst=worst, named_query_worst_p95_ms=named[worst],
+                   named_queries_over_target=sorted(n for n, v in named.items() if v > TARGET_READ_MS))
+    return out
 
 
 def _peak_rss_mb() -> float:
@@ -170,6 +187,7 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         out["tool_p95_ratio"] = round(out["tool_stream_p95_ms"] / out["tool_idle_p95_ms"], 2)
         out["tool_idle_p95_by_tool_ms"] = {n: _pct(v, .95) for n, v in sorted(idle_by.items())}
         out["tool_stream_p95_by_tool_ms"] = {n: _pct(v, .95) for n, v in sorted(busy_by.items())}
+        out.update(_read_figures(idle_by, busy_by))
         echo("  " + json.dumps(out))
         if not consolidation:
             return out
@@ -250,7 +268,8 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
     """Live memory: remember latency, tool latency while remembering, incremental consolidation.
 
     \b
-    Targets: remember p50 <= 20 ms and p95 <= 50 ms; tool p95 while remembering at 10/s <= 2x idle.
+    Targets: remember p50 <= 20 ms and p95 <= 50 ms; tool p95 while remembering at 10/s <= 2x idle;
+    ask, plan and every named query p95 <= 200 ms, idle and while remembering.
     Examples:
       memora perf live --sizes 10 --work /tmp/perf-live
       memora perf live --sizes 10,100 --bank 10=/path/to/bank-10h --remembers 300 --json
@@ -284,3 +303,9 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
                    f"<= {TARGET_P50_MS:g} / {TARGET_P95_MS:g}; tool p95 while remembering {r['tool_p95_ratio']}x idle "
                    f"(target <= {TARGET_RATIO:g}); {cons}; load average {r.get('load_start')} "
                    f"-> {r.get('load_end')}")
+        if "ask_idle_p95_ms" in r:
+            click.echo(f"{r['hours']:g} h: open {r['open_s']} s; ask p95 {r['ask_idle_p95_ms']} / "
+                       f"{r['ask_stream_p95_ms']} ms idle / while remembering, plan {r.get('plan_idle_p95_ms')} / "
+                       f"{r.get('plan_stream_p95_ms')} ms; slowest named query {r.get('named_query_worst')} "
+                       f"{r.get('named_query_worst_p95_ms')} ms (target <= {TARGET_READ_MS:g} ms each; over it: "
+                       f"{', '.join(r.get('named_queries_over_target') or []) or 'none'})")
