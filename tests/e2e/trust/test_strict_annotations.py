@@ -144,7 +144,7 @@ def test_build_refuses_a_bad_csv_before_touching_the_bank(tmp_path):
 @pytest.mark.parametrize("args,says", [
     (("--participants", ""), "no participant given"),
     (("--participants", " , "), "no participant given"),
-    (("--participants", "P01,x"), "'x' is not a participant id"),
+    (("--participants", "P01,../x"), "'../x' is not a participant id"),
 ])
 def test_build_refuses_empty_or_bad_participant_lists(tmp_path, args, says):
     # A bad option value is a usage error (click's exit code 2), named with the option.
