@@ -272,6 +272,39 @@ _GERUND = {"put": "putting", "cut": "cutting", "stir": "stirring", "scrub": "scr
            "unwrap": "unwrapping", "let-go": "letting go of", "set": "setting", "shake": "shaking"}
 
 
+_PAST = {"take": "took", "put": "put", "cut": "cut", "throw": "threw", "eat": "ate", "drink": "drank", "hold": "held",
+         "shake": "shook", "break": "broke", "set": "set", "spread": "spread", "let-go": "let go of", "stir": "stirred",
+         "pat": "patted", "flip": "flipped", "drop": "dropped", "wrap": "wrapped", "rip": "ripped", "stab": "stabbed",
+         "unwrap": "unwrapped", "scrub": "scrubbed", "grind": "ground", "hang": "hung", "wear": "wore", "rub": "rubbed",
+         "chop": "chopped", "dry": "dried", "fry": "fried", "empty": "emptied", "carry": "carried", "apply": "applied"}
+
+
+def past(verb: str) -> str:
+    """'turn-on' -> 'turned on', 'take' -> 'took'."""
+    head, *rest = verb.split("-")
+    if verb in _PAST:
+        return _PAST[verb]
+    if head in _PAST:
+        word = _PAST[head]
+    elif head.endswith("e"):
+        word = head + "d"
+    elif head.endswith("y") and len(head) > 1 and head[-2] not in "aeiou":
+        word = head[:-1] + "ied"
+    else:
+        word = head + "ed"
+    return " ".join([word, *rest])
+
+
+_PARTICIPLE = {"take": "taken", "eat": "eaten", "drink": "drunk", "throw": "thrown", "shake": "shaken",
+               "break": "broken", "wear": "worn"}
+
+
+def participle(verb: str) -> str:
+    """'take' -> 'taken', 'turn-on' -> 'turned on'."""
+    head, *rest = verb.split("-")
+    return " ".join([_PARTICIPLE[head], *rest]) if head in _PARTICIPLE else past(verb)
+
+
 def noun_text(noun: str) -> str:
     """EPIC 'head:modifier...' as English: 'board:chopping' -> 'chopping board',
     'liquid:washing:up' -> 'washing up liquid'."""

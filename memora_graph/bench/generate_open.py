@@ -30,7 +30,7 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text, verb_phrase
+from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text, participle, past, verb_phrase
 from memora_graph.bench.generate_scoped import CELLS, SCOPED_KINDS, generate_scoped
 
 BASE_KINDS = ("place_last", "place_usual", "time_last", "time_first", "count", "yes", "no", "next", "absent", "general")
@@ -198,37 +198,6 @@ GENERAL = {
               "What language is spoken in Brazil?", "When did the Second World War end?",
               "Why does bread go stale?", "What is the capital city of Japan?", "How do you make mayonnaise?"],
 }
-_PAST = {"take": "took", "put": "put", "cut": "cut", "throw": "threw", "eat": "ate", "drink": "drank", "hold": "held",
-         "shake": "shook", "break": "broke", "set": "set", "spread": "spread", "let-go": "let go of", "stir": "stirred",
-         "pat": "patted", "flip": "flipped", "drop": "dropped", "wrap": "wrapped", "rip": "ripped", "stab": "stabbed",
-         "unwrap": "unwrapped", "scrub": "scrubbed", "grind": "ground", "hang": "hung", "wear": "wore", "rub": "rubbed",
-         "chop": "chopped", "dry": "dried", "fry": "fried", "empty": "emptied", "carry": "carried", "apply": "applied"}
-
-
-def past(verb: str) -> str:
-    """'turn-on' -> 'turned on', 'take' -> 'took'."""
-    head, *rest = verb.split("-")
-    if verb in _PAST:
-        return _PAST[verb]
-    if head in _PAST:
-        word = _PAST[head]
-    elif head.endswith("e"):
-        word = head + "d"
-    elif head.endswith("y") and len(head) > 1 and head[-2] not in "aeiou":
-        word = head[:-1] + "ied"
-    else:
-        word = head + "ed"
-    return " ".join([word, *rest])
-
-
-_PARTICIPLE = {"take": "taken", "eat": "eaten", "drink": "drunk", "throw": "thrown", "shake": "shaken",
-               "break": "broken", "wear": "worn"}
-
-
-def participle(verb: str) -> str:
-    """'take' -> 'taken', 'turn-on' -> 'turned on'."""
-    head, *rest = verb.split("-")
-    return " ".join([_PARTICIPLE[head], *rest]) if head in _PARTICIPLE else past(verb)
 
 
 class OpenItem(BaseModel):

@@ -27,7 +27,7 @@ from __future__ import annotations
 import random
 from collections import Counter
 
-from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text
+from memora_graph.bench.behaviour import PUT_VERB_KEYS, ActionClass, Behaviour, noun_text, past
 
 SCOPED_SPLITS = ("third", "me")  # the wording's person: "P04 ..." or "I ..." (the memory's owner)
 SCOPED_KINDS = ("count_video", "yes_video", "no_video", "place_video", "last_in_video", "first_in_video",
@@ -245,8 +245,6 @@ def generate_scoped(b: Behaviour, add, rng: random.Random, fill, per_kind: dict[
                 break
     for k, (a, v, e) in enumerate(rng.sample(cands, min(per["count_after"], len(cands)))):
         t, tid, person = word("count_after")
-        from memora_graph.bench.generate_open import past
-
         ev = f"{past(e.action.verb)} the {noun_text(e.action.noun)}"
         n = sum(1 for s in by_video[v] if s.action == a and s.start_s > e.start_s)
         add("count_after", text(t, a, V=v, e=ev), tid, person, {"count": n},
