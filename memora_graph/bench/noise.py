@@ -193,7 +193,7 @@ def repair_table(cell: Path, participants: list[str]) -> dict[str, dict[str, int
     events: dict[tuple[str, str], list[dict]] = {}  # (participant, video) -> observations
     for p in participants:
         with bank.open(p) as store:
-            for r in store.rows("baseline_state_events", participant=p):
+            for r in store.rows("_baseline_state_events_all", participant=p):
                 events.setdefault((p, r["video"]), []).append(r)
     out = {t: {"injected": 0, "undone": 0, "worse": 0, "kept": 0} for t in ERROR_TYPES}
     for e in errors:
