@@ -176,7 +176,9 @@ def stream_with_kills(bank: Path, todo: list[Moment], kills: int, seed: int) -> 
         early = kill and rng.random() < 0.25
         after = rng.randint(0, min(3, len(pending) - 1)) if kill else None
         if early:
-            timer = threading.Timer(rng.uniform(0.0, 4.0), lambda p=proc: _kill(p))
+            # within the first second: a child is still starting or recovering then (a remember is
+            # ~10 ms, so a later timer can find the child done with every moment on a quiet machine)
+            timer = threading.Timer(rng.uniform(0.0, 1.0), lambda p=proc: _kill(p))
             timer.start()
         for line in proc.stdout:
             got = json.loads(line)
@@ -188,7 +190,7 @@ def stream_with_kills(bank: Path, todo: list[Moment], kills: int, seed: int) -> 
                     _kill(proc)
                     break
         proc.wait()
-        if kill:
+        if kill and proc.returncode == -signal.SIGKILL:
             killed += 1
         elif proc.returncode != 0:
             said = (bank.parent / "remember-stderr.txt").read_text()[-3000:]
