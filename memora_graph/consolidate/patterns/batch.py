@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top
+from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
@@ -106,13 +106,7 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
             actions=[StepAction(verb="take", noun=k) for k in kinds[:4]],
             count=max(n1, nb), total=n1 + nb, evidence=[s for _, _, ss in win for s in ss][:20],
             exceptions=[s for _, _, ss in lose for s in ss][:10], tasks=sorted({t.id for t, _, _ in win}),
-            videos=_videos(win), detail={"way": "one_at_a_time" if single else "batch", "kind": kind,
+            videos=videos_of([o[0] for o in win]), detail={"way": "one_at_a_time" if single else "batch", "kind": kind,
                                          "one_at_a_time": n1, "batch": nb}))
     return top(out)
 
-
-def _videos(occ) -> dict[str, int]:
-    out: dict[str, int] = {}
-    for t, _, _ in occ:
-        out[t.video] = out.get(t.video, 0) + 1
-    return dict(sorted(out.items()))

@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top
+from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
@@ -54,13 +54,7 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
             actions=[StepAction(verb="pour", noun=noun, place=dest, instrument="" if carrier == "directly" else carrier)],
             count=n, total=len(occ), evidence=[s for _, c, s in occ if c == carrier][:20],
             exceptions=[s for _, c, s in occ if c != carrier][:10], tasks=sorted({t.id for t, c, _ in occ if c == carrier}),
-            videos=_videos([(t, s) for t, c, s in occ if c == carrier]),
+            videos=videos_of([t for t, c, _ in occ if c == carrier]),
             detail={"carrier": carrier, "alternatives": {k: v for k, v in by.items() if k != carrier}}))
     return top(out)
 
-
-def _videos(occ) -> dict[str, int]:
-    out: dict[str, int] = {}
-    for t, _ in occ:
-        out[t.video] = out.get(t.video, 0) + 1
-    return dict(sorted(out.items()))

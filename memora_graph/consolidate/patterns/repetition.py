@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top
+from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
@@ -80,7 +80,7 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
                       f"({cycles} cycles in {n} tasks)",
             objects=[noun], actions=[StepAction(verb=a, noun=noun), StepAction(verb=b, noun=noun)],
             count=n, total=max(n, with_obj), evidence=[s for _, _, ss in occ for s in ss][:20],
-            tasks=sorted({t.id for t, _, _ in occ}), videos=_videos(occ), detail={"cycles": cycles, "way": "alternate"}))
+            tasks=sorted({t.id for t, _, _ in occ}), videos=videos_of([o[0] for o in occ]), detail={"cycles": cycles, "way": "alternate"}))
     for (noun, v), occ in rep.items():
         n, passes = len({t.id for t, _, _ in occ}), sum(c for _, c, _ in occ)
         if n < MIN_TASKS:
@@ -92,12 +92,6 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
                       f"to it again ({passes} passes in {n} tasks)",
             objects=[noun], actions=[StepAction(verb=v, noun=noun)], count=n, total=max(n, with_obj),
             evidence=[s for _, _, ss in occ for s in ss][:20], tasks=sorted({t.id for t, _, _ in occ}),
-            videos=_videos(occ), detail={"passes": passes, "way": "repeat"}))
+            videos=videos_of([o[0] for o in occ]), detail={"passes": passes, "way": "repeat"}))
     return top(out)
 
-
-def _videos(occ) -> dict[str, int]:
-    out: dict[str, int] = {}
-    for t, _, _ in occ:
-        out[t.video] = out.get(t.video, 0) + 1
-    return dict(sorted(out.items()))

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top
+from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
@@ -49,7 +49,7 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
                       f"(stages it there in {n} of {handled} tasks with it)",
             objects=[noun], actions=[StepAction(verb="put", noun=noun, place=place), StepAction(verb="take", noun=noun, place=place)],
             count=n, total=max(n, handled), evidence=[s for _, s in occ][:20], tasks=sorted({t.id for t, _ in occ}),
-            videos=_videos(occ), detail={"place": place}))
+            videos=videos_of([o[0] for o in occ]), detail={"place": place}))
     for place, occ in by_place.items():
         n = len({t.id for t, _, _ in occ})
         kinds = list(dict.fromkeys(k for _, k, _ in occ))
@@ -61,12 +61,6 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
                       f"again ({', '.join(obj(k) for k in kinds[:5])}; {n} of {len(tasks)} tasks)",
             objects=kinds[:8], actions=[StepAction(verb="put", noun=k, place=place) for k in kinds[:4]],
             count=n, total=max(n, len(tasks)), evidence=[s for _, _, s in occ][:20],
-            tasks=sorted({t.id for t, _, _ in occ}), videos=_videos([(t, s) for t, _, s in occ]), detail={"place": place}))
+            tasks=sorted({t.id for t, _, _ in occ}), videos=videos_of([t for t, _, _ in occ]), detail={"place": place}))
     return top(out)
 
-
-def _videos(occ) -> dict[str, int]:
-    out: dict[str, int] = {}
-    for t, _ in occ:
-        out[t.video] = out.get(t.video, 0) + 1
-    return dict(sorted(out.items()))
