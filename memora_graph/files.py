@@ -19,6 +19,8 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from memora_graph.errors import BankError
@@ -29,6 +31,29 @@ RECOVERY = ".recovery"  # BANK/.recovery/<db>-<UTC time>-<pid>/: copies of logs 
 KEEP_LOGS = 3  # copies kept per database (the oldest go)
 
 _HASHED: dict[tuple, str] = {}  # (path, size, mtime_ns, ctime_ns, inode) -> sha256, for this process
+
+
+@contextmanager
+def staged_files(folder: Path) -> Iterator[Callable[[str], Path]]:
+    """`with staged_files(out) as aside:` each `aside(name)` is a path to write `out/name` to, aside
+    (`.name.partial-PID`); when the block ends they are all moved into place, so a reader never
+    finds half of a folder's files. A block that fails leaves the folder as it was."""
+    folder.mkdir(parents=True, exist_ok=True)
+    staged: list[tuple[Path, Path]] = []
+
+    def aside(name: str) -> Path:
+        tmp = folder / f".{name}.partial-{os.getpid()}"
+        staged.append((tmp, folder / name))
+        return tmp
+
+    try:
+        yield aside
+    except BaseException:
+        for tmp, _ in staged:
+            tmp.unlink(missing_ok=True)
+        raise
+    for tmp, final in staged:
+        os.replace(tmp, final)
 
 
 def side_files(db: Path) -> list[Path]:

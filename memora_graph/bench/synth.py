@@ -24,7 +24,6 @@ import csv
 import hashlib
 import json
 import math
-import os
 import random
 import re
 import shutil
@@ -32,6 +31,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from memora_graph.errors import DataError
+from memora_graph.files import staged_files
 from memora_graph.paths import default_annotations
 from memora_graph.perceive.annotations import REQUIRED_COLUMNS, load_annotations, load_video_info, noun_phrase
 from memora_graph.perceive.vocab import NON_OBJECTS, PLACE_NOUNS
@@ -194,27 +194,18 @@ def _row(participant: str, video: str, n: int, start: float, stop: float, a: dic
 
 
 def _write(out: Path, meta: Path, rows: list[dict], videos: list[tuple[str, float]], result: SynthResult) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    staged: list[tuple[Path, Path]] = []
-
-    def aside(name: str) -> Path:
-        tmp = out / f".{name}.partial-{os.getpid()}"
-        staged.append((tmp, out / name))
-        return tmp
-
-    with aside("annotations.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=REQUIRED_COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
-    with aside("video_info.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["video_id", "duration", "fps", "resolution"])
-        w.writerows([(v, f"{math.ceil(d * 100) / 100:.2f}", f"{FPS:g}", "1920x1080") for v, d in videos])
-    for name in ("verb_classes.csv", "noun_classes.csv"):
-        shutil.copyfile(meta / name, aside(name))
-    aside("synth.json").write_text(json.dumps(asdict(result), indent=1) + "\n")
-    for tmp, final in staged:
-        os.replace(tmp, final)
+    with staged_files(out) as aside:
+        with aside("annotations.csv").open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=REQUIRED_COLUMNS, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+        with aside("video_info.csv").open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["video_id", "duration", "fps", "resolution"])
+            w.writerows([(v, f"{math.ceil(d * 100) / 100:.2f}", f"{FPS:g}", "1920x1080") for v, d in videos])
+        for name in ("verb_classes.csv", "noun_classes.csv"):
+            shutil.copyfile(meta / name, aside(name))
+        aside("synth.json").write_text(json.dumps(asdict(result), indent=1) + "\n")
 
 
 __all__ = ["QUALIFIERS", "SynthResult", "first_video", "synthesize"]

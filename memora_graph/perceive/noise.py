@@ -34,7 +34,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import random
 import re
 import shutil
@@ -45,6 +44,7 @@ from pathlib import Path
 import polars as pl
 
 from memora_graph.errors import DataError
+from memora_graph.files import staged_files
 from memora_graph.perceive.annotations import REQUIRED_COLUMNS, ClassTables, noun_phrase
 from memora_graph.perceive.vocab import NON_OBJECTS, PLACE_NOUNS, VERB_STATE
 
@@ -311,38 +311,29 @@ def write_noisy(out: str | Path, result: NoiseResult, meta: Path, spec: NoiseSpe
     error log) and noise.json (the spec and the counts). Written aside and moved into place last.
     Returns the annotations path."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    staged: list[tuple[Path, Path]] = []
-
-    def aside(name: str) -> Path:
-        tmp = out / f".{name}.partial-{os.getpid()}"
-        staged.append((tmp, out / name))
-        return tmp
-
-    with aside("annotations.csv").open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=REQUIRED_COLUMNS)
-        w.writeheader()
-        for r in result.actions.iter_rows(named=True):
-            start, stop = round(r["start_s"], 2), round(max(r["stop_s"], r["start_s"]), 2)
-            keys_only = r["text_source"] == "class_keys" and not r["_changed"]
-            w.writerow({
-                "narration_id": r["narration_id"], "participant_id": r["participant_id"], "video_id": r["video_id"],
-                "narration_timestamp": _timestamp(start), "start_timestamp": _timestamp(start),
-                "stop_timestamp": _timestamp(stop), "start_frame": str(math.floor(start * FPS)),
-                "stop_frame": str(math.floor(stop * FPS)), "narration": "" if keys_only else r["narration"],
-                "verb": r["verb"], "verb_class": str(r["verb_class"]), "noun": r["noun"],
-                "noun_class": str(r["noun_class"]), "all_nouns": repr(list(r["all_nouns"])),
-                "all_noun_classes": repr(list(r["all_noun_classes"])),
-            })
-    with aside("errors.jsonl").open("w") as fh:
-        for e in result.errors:
-            fh.write(json.dumps(e, sort_keys=True) + "\n")
-    for name in ("video_info.csv", "verb_classes.csv", "noun_classes.csv"):
-        shutil.copyfile(meta / name, aside(name))
-    aside("noise.json").write_text(json.dumps({"spec": asdict(spec), "source": source, "counts": result.counts(),
-                                               "units": result.units, "actions": result.actions.height}, indent=1) + "\n")
-    for tmp, final in staged:
-        os.replace(tmp, final)
+    with staged_files(out) as aside:
+        with aside("annotations.csv").open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=REQUIRED_COLUMNS)
+            w.writeheader()
+            for r in result.actions.iter_rows(named=True):
+                start, stop = round(r["start_s"], 2), round(max(r["stop_s"], r["start_s"]), 2)
+                keys_only = r["text_source"] == "class_keys" and not r["_changed"]
+                w.writerow({
+                    "narration_id": r["narration_id"], "participant_id": r["participant_id"], "video_id": r["video_id"],
+                    "narration_timestamp": _timestamp(start), "start_timestamp": _timestamp(start),
+                    "stop_timestamp": _timestamp(stop), "start_frame": str(math.floor(start * FPS)),
+                    "stop_frame": str(math.floor(stop * FPS)), "narration": "" if keys_only else r["narration"],
+                    "verb": r["verb"], "verb_class": str(r["verb_class"]), "noun": r["noun"],
+                    "noun_class": str(r["noun_class"]), "all_nouns": repr(list(r["all_nouns"])),
+                    "all_noun_classes": repr(list(r["all_noun_classes"])),
+                })
+        with aside("errors.jsonl").open("w") as fh:
+            for e in result.errors:
+                fh.write(json.dumps(e, sort_keys=True) + "\n")
+        for name in ("video_info.csv", "verb_classes.csv", "noun_classes.csv"):
+            shutil.copyfile(meta / name, aside(name))
+        aside("noise.json").write_text(json.dumps({"spec": asdict(spec), "source": source, "counts": result.counts(),
+                                                   "units": result.units, "actions": result.actions.height}, indent=1) + "\n")
     return out / "annotations.csv"
 
 
