@@ -19,7 +19,9 @@ import os
 import re
 from dataclasses import dataclass
 
+from memora_graph.consolidate.task_records import PREFERENCE_FAMILIES
 from memora_graph.perceive.lexicon import Lexicon
+from memora_graph.retrieve.results import PreferenceRecord, RoutineRecord
 
 ENV = "MEMORA_TASK_CLAIMS"  # "on": the offline reader re-ranks options with the claims (off by default)
 
@@ -38,12 +40,8 @@ def is_task_record(rec) -> bool:
     stages (a routine of kind "task_routine") or how tasks are done (a preference whose subtype is a
     pattern family). The offline reader and planner read them only when asked (`enabled()`, `plan
     --from-task`): served by the tools, they change no default answer or plan."""
-    from memora_graph.consolidate.task_records import FAMILIES
-
-    kind = getattr(rec, "kind", None)
-    if kind == "task_routine" and hasattr(rec, "routine_id"):
-        return True
-    return hasattr(rec, "preference_id") and getattr(rec, "subtype", None) in FAMILIES
+    return ((isinstance(rec, RoutineRecord) and rec.kind == "task_routine")
+            or (isinstance(rec, PreferenceRecord) and rec.subtype in PREFERENCE_FAMILIES))
 
 
 WEIGHT = 0.6  # what one fully held pattern record adds to (or takes from) an option's score

@@ -16,6 +16,7 @@ from memora_graph.agent.claims import Claim, is_task_record
 from memora_graph.agent.claims import enabled as claims_enabled
 from memora_graph.agent.reading import Event
 from memora_graph.baselines.flat1d import FlatHit
+from memora_graph.consolidate.task_records import PREFERENCE_FAMILIES
 from memora_graph.baselines.graph2d import GraphNode
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.records import segment_id
@@ -203,14 +204,11 @@ def _preference_events(p: PreferenceRecord, lex: Lexicon) -> list[Event]:
         after = _actions(p.then or "", lex)
         return [Event("", -1.0, lex.verb(verb.strip()), tuple(dict.fromkeys(nouns)), ids, weight, "storage",
                       tuple(after[:1]), text=p.preference)]
-    if p.subtype in PATTERN_FAMILIES and p.actions:
+    if p.subtype in PREFERENCE_FAMILIES and p.actions:
         return _pattern_events(p, ids, weight, lex)
     if p.actions:
         return [Event("", -1.0, *_step_action(a, lex), ids, weight, "tool", text=p.preference) for a in p.actions]
     return []
-
-
-PATTERN_FAMILIES = ("order", "staging", "batch", "repetition", "setup", "carrier")
 
 
 def _pattern_events(p: PreferenceRecord, ids: tuple[str, ...], weight: float, lex: Lexicon) -> list[Event]:

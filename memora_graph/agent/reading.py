@@ -32,6 +32,8 @@ from bisect import bisect_left, bisect_right
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
 
+from memora_graph.agent.claims import adjust
+from memora_graph.agent.claims import enabled as claims_enabled
 from memora_graph.perceive.lexicon import Clause, Lexicon
 
 KINDS = ("habit", "preference", "routine", "recall")
@@ -498,16 +500,8 @@ def _reordered(scores: list[float], support: list[list[str]], shifts: list[float
     return out, [list(dict.fromkeys(claim_ids[i] + support[i])) if shifts[i] > 0 else support[i] for i in range(n)]
 
 
-def claims_enabled() -> bool:
-    from memora_graph.agent.claims import enabled
-
-    return enabled()
-
-
 def task_claims(choices: list[str], events: list[Event], subject: set[str], lex: Lexicon):
     """How the task-pattern records among the events move each option (`agent.claims`)."""
-    from memora_graph.agent.claims import adjust
-
     claims = list(dict.fromkeys(e.claim for e in events if e.claim is not None))
     if not claims:
         return [0.0] * len(choices), [[] for _ in choices]
