@@ -179,8 +179,7 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
                     if not _shadow_pages(db):
                         raise
                     counts = _probe_copy(db, p)
-                    row["wal"], row["log"] = f"{recoverable(counts['replay'])}; an interrupted checkpoint, whose " \
-                        "shadow pages a read-write open replays (replayed on a copy)", "checkpoint"
+                    row["wal"], row["log"] = recoverable(counts["replay"], checkpoint=True), "checkpoint"
             else:  # known to differ from its record: Kùzu can crash or spin on it, and its rows are moot
                 row["tables"] = "not opened (differs from its record)"
                 row["log"] = "not opened" if sides else row["log"]
@@ -265,11 +264,14 @@ def _probe_copy(db: Path, p: str) -> dict:
     return {**counts, "replay": replayed}
 
 
-def recoverable(replayed: dict) -> str:
-    """What replaying a log took, in words: "15.5 MB: recoverable: replay needs 473 MB (...)"."""
+def recoverable(replayed: dict, checkpoint: bool = False) -> str:
+    """What replaying a log took, in words: "15.5 MB: recoverable: replay needs 473 MB (...)";
+    `checkpoint`: an interrupted checkpoint's log and shadow pages, replayed read-write on a copy."""
     pool = replayed.get("pool_bytes") or machine_pool()
+    how = ("read-write on a copy: an interrupted checkpoint, whose shadow pages a read-only open cannot replay"
+           if checkpoint else "read-only")
     return (f"{replayed['log_bytes'] / 1e6:.1f} MB: recoverable: replay needs {pool / MB:.0f} MB "
-            f"(the buffer pool it was replayed with, read-only, in {replayed.get('seconds', 0):.1f} s)")
+            f"(the buffer pool it was replayed with, {how}, in {replayed.get('seconds', 0):.1f} s)")
 
 
 def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str]) -> str:
