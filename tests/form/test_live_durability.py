@@ -189,9 +189,9 @@ def test_a_writable_server_soaked_with_kill_9_loses_no_acknowledged_write(tmp_pa
     out = soak(tmp_path / "bank", seconds=150, kills=5)
     with capsys.disabled():
         print(f"\nsoak: {json.dumps({k: v for k, v in out.items() if k != 'lost_keys'})}")
+    assert not out["problems"], out["problems"]
     assert out["kills"] >= 5 and out["acknowledged"] > 50 and out["reads"] > 0
     assert out["lost"] == 0, out["lost_keys"]
-    assert not out["problems"], out["problems"]
 
 
 def test_an_empty_log_left_by_a_kill_is_a_state_verify_knows(tmp_path):
