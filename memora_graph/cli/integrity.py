@@ -47,7 +47,7 @@ def verify_cmd(bank, participants, accept_, fmt):
     click.echo(f"ad-hoc Cypher (memora query, the cypher tool): {mode().describe()}", err=True)
     df = report.frame()
     if fmt == "table":
-        click.echo(render(df.drop("problems") if "problems" in df.columns else df))
+        click.echo(render(df.drop([c for c in ("problems", "kinds") if c in df.columns])))
         for r in report.rows:
             for line in r["problems"]:
                 click.echo(f"{r['participant']}: {line}")

@@ -26,6 +26,36 @@ from memora_graph.integrity.probe import machine_pool
 from memora_graph.store import MB, Store, wal_path
 
 _DB = re.compile(rf"\A({PATTERN})\.kuzu(\.wal|\.shadow)?\Z")
+# The kind of each problem verify reports, a stable code for scripts and tests (a row's "kinds",
+# one per line of its "problems", in order); the words may change, these do not.
+KINDS = {
+    "write_running": "a write is in progress (its process is alive)",
+    "live_interrupted": "a live writer stopped without closing; what it acknowledged is in its log (recoverable)",
+    "build_interrupted": "a build was interrupted; `memora build` resumes it",
+    "write_interrupted": "another write did not finish; `--accept` keeps what it committed",
+    "not_listed": "a database the manifest does not list",
+    "missing": "a listed participant's database is missing",
+    "not_a_file": "the database path is a folder, link, device or pipe",
+    "foreign_log": "a log or shadow file next to a database closed cleanly",
+    "no_hash": "no integrity record (a bank from before them)",
+    "hash_differs": "size or sha256 not as recorded, no write in progress",
+    "cannot_open": "Kùzu cannot open it (with its log), in a child process",
+    "other_participant_rows": "rows of another participant",
+    "tables_differ": "rows per table not as recorded (expected while a write is interrupted)",
+    "counts_differ": "record counts not as in the manifest",
+    "build_staged": "videos staged by an interrupted build",
+    "staged_damaged": "a staged video is damaged",
+    "staging_foreign": "a file in the staging folder that is not a staged video",
+    "tool_stores_damaged": "a persisted tool store not as recorded",
+    "cache_damaged": "a derived cache file not as recorded",
+}
+# What a database's log is (a row's "log"): "none"; "empty" (a file of 0 bytes: nothing to replay, a
+# kill after a checkpoint had written everything and before it removed the file); "replayed" (read
+# here, read-only, in a child process: recoverable); "checkpoint" (a checkpoint interrupted after
+# its log record: the shadow pages only a read-write open replays, done on a copy here:
+# recoverable); "not opened" (the file differs from its record with no write to explain it);
+# "cannot be replayed"; "present" (not looked at: the database is not opened).
+LOG_STATES = ("none", "empty", "replayed", "checkpoint", "not opened", "cannot be replayed", "present")
 KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash", RECOVERY}
 PROBE_TIMEOUT_S = 60
 
@@ -78,28 +108,40 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
     mark = data.get("writing", {}).get(p)
     sides = side_files(db)
     problems: list[str] = []
+    kinds: list[str] = []
+
+    def add(kind: str, text: str) -> None:
+        problems.append(text)
+        kinds.append(kind)
+
+    wal = wal_path(db)
     row = {"participant": p, "file": db.name, "listed": entry is not None, "hash": "-", "tables": "-",
-           "other_participant_rows": None, "wal": "present" if any(s.suffix == ".wal" for s in sides) else "none",
+           "other_participant_rows": None, "wal": "present" if wal in sides else "none",
+           "log": "present" if wal in sides else "none",
            "shadow": "present" if any(s.suffix == ".shadow" for s in sides) else "none", "write": "-", "staging": "-"}
+    if wal in sides and wal.stat().st_size == 0:
+        row["wal"], row["log"] = "empty: nothing to replay (0 bytes)", "empty"
     if mark:
         alive = pid_alive(mark.get("pid"))
-        row["write"] = f"{'running' if alive else 'interrupted'} {mark.get('op', 'write')} ({mark.get('since', '?')})"
-        problems.append(bank.interrupted_message(p, mark))
+        op = mark.get("op", "write")
+        row["write"] = f"{'running' if alive else 'interrupted'} {op} ({mark.get('since', '?')})"
+        add("write_running" if alive else {"live": "live_interrupted", "build": "build_interrupted"}.get(
+            op, "write_interrupted"), bank.interrupted_message(p, mark))
     try:
         kind = file_kind(db.lstat())
     except FileNotFoundError:
         kind = "missing"
     if entry is None and kind != "missing" and not mark:
-        problems.append(f"{db}: not listed in {MANIFEST} (entry removed, or file copied in); readers do not see it")
+        add("not_listed", f"{db}: not listed in {MANIFEST} (entry removed, or file copied in); readers do not see it")
     if entry is not None and kind == "missing":
         row["hash"] = "missing"
-        problems.append(f"{db}: missing, but {MANIFEST} lists {p}")
+        add("missing", f"{db}: missing, but {MANIFEST} lists {p}")
     elif kind not in ("file", "missing"):
         row["hash"] = kind
-        problems.append(f"{db}: is {kind}, not a database file; every reader refuses it (move it away and rebuild: "
+        add("not_a_file", f"{db}: is {kind}, not a database file; every reader refuses it (move it away and rebuild: "
                         f"`memora build {bank.path} --rebuild {p}`)")
     if sides and not mark:
-        problems.append(f"{', '.join(s.name for s in sides)}: next to a database that was closed cleanly: does not "
+        add("foreign_log", f"{', '.join(s.name for s in sides)}: next to a database that was closed cleanly: does not "
                         "belong to it (never replayed; move it away)")
     counts = None
     if kind == "file":
@@ -107,7 +149,7 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         if not integ:
             row["hash"] = "not recorded"
             if entry is not None and not mark:
-                problems.append(f"{db}: no hash recorded (built before integrity records); "
+                add("no_hash", f"{db}: no hash recorded (built before integrity records); "
                                 f"`memora verify {bank.path} --accept {p}` records it as it is now")
         elif st.st_size != integ.get("bytes"):
             row["hash"] = f"size {st.st_size} != {integ.get('bytes')}"
@@ -119,36 +161,46 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
             owner = [q for q, e in data["participants"].items()
                      if q != p and (e.get("integrity") or {}).get("sha256") == file_sha256(db, st)]
             row["hash"] += f" (is {owner[0]}'s database)" if owner else ""
-            problems.append(f"{db}: {row['hash']}: damaged, edited or replaced since its last write")
+            add("hash_differs", f"{db}: {row['hash']}: damaged, edited or replaced since its last write")
         try:
             if row["hash"] == "ok" and not sides:
                 with Store(db, read_only=True) as store:  # the bytes are those recorded: safe to open here
                     counts = {"tables": store.table_counts(p),
                               "counts": store.rows("store_counts", participant=p)[0]}
             elif not integ or mark:  # nothing to vouch for it: opened in a child process only
-                counts = probe(db, p, timeout=PROBE_TIMEOUT_S)
-                replayed = counts.get("replay") or {}
-                if replayed.get("log_bytes"):  # its log replayed (read-only) there: how big, with how much memory
-                    row["wal"] = recoverable(replayed)
+                try:
+                    counts = probe(db, p, timeout=PROBE_TIMEOUT_S)
+                    replayed = counts.get("replay") or {}
+                    if replayed.get("log_bytes"):  # its log replayed (read-only) there: how big, with how much memory
+                        row["wal"], row["log"] = recoverable(replayed), "replayed"
+                except BankError:
+                    # a kill during a checkpoint, after its log record: Kùzu replays the shadow pages in a
+                    # read-write open only (read-only refuses). Replayed on a copy: recoverable, or the error.
+                    if not _shadow_pages(db):
+                        raise
+                    counts = _probe_copy(db, p)
+                    row["wal"], row["log"] = recoverable(counts["replay"], checkpoint=True), "checkpoint"
             else:  # known to differ from its record: Kùzu can crash or spin on it, and its rows are moot
                 row["tables"] = "not opened (differs from its record)"
+                row["log"] = "not opened" if sides else row["log"]
         except BankError as exc:
             row["tables"] = "cannot be opened"
-            if any(s.suffix == ".wal" for s in sides):
-                row["wal"] = f"{wal_path(db).stat().st_size / 1e6:.1f} MB: cannot be replayed here"
-            problems.append(str(exc))
+            if wal in sides:
+                row["wal"], row["log"] = f"{wal.stat().st_size / 1e6:.1f} MB: cannot be replayed here", \
+                    "cannot be replayed"
+            add("cannot_open", str(exc))
     if counts is not None:
         tables = counts["tables"]
         row["other_participant_rows"] = sum(v["other_participant"] for v in tables.values())
         if row["other_participant_rows"]:
-            problems.append(f"{db}: holds {row['other_participant_rows']} row(s) of another participant")
+            add("other_participant_rows", f"{db}: holds {row['other_participant_rows']} row(s) of another participant")
         recorded = integ.get("tables")
         if recorded:
             diff = [f"{t}: manifest {recorded.get(t)} != database {tables.get(t, {}).get('rows')}"
                     for t in sorted(set(recorded) | set(tables)) if recorded.get(t) != tables.get(t, {}).get("rows")]
             row["tables"] = "ok" if not diff else "; ".join(diff)
             if diff:
-                problems.append(f"{db}: rows per table differ from {MANIFEST}: {'; '.join(diff)}")
+                add("tables_differ", f"{db}: rows per table differ from {MANIFEST}: {'; '.join(diff)}")
         else:
             row["tables"] = f"{len(tables)} tables (none recorded)"
         expected = (entry or {}).get("counts", {})
@@ -156,7 +208,7 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
         off = [f"{k} manifest {expected[k]} != database {got.get(k)}" for k in sorted(expected)
                if k in got and expected[k] != got[k]]
         if off and entry is not None and not mark:
-            problems.append(f"{db}: counts differ from {MANIFEST}: {'; '.join(off)}")
+            add("counts_differ", f"{db}: counts differ from {MANIFEST}: {'; '.join(off)}")
     staging = Staging(bank.path / ".staging" / p)
     entries, foreign, half = staging.entries(), staging.foreign(), staging.half_written()
     if entries or foreign or half:
@@ -165,24 +217,61 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
             (f", {len(foreign)} foreign file(s)" if foreign else "") + \
             (f", {len(half)} half-written folder(s) of a killed build (the next build removes them)" if half else "")
         if entries and not mark:
-            problems.append(f"{staging.root}: a build of {p} was interrupted with {len(entries)} video(s) staged; "
+            add("build_staged", f"{staging.root}: a build of {p} was interrupted with {len(entries)} video(s) staged; "
                             f"`memora build {bank.path} --participants {p}` resumes it")
         for name, why in bad:
-            problems.append(f"{staging.root / name}: {why} (a build will build it again)")
+            add("staged_damaged", f"{staging.root / name}: {why} (a build will build it again)")
         for f in foreign:
-            problems.append(f"{f}: not a staged video (never opened by a build; remove it)")
+            add("staging_foreign", f"{f}: not a staged video (never opened by a build; remove it)")
+    n = len(problems)
     row["tool_stores"] = _tool_stores(bank, data, p, integ, problems)
+    kinds += ["tool_stores_damaged"] * (len(problems) - n)
+    n = len(problems)
     row["caches"] = _caches(bank, bank.derived.get_all(p, data), problems)
+    kinds += ["cache_damaged"] * (len(problems) - n)
     row["status"] = "ok" if not problems else "problem"
-    row["problems"] = problems
+    row["problems"], row["kinds"] = problems, kinds
     return row
 
 
-def recoverable(replayed: dict) -> str:
-    """What replaying a log took, in words: "15.5 MB: recoverable: replay needs 473 MB (...)"."""
+def _shadow_pages(db: Path) -> bool:
+    """Whether a database has a shadow file with pages in it (a checkpoint was under way)."""
+    shadow = db.with_name(db.name + ".shadow")
+    return shadow.exists() and shadow.stat().st_size > 0
+
+
+def _probe_copy(db: Path, p: str) -> dict:
+    """Replay a database's log and shadow pages read-write into a copy of them (in a temporary
+    folder: the bank is not written), then count the copy's rows, both in child processes; the
+    counts as `probe` returns them, with what the replay took. A BankError if either fails (the
+    copy's path in it replaced by the database's)."""
+    import shutil
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="memora-verify-") as tmp:
+        copy = Path(tmp) / db.name
+        try:
+            for f in (db, *side_files(db)):
+                shutil.copy2(f, copy.with_name(f.name))
+        except OSError as exc:
+            raise BankError(f"{db}: an interrupted checkpoint (shadow pages), which read-only cannot replay; no room "
+                            f"to replay it on a copy in {tmp} ({exc.strerror or exc})") from None
+        try:
+            replayed = replay(copy, p, timeout=PROBE_TIMEOUT_S)["replay"]
+            counts = probe(copy, p, timeout=PROBE_TIMEOUT_S)
+        except BankError as exc:
+            raise BankError(str(exc).replace(str(copy), str(db)) + " (replayed read-write on a copy)") from None
+    return {**counts, "replay": replayed}
+
+
+def recoverable(replayed: dict, checkpoint: bool = False) -> str:
+    """What replaying a log took, in words: "15.5 MB: recoverable: replay needs 473 MB (...)";
+    `checkpoint`: an interrupted checkpoint's log and shadow pages, replayed read-write on a copy."""
     pool = replayed.get("pool_bytes") or machine_pool()
+    how = ("read-write on a copy: an interrupted checkpoint, whose shadow pages a read-only open cannot replay"
+           if checkpoint else "read-only")
     return (f"{replayed['log_bytes'] / 1e6:.1f} MB: recoverable: replay needs {pool / MB:.0f} MB "
-            f"(the buffer pool it was replayed with, read-only, in {replayed.get('seconds', 0):.1f} s)")
+            f"(the buffer pool it was replayed with, {how}, in {replayed.get('seconds', 0):.1f} s)")
 
 
 def _tool_stores(bank: Bank, data: dict, p: str, integ: dict, problems: list[str]) -> str:

@@ -9,6 +9,8 @@ import json
 import pytest
 from support.corrupt import CORPUS, memora
 
+from memora_graph.integrity.verify import KINDS
+
 QUERY = "MATCH (s:Segment) WHERE s.narrative CONTAINS 'stove' RETURN count(*) AS n"
 
 
@@ -24,6 +26,10 @@ def test_damage_is_a_clear_error_never_a_crash_or_an_answer(bank, case):
     assert v.returncode >= 0, f"{case}: verify crashed with signal {-v.returncode}"
     assert v.returncode == 1, f"{case}: verify found nothing wrong: {v.stdout}{v.stderr}"
     assert named in v.stdout + v.stderr
+    rows = json.loads(v.stdout) if v.stdout.lstrip().startswith("[") else []  # (no rows: an unreadable manifest)
+    for row in rows:  # each problem has its kind, a stable code scripts can test
+        assert len(row["kinds"]) == len(row["problems"]) and set(row["kinds"]) <= set(KINDS), row
+        assert bool(row["kinds"]) == (row["status"] == "problem"), row
 
 
 def test_a_clean_bank_verifies_and_answers(bank):
@@ -33,8 +39,8 @@ def test_a_clean_bank_verifies_and_answers(bank):
     v = memora("verify", bank, "--json")
     assert v.returncode == 0, v.stdout + v.stderr
     rows = json.loads(v.stdout)
-    assert [(x["participant"], x["hash"], x["tables"], x["status"]) for x in rows] == [
-        ("P09", "ok", "ok", "ok"), ("P37", "ok", "ok", "ok")]
+    assert [(x["participant"], x["hash"], x["tables"], x["status"], x["kinds"], x["log"]) for x in rows] == [
+        ("P09", "ok", "ok", "ok", [], "none"), ("P37", "ok", "ok", "ok", [], "none")]
 
 
 def test_no_verify_bypasses_the_check_knowingly(bank):

@@ -74,6 +74,57 @@ def kill_after(bank: Path, participant: str, todo: list[dict], acks: int | None 
     return {"acked": acked, "log_bytes": at_kill, "seconds": time.perf_counter() - t0}
 
 
+def kill_in_checkpoint(bank: Path, participant: str, todo: list[dict], *options: str, timeout_s: float = 120) -> dict:
+    """Feed `todo` to a writer (`options`: its checkpoint schedule) and SIGKILL it inside a
+    checkpoint, once its record is in the log: the shadow file holds pages and the log has grown
+    since it did (no moment commits during a checkpoint); watched every millisecond from the first
+    acknowledged moment on. Returns the acknowledged keys -> segments and whether the kill came
+    there (False: `timeout_s` passed, or the writer ended, first)."""
+    proc = writer(bank, participant, *options)
+    acked: dict[str, str] = {}
+
+    def feed() -> None:
+        try:
+            for m in todo:
+                proc.stdin.write(json.dumps(m) + "\n")
+                proc.stdin.flush()
+        except (BrokenPipeError, OSError, ValueError):
+            pass
+
+    def read() -> None:
+        for line in proc.stdout:
+            got = json.loads(line)
+            acked[got["key"]] = got["segment"]
+
+    def size(f: Path) -> int:
+        try:
+            return f.stat().st_size
+        except FileNotFoundError:
+            return 0
+
+    reader = threading.Thread(target=read, daemon=True)
+    threading.Thread(target=feed, daemon=True).start()
+    reader.start()
+    shadow, wal = (Path(bank) / f"{participant}.kuzu{s}" for s in (".shadow", ".wal"))
+    t_end, log_at_shadow, during = time.monotonic() + timeout_s, None, False
+    while time.monotonic() < t_end and proc.poll() is None:
+        if not acked:  # (creating the participant checkpoints too: a kill then acknowledged nothing)
+            time.sleep(0.01)
+            continue
+        if size(shadow) == 0:
+            log_at_shadow = None
+        elif log_at_shadow is None:
+            log_at_shadow = size(wal)
+        elif size(wal) > log_at_shadow:
+            during = True
+            break
+        time.sleep(0.001)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    reader.join(10)
+    return {"acked": dict(acked), "during": during}
+
+
 def _children_cpu() -> float:
     import resource
 
