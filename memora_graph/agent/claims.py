@@ -52,9 +52,14 @@ _CUES = {
            r"\bindividually\b|\bfor the next\b|\beach (?:one|item|time)\b|\bone needed\b|\bsingle (?:item|utensil|one)\b",
     "batch": r"\ball (?:of )?(?:the|them|items|utensils|containers)\b|\b(?:a|the|broad|full|whole) (?:\w+ )?set\b|"
              r"\btogether\b|\bseveral\b|\bgathers?\b|\bcollects?\b|\blays? out\b|\bpile\b|\bin bulk\b|\bbatch\b|"
-             r"\bat once\b|\beverything\b|\bhandful\b|\bboth\b",
+             r"\bat once\b|\beverything\b|\bhandful\b|\bboth\b|\bthem all\b|\ball (?:later|afterward|together)\b",
     "repeat": r"\balternat\w*\b|\brepeat\w*\b|\bagain\b|\bpasses\b|\bback and forth\b|\bcycles?\b|\banother pass\b|"
               r"\bseveral times\b|\bbetween \w+ing\b",
+    # a portion at a time, coming back for the next: one at a time and repeated passes at once
+    "more": r"\breturn(?:s|ing)? (?:\w+ ){0,4}for (?:more|another|the next|a second)\b|\b(?:reaches|goes|comes) back for\b|"
+            r"\breaches for (?:another|the next)\b|\b(?:takes|adds|grabs) another\b|\bbefore taking another\b|"
+            r"\banother (?:scoop|portion|piece|pass|handful|spoonful|round|batch|slice|wash|one)\b|\bin portions\b|"
+            r"\b(piece|slice|bit|item|spoonful|scoop|handful) by \1\b|\bbetween additions\b|\bgradually\b|\bprogressively\b",
     "once": r"\bonce\b|\bsingle\b|\bone continuous\b|\bwithout stopping\b|\bin one go\b|\bone (?:firm )?motion\b",
     "staging": r"\bholding spot\b|\bstag(?:e|es|ed|ing)\b|\blanding\b|\breturns? (?:to|for) (?:it|them)\b|"
                r"\bretrieves? (?:it|them)\b|\bpicks? (?:it|them) up again\b|\bcomes? back (?:to|for)\b|\btemporar\w+\b",
@@ -103,6 +108,8 @@ def _ordered(option: str, lex: Lexicon):
 def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
     """+1 the record supports the option, -1 it contradicts it, 0 it does not speak to it."""
     f = claim.family
+    if "more" in cue:  # "adds some, then returns for more": a portion at a time, not a set laid out first
+        cue = (cue - {"batch"}) | {"one", "repeat"}
     if f == "batch":
         want = "one" if claim.way == "one_at_a_time" else "batch"
         other = "batch" if want == "one" else "one"

@@ -84,3 +84,22 @@ def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
     monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
     reading.score(question, choices, events, lex)
     assert calls
+
+
+def test_a_portion_at_a_time_is_one_at_a_time_and_repeated_passes(lex):
+    """"Adds some, then returns for more" claims what a one-at-a-time batch record and a
+    repetition record hold, and contradicts a record that the person lays out a set first."""
+    opts = ["Adds some cereal, then returns to the bag for more.",
+            "Scrubs one fork, then reaches for another to continue the sequence.",
+            "Adds meat in portions, returning to the pan between additions.",
+            "Works slice by slice, breaking each piece into the bowl before taking another."]
+    one = _claim("batch", "one_at_a_time", ["take"], ["cereal"])
+    lot = _claim("batch", "batch", ["take"], ["cereal"])
+    rep = _claim("repetition", "repeat", ["pour"], ["cereal"])
+    for o in opts:
+        cue = cues(o)
+        assert "more" in cue, o
+        assert verdict(one, o, cue, lex) == 1.0 and verdict(lot, o, cue, lex) == -1.0 and verdict(rep, o, cue, lex) > 0
+    single = "Pours one measured serving from the bag and stops there."
+    assert "more" not in cues(single) and verdict(rep, single, cues(single), lex) == 0.0
+    assert "batch" in cues("Sets forks aside to soak before washing them all later.")
