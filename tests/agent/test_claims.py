@@ -103,3 +103,37 @@ def test_a_portion_at_a_time_is_one_at_a_time_and_repeated_passes(lex):
     single = "Pours one measured serving from the bag and stops there."
     assert "more" not in cues(single) and verdict(rep, single, cues(single), lex) == 0.0
     assert "batch" in cues("Sets forks aside to soak before washing them all later.")
+
+
+def test_claims_are_about_the_objects_handled_not_the_places_named(lex):
+    from memora_graph.agent.reading import claim_subject, parse_question
+
+    intent = parse_question("What approach does P02 take when gathering cherry tomatoes from the box?", lex)
+    assert "box" in intent.subject_nouns and claim_subject(intent) == {"tomato"}
+    bare = parse_question("What is P02's approach to portioning cereal into the bowl?", lex)
+    assert claim_subject(bare) == set(bare.subject_nouns)  # no clause names an object: every subject noun
+
+
+def test_whether_to_answer_is_read_before_the_records_rerank(monkeypatch, lex):
+    """The records move an option up; whether memory supports any answer at all (the calibration's
+    features, hence abstaining) is read from the evidence as it stood before they did."""
+    from memora_graph.agent import reading
+
+    events = [reading.Event("P03_101", 12.0 + k, verb, ("pan:sauce",), (f"P03_101#{k}",), 1.0, "log",
+                            text=f"{verb} saucepan") for k, verb in enumerate(["empty", "wash", "rinse", "dry"])]
+    events.append(reading.Event("P03_102", 40.0, "put", ("pan:sauce", "cupboard"), ("P03_102#0",), 1.0, "log",
+                                text="put saucepan in cupboard"))
+    question = "What is P03's approach to handling the saucepan during cleanup?"
+    choices = ["Empties it out before washing the saucepan.", "Washes the saucepan and wipes the counter.",
+               "Leaves the saucepan to soak overnight.", "Puts the saucepan away in the cupboard."]
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
+    off = reading.score(question, choices, events, lex)
+    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
+    best = max(range(4), key=lambda i: (off.scores[i], -i))
+    worst = min(range(4), key=lambda i: (off.scores[i], -i))
+    monkeypatch.setattr(reading, "task_claims",
+                        lambda choices, *a: ([100.0 if i == worst else 0.0 for i in range(4)], [[] for _ in range(4)]))
+    on = reading.score(question, choices, events, lex)
+    assert len(set(off.scores)) == 4 and worst != best
+    assert max(range(4), key=lambda i: (on.scores[i], -i)) == worst
+    assert on.features == off.features
