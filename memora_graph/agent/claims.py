@@ -46,6 +46,7 @@ def is_task_record(rec) -> bool:
 
 WEIGHT = 0.6  # what one fully held pattern record adds to (or takes from) an option's score
 MAX_SHIFT = 1.2  # the most the records move one option
+USUAL = 0.5  # a staging record speaks only when the object was staged in at least this share of its tasks
 
 _CUES = {
     "one": r"\bone at a time\b|\bas needed\b|\bas (?:the )?(?:task|recipe|step)s? requires?\b|\bone by one\b|"
@@ -120,8 +121,8 @@ def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
             hits = sum(_verb_at(clauses, v, lex) is not None for v in claim.verbs)
             return 1.0 if hits else 0.5
         return -0.5 if "once" in cue else 0.0
-    if f == "staging":
-        return 1.0 if "staging" in cue else 0.0
+    if f == "staging":  # only the person's usual way speaks: staged in most of the tasks with the object
+        return 1.0 if "staging" in cue and claim.share >= USUAL else 0.0
     if f == "order" and len(claim.verbs) == 2:
         clauses = _ordered(option, lex)
         i, j = _verb_at(clauses, claim.verbs[0], lex), _verb_at(clauses, claim.verbs[1], lex)

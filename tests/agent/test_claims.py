@@ -137,3 +137,10 @@ def test_whether_to_answer_is_read_before_the_records_rerank(monkeypatch, lex):
     assert len(set(off.scores)) == 4 and worst != best
     assert max(range(4), key=lambda i: (on.scores[i], -i)) == worst
     assert on.features == off.features
+
+
+def test_a_staging_record_speaks_only_for_the_usual_way(lex):
+    z = "Uses the fridge as a short holding spot, then retrieves the bottle."
+    assert verdict(_claim("staging", "", ["put", "take"], ["bottle"], share=0.8), z, cues(z), lex) == 1.0
+    # staged in 3 of 22 tasks: the person does not usually stage it, so it supports no staging claim
+    assert verdict(_claim("staging", "", ["put", "take"], ["bottle"], share=3 / 22), z, cues(z), lex) == 0.0
