@@ -46,6 +46,7 @@ def is_task_record(rec) -> bool:
 
 WEIGHT = 0.6  # what one fully held pattern record adds to (or takes from) an option's score
 MAX_SHIFT = 1.2  # the most the records move one option
+CARRYING = frozenset({"retrieve", "leave", "transition"})  # verb categories of taking, putting down, moving
 USUAL = 0.5  # a staging record speaks only when the object was staged in at least this share of its tasks
 
 _CUES = {
@@ -111,7 +112,9 @@ def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
     f = claim.family
     if "more" in cue:  # "adds some, then returns for more": a portion at a time, not a set laid out first
         cue = (cue - {"batch"}) | {"one", "repeat"}
-    if f == "batch":
+    if f == "batch":  # about fetching and carrying: it speaks to an option that takes, puts or moves things
+        if "more" not in cue and not any(lex.verb_category.get(c.verb) in CARRYING for c in _ordered(option, lex)):
+            return 0.0
         want = "one" if claim.way == "one_at_a_time" else "batch"
         other = "batch" if want == "one" else "one"
         return (want in cue) - (other in cue) if (want in cue) != (other in cue) else 0.0

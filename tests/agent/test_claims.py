@@ -144,3 +144,12 @@ def test_a_staging_record_speaks_only_for_the_usual_way(lex):
     assert verdict(_claim("staging", "", ["put", "take"], ["bottle"], share=0.8), z, cues(z), lex) == 1.0
     # staged in 3 of 22 tasks: the person does not usually stage it, so it supports no staging claim
     assert verdict(_claim("staging", "", ["put", "take"], ["bottle"], share=3 / 22), z, cues(z), lex) == 0.0
+
+
+def test_a_batch_record_speaks_only_to_taking_putting_or_moving(lex):
+    """How the person fetches and carries potatoes says nothing about how they stir them."""
+    lot = _claim("batch", "batch", ["take"], ["potato"])
+    stir = "Separates all of the potato pieces first, then stirs them afterward."
+    carry = "Gathers all the potatoes together, then puts them on the board."
+    assert "batch" in cues(stir) and verdict(lot, stir, cues(stir), lex) == 0.0
+    assert verdict(lot, carry, cues(carry), lex) == 1.0
