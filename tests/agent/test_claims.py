@@ -56,9 +56,10 @@ def test_records_reorder_the_options_but_keep_the_evidence_levels():
     assert _reordered(scores, support, [0.0] * 4, [[]] * 4) == (scores, support)
 
 
-def test_the_reader_reranks_with_claims_unless_turned_off(monkeypatch, lex):
-    """The claims re-rank the offline reader's options by default; MEMORA_TASK_CLAIMS=off turns
-    them off."""
+def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
+    """The claims re-rank the offline reader's options only with MEMORA_TASK_CLAIMS=on: on the
+    calibration cohort they lifted the development participants and lowered the held-out one, so
+    the default reader reads the task records as it reads any other record."""
     from memora_graph.agent import reading
 
     calls = []
@@ -77,10 +78,10 @@ def test_the_reader_reranks_with_claims_unless_turned_off(monkeypatch, lex):
     question = "What is P03's approach to handling the saucepan during cleanup?"
     choices = ["Empties it out before washing the saucepan.", "Washes the saucepan before emptying it.",
                "Leaves the saucepan to soak overnight.", "Puts the saucepan straight in the cupboard."]
-    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "off")
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
     reading.score(question, choices, events, lex)
     assert not calls
-    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
+    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
     reading.score(question, choices, events, lex)
     assert calls
 
@@ -125,7 +126,7 @@ def test_whether_to_answer_is_read_before_the_records_rerank(monkeypatch, lex):
     question = "What is P03's approach to handling the saucepan during cleanup?"
     choices = ["Empties it out before washing the saucepan.", "Washes the saucepan and wipes the counter.",
                "Leaves the saucepan to soak overnight.", "Puts the saucepan away in the cupboard."]
-    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "off")
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
     off = reading.score(question, choices, events, lex)
     monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
     best = max(range(4), key=lambda i: (off.scores[i], -i))
