@@ -30,9 +30,9 @@ def enabled() -> bool:
     """Whether the offline reader re-ranks options with the task-pattern claims. Off by default:
     on the calibration cohort (issue 33, second round) the claims lift MEMORA's EAM-QA on the
     development participants (P01-P03: 60.2 -> 61.7, SRoutine 43.5 -> 48.1, no type lower) but
-    still lower the held-out one (P04: 60.1 -> 59.1, SPref 60.8 -> 56.9; the first round's reading
-    gave 58.6 and 54.9), so they stay opt-in until they lift participants they were not developed
-    on. The records themselves are always written and served (tools, `ask`, `plan --from-task`)."""
+    still lower the held-out one by one answer (P04: 60.1 -> 59.6, SPref 60.8 -> 58.8; the first
+    round's reading gave 58.6 and 54.9), so they stay opt-in until they lift participants they
+    were not developed on. The records themselves are always written and served (tools, `ask`, `plan --from-task`)."""
     return os.environ.get(ENV, "off").lower() in ("1", "on", "true", "yes")
 
 
