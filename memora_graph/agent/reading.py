@@ -448,12 +448,15 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
                 if parsed[i][0] or sim:
                     sims[i] = sim
                     scores[i] += SEMANTIC * sim
+    # how strongly memory supports an answer at all is read from the evidence as it stands ...
+    read = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
+    feats = evidence_features(intent, events, windows, mentions, scores, classes, sims, read, support)
     if windows and not no_subject and intent.kind in ("routine", "preference") and claims_enabled():
-        scores, support = _reordered(scores, support, *task_claims(choices[:4], events, subject, lex))
+        # ... the task-pattern records only decide which option that is
+        scores, support = _reordered(scores, support, *task_claims(choices[:4], events, claim_subject(intent), lex))
     order = sorted(range(len(scores)), key=lambda i: (-scores[i], i))
     best, second = scores[order[0]], scores[order[1]] if len(order) > 1 else 0.0
-    feats = evidence_features(intent, events, windows, mentions, scores, classes, sims, order, support)
-    feats["rule_supported"] = float(best >= MIN_SUPPORT or classes[order[0]] >= CLASS_SURE)  # the fixed rule's cut
+    feats["rule_supported"] = float(best >= MIN_SUPPORT or classes[read[0]] >= CLASS_SURE)  # the fixed rule's cut
     for level in range(1, RELAX_LEVELS):
         feats[f"relaxed_{level}"] = float(relaxed == level)  # the situation had to be widened this far
     d = ReaderDecision(OPTION_E, "", scores, support, intent, len(events), features=feats)
@@ -476,7 +479,7 @@ def score(question: str, choices: list[str], events: list[Event], lex: Lexicon, 
         d.reason = "no record of the subject"
     elif not windows:
         d.reason = NO_SITUATION
-    elif best < MIN_SUPPORT and classes[order[0]] < CLASS_SURE:
+    elif best < MIN_SUPPORT and classes[read[0]] < CLASS_SURE:
         d.reason = "the evidence is too weak to support any option"
     elif best == second:
         d.reason = "the evidence does not separate the options"
@@ -498,6 +501,14 @@ def _reordered(scores: list[float], support: list[list[str]], shifts: list[float
     for rank, i in enumerate(moved):
         out[i] = levels[rank]
     return out, [list(dict.fromkeys(claim_ids[i] + support[i])) if shifts[i] > 0 else support[i] for i in range(n)]
+
+
+def claim_subject(intent: Intent) -> set[str]:
+    """The objects a question asks how the person handles: its clauses' objects, not the places or
+    tools they name ("gathering tomatoes from the box" is about the tomatoes, not how boxes are
+    carried); all its subject nouns when no clause names an object."""
+    objects = {n for c in intent.clauses for n in c.objects()}
+    return (objects & set(intent.subject_nouns)) or objects or set(intent.subject_nouns)
 
 
 def task_claims(choices: list[str], events: list[Event], subject: set[str], lex: Lexicon):

@@ -468,13 +468,32 @@ def get_routine_skill(view: MemoryView, goal_query: str, top_k: int = 3) -> Repl
 TASK_EXTRA = 5  # task-level records a routine or preference search adds after its top k (see _with_tasks)
 
 
-def _with_tasks(view: MemoryView, table: str, rows: dict, cands: dict, k: int) -> list:
+def _task_ids(view: MemoryView, table: str, rows: dict) -> frozenset[str]:
+    """The ids of the task memory's rows of a table (read each call: live memory adds rows)."""
+    return frozenset(i for i, r in rows.items() if r.get("source") in TASK_SOURCES)
+
+
+def _reranked(cands: dict[str, Candidate], pool: int) -> dict[str, Candidate]:
+    """Candidates of one kind with their vector and keyword ranks counted among themselves, cut to
+    `pool` per signal: as if the other kind's rows were not in the table."""
+    for attr in ("vector_rank", "keyword_rank"):
+        for n, c in enumerate(sorted((c for c in cands.values() if getattr(c, attr)), key=lambda c: getattr(c, attr)), 1):
+            setattr(c, attr, n if n <= pool else None)
+    return {i: c for i, c in cands.items() if c.vector_rank or c.keyword_rank}
+
+
+def _with_tasks(view: MemoryView, table: str, rows: dict, query: str, q: np.ndarray, k: int) -> list:
     """The top k of the other records as before, then up to TASK_EXTRA task-level records (a
     recurring task's stages, how tasks are done): they answer how a task is organised, and
     ranked among the rest they would push out the habits and storage places a search answered
-    with before."""
-    task = {i: c for i, c in cands.items() if rows.get(i, {}).get("source") in TASK_SOURCES}
-    other = {i: c for i, c in cands.items() if i not in task}
+    with before. The candidate pool is widened by the task rows and each kind is ranked among
+    itself, so the task rows take no place in the other records' pool or ranks."""
+    pool = view.config.pool
+    task_ids = _task_ids(view, table, rows)
+    cands = _hybrid(view, table, query, q, pool + len(task_ids))
+    _inferred_graph(view, cands, query)
+    task = _reranked({i: c for i, c in cands.items() if i in task_ids}, pool)
+    other = _reranked({i: c for i, c in cands.items() if i not in task_ids}, pool)
     out = _finish(view, table, other, k)
     if task:
         out += _finish(view, table, task, min(k, TASK_EXTRA))
@@ -482,9 +501,7 @@ def _with_tasks(view: MemoryView, table: str, rows: dict, cands: dict, k: int) -
 
 
 def _search_routines(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[RoutineRecord]:
-    cands = _hybrid(view, "routine", query, q, view.config.pool)
-    _inferred_graph(view, cands, query)
-    return [_routine_record(view, view.routines[c.id], c) for c in _with_tasks(view, "routine", view.routines, cands, k)
+    return [_routine_record(view, view.routines[c.id], c) for c in _with_tasks(view, "routine", view.routines, query, q, k)
             if c.id in view.routines]
 
 
@@ -503,10 +520,8 @@ def get_preferences(view: MemoryView, query: str = "", top_k: int = 5) -> Reply:
 
 
 def _search_preferences(view: MemoryView, query: str, q: np.ndarray, k: int) -> list[PreferenceRecord]:
-    cands = _hybrid(view, "preference", query, q, view.config.pool)
-    _inferred_graph(view, cands, query)
     return [_preference_record(view, view.preferences[c.id], c)
-            for c in _with_tasks(view, "preference", view.preferences, cands, k) if c.id in view.preferences]
+            for c in _with_tasks(view, "preference", view.preferences, query, q, k) if c.id in view.preferences]
 
 
 @tool("search_patterns", args=QueryArgs, result=PatternsResult, store="Inferred",

@@ -84,3 +84,72 @@ def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
     monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
     reading.score(question, choices, events, lex)
     assert calls
+
+
+def test_a_portion_at_a_time_is_one_at_a_time_and_repeated_passes(lex):
+    """"Adds some, then returns for more" claims what a one-at-a-time batch record and a
+    repetition record hold, and contradicts a record that the person lays out a set first."""
+    opts = ["Adds some cereal, then returns to the bag for more.",
+            "Scrubs one fork, then reaches for another to continue the sequence.",
+            "Adds meat in portions, returning to the pan between additions.",
+            "Works slice by slice, breaking each piece into the bowl before taking another."]
+    one = _claim("batch", "one_at_a_time", ["take"], ["cereal"])
+    lot = _claim("batch", "batch", ["take"], ["cereal"])
+    rep = _claim("repetition", "repeat", ["pour"], ["cereal"])
+    for o in opts:
+        cue = cues(o)
+        assert "more" in cue, o
+        assert verdict(one, o, cue, lex) == 1.0 and verdict(lot, o, cue, lex) == -1.0 and verdict(rep, o, cue, lex) > 0
+    single = "Pours one measured serving from the bag and stops there."
+    assert "more" not in cues(single) and verdict(rep, single, cues(single), lex) == 0.0
+    assert "batch" in cues("Sets forks aside to soak before washing them all later.")
+
+
+def test_claims_are_about_the_objects_handled_not_the_places_named(lex):
+    from memora_graph.agent.reading import claim_subject, parse_question
+
+    intent = parse_question("What approach does P02 take when gathering cherry tomatoes from the box?", lex)
+    assert "box" in intent.subject_nouns and claim_subject(intent) == {"tomato"}
+    bare = parse_question("What is P02's approach to portioning cereal into the bowl?", lex)
+    assert claim_subject(bare) == set(bare.subject_nouns)  # no clause names an object: every subject noun
+
+
+def test_whether_to_answer_is_read_before_the_records_rerank(monkeypatch, lex):
+    """The records move an option up; whether memory supports any answer at all (the calibration's
+    features, hence abstaining) is read from the evidence as it stood before they did."""
+    from memora_graph.agent import reading
+
+    events = [reading.Event("P03_101", 12.0 + k, verb, ("pan:sauce",), (f"P03_101#{k}",), 1.0, "log",
+                            text=f"{verb} saucepan") for k, verb in enumerate(["empty", "wash", "rinse", "dry"])]
+    events.append(reading.Event("P03_102", 40.0, "put", ("pan:sauce", "cupboard"), ("P03_102#0",), 1.0, "log",
+                                text="put saucepan in cupboard"))
+    question = "What is P03's approach to handling the saucepan during cleanup?"
+    choices = ["Empties it out before washing the saucepan.", "Washes the saucepan and wipes the counter.",
+               "Leaves the saucepan to soak overnight.", "Puts the saucepan away in the cupboard."]
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
+    off = reading.score(question, choices, events, lex)
+    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
+    best = max(range(4), key=lambda i: (off.scores[i], -i))
+    worst = min(range(4), key=lambda i: (off.scores[i], -i))
+    monkeypatch.setattr(reading, "task_claims",
+                        lambda choices, *a: ([100.0 if i == worst else 0.0 for i in range(4)], [[] for _ in range(4)]))
+    on = reading.score(question, choices, events, lex)
+    assert len(set(off.scores)) == 4 and worst != best
+    assert max(range(4), key=lambda i: (on.scores[i], -i)) == worst
+    assert on.features == off.features
+
+
+def test_a_staging_record_speaks_only_for_the_usual_way(lex):
+    z = "Uses the fridge as a short holding spot, then retrieves the bottle."
+    assert verdict(_claim("staging", "", ["put", "take"], ["bottle"], share=0.8), z, cues(z), lex) == 1.0
+    # staged in 3 of 22 tasks: the person does not usually stage it, so it supports no staging claim
+    assert verdict(_claim("staging", "", ["put", "take"], ["bottle"], share=3 / 22), z, cues(z), lex) == 0.0
+
+
+def test_a_batch_record_speaks_only_to_taking_putting_or_moving(lex):
+    """How the person fetches and carries potatoes says nothing about how they stir them."""
+    lot = _claim("batch", "batch", ["take"], ["potato"])
+    stir = "Separates all of the potato pieces first, then stirs them afterward."
+    carry = "Gathers all the potatoes together, then puts them on the board."
+    assert "batch" in cues(stir) and verdict(lot, stir, cues(stir), lex) == 0.0
+    assert verdict(lot, carry, cues(carry), lex) == 1.0

@@ -111,6 +111,20 @@ def test_one_at_a_time_against_a_batch():
     assert found[("carry", "leaf", "batch")].count == 3 and found[("carry", "leaf", "batch")].total == 5
 
 
+def test_two_takes_in_a_row_put_down_one_by_one_are_no_batch():
+    """Taking an object twice in a row and putting it down once (a re-grasp, or a portion at a
+    time) says neither way; two taken, then two put down together, is a batch."""
+    def meat(video, verbs):
+        return [_step(video, 2 * i, v, LEAF, dest=d, loc="counter_area") for i, (v, d) in enumerate(verbs)]
+    regrasp = [("take", ""), ("take", ""), ("put", "pan"), ("take", ""), ("put", "pan")]
+    together = [("take", ""), ("take", ""), ("put", "pan"), ("put", "pan")]
+    tasks = [t for v in ("P01_101", "P01_102", "P01_103") for t in video_tasks("P01", meat(v, regrasp))]
+    assert not [p for p in batch.detect(tasks) if p.key[0] == "carry"]
+    tasks += [t for v in ("P01_104", "P01_105") for t in video_tasks("P01", meat(v, together))]
+    found = {p.key: p for p in batch.detect(tasks)}
+    assert found[("carry", "leaf", "batch")].count == 2 and found[("carry", "leaf", "batch")].total == 2
+
+
 def test_staging_setup_carrier_and_canonical_stages():
     tasks = []
     for v in ("P01_101", "P01_102"):

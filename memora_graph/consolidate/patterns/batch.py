@@ -6,13 +6,17 @@ Rule, within each task:
   `BATCH` fetches with only opening, closing or putting down between them is a set laid out
   first; a task with two or more fetches, each on its own, fetches one at a time as needed.
 - **carries**: an object kind taken at least twice in a task is handled one at a time when each
-  take is followed by putting it somewhere before the next, in a batch when two takes come in a row.
+  take is followed by putting it somewhere before the next, in a batch when `BATCH` takes come in a
+  row (a handful gathered) or two or more takes in a row are followed by two or more puts in a row
+  (gathered, then put down together). Two takes in a row put down one by one are a re-grasp or a
+  portion at a time and count neither way.
 Counted over tasks; a record needs `MIN_TASKS` tasks and says which way wins, with the other
 way's count (its exceptions).
 """
 
 from __future__ import annotations
 
+import re
 from collections import defaultdict
 
 from memora_graph.consolidate import vocab
@@ -64,8 +68,12 @@ def _carries(t: Task):
         takes = [e for e in evs if e[0] == "take"]
         if len(takes) < 2:
             continue
-        batched = any(evs[k][0] == "take" and evs[k + 1][0] == "take" for k in range(len(evs) - 1))
-        out.append((not batched, noun, [seg for _, seg in takes]))
+        ways = "".join("t" if e[0] == "take" else "p" for e in evs)
+        if "tt" not in ways:
+            out.append((True, noun, [seg for _, seg in takes]))
+        elif re.search(r"t{%d}|tt+pp" % BATCH, ways):  # gathered (a handful, or several put down together)
+            out.append((False, noun, [seg for _, seg in takes]))
+        # takes in a row put down one by one, or never: a re-grasp or a portion at a time, neither way
     return out
 
 
