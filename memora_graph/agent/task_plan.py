@@ -67,3 +67,11 @@ def draft(r: RoutineRecord, lex: Lexicon) -> list[dict[str, Any]]:
         out.append({"verb_class": s.verb, "say": s.say, "noun": s.noun, "name": s.name, "place": s.place,
                     "evidence": list(s.evidence), "source": "task", "transferred_from": None})
     return out
+
+
+def acts_on_place(verb: str, noun: str, lex: Lexicon) -> bool:
+    """A step that carries a place as if it were an object ("put down the fridge", "take the
+    counter"): its verb moves things and its object is a fixture or furniture."""
+    kind = (noun or "").split(":")[0].replace(" ", "_")
+    return (lex.verb(verb) or verb) in MOVING and (
+        kind in FIXTURES or kind.endswith("_area") or lex.noun_category.get(kind) in ("furniture", "storage"))

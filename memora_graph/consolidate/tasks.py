@@ -42,7 +42,8 @@ AHEAD, BEHIND = 4, 8  # steps compared for object-set continuity
 MIN_STEPS = 4  # a shorter piece is not a task of its own
 WINDOW = 7  # work steps a step's work label is smoothed over
 MIN_RUN = 4  # work steps of one label that make a task of their own
-MIN_PRODUCT = 2  # steps handling a product for the task to be named after it
+MIN_PRODUCT = 2  # steps handling a product for the task to be named after it ...
+PRODUCT_SHARE = 0.1  # ... and at least this share of its steps (a kettle used once in an hour of baking is no tea)
 MIN_GROCERIES = 3  # kinds of food put away in storage: "put away groceries"
 # What a task produces, named after its product when one of these is handled; first the most telling
 # (a tea task boils water too: it is named after the tea).
@@ -193,7 +194,8 @@ def _product(steps: list[MemoryStep], family: str = "") -> str | None:
         for g in {PRODUCTS[k] for k in _objects(s) + [s.destination] if k in PRODUCTS}:
             per_goal[g] += 1
     order = list(dict.fromkeys(PRODUCTS.values()))
-    made = sorted((g for g, n in per_goal.items() if n >= MIN_PRODUCT), key=lambda g: (g == FALLBACK_PRODUCT,
+    least = max(MIN_PRODUCT, PRODUCT_SHARE * len(steps))
+    made = sorted((g for g, n in per_goal.items() if n >= least), key=lambda g: (g == FALLBACK_PRODUCT,
                                                                                         -per_goal[g], order.index(g)))
     return next(k for k, g in PRODUCTS.items() if g == made[0]) if made else None
 
