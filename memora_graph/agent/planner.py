@@ -28,6 +28,9 @@ from memora_graph.text import KITCHEN_NOUNS, tokenize
 
 MAX_STEPS = compose.MAX_STEPS
 MAX_PLAN_STEPS = 15  # what a plan answer is read to (bench.answers.extract_plan)
+# Plans start from the person's task only when asked (`memora plan --from-task`): on P01-P03 task-first
+# lowered Replay RGP .576 -> .541 and Generalize .523 -> .466 (docs/planning.md, "Plans from tasks").
+TASK_FIRST = False
 MAX_TASK_PLAN_STEPS = 20  # a plan from one of the person's tasks (`memora plan`): the whole task, focused
 MAX_PREFERENCES = 6  # retrieved preferences considered for one plan
 MAX_PREFERENCE_STEPS = 4  # steps a plan may gain from them
@@ -122,10 +125,10 @@ def compose_structured(task_query: str, calls: list[dict[str, Any]], lex: Lexico
             draft = task_plan.draft(task, lex)
     if not draft:
         draft = compose.compose(goal, calls, lex)
-    draft = [d for d in draft if not task_plan.acts_on_place(d["verb_class"], d["noun"], lex)]
+    found = compose.groundings(calls, lex)
+    draft = task_plan.without_places(draft, lex, {n: g.label for n, g in found.items()})
     if not draft:
         return generic_plan(task_query)
-    found = compose.groundings(calls, lex)
     for d in draft:  # a task's object is one the person handled in it, whatever the entity lookups found
         if d["source"] == "task" and d["noun"] and d["noun"] not in found:
             found[d["noun"]] = compose.Grounding(d["name"], d["name"], "", d["evidence"][-1:])
@@ -303,7 +306,8 @@ class PlanResult:
         return {"goal": self.goal, "participant": self.participant, "steps": steps, "calls": self.calls}
 
 
-def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", from_task: bool = False) -> PlanResult:
+def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", from_task: bool | None = None
+         ) -> PlanResult:
     """A plan for `goal` from `participant`'s memory in `bank` (the offline planner's lookups and
     composition, without the agent loop). `memory` picks the representation the tools read."""
     from memora_graph.limits import check_text
@@ -319,7 +323,8 @@ def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", 
             closer()
 
 
-def plan_memory(store, participant: str, goal: str, memory: str = "memora", from_task: bool = False) -> PlanResult:
+def plan_memory(store, participant: str, goal: str, memory: str = "memora", from_task: bool | None = None
+                ) -> PlanResult:
     """`plan` over a memory already open (a server plans many goals from one open bank)."""
     from memora_graph.limits import check_text
     from memora_graph.retrieve.registry import tool_names, tool_set
@@ -337,6 +342,7 @@ def plan_memory(store, participant: str, goal: str, memory: str = "memora", from
         tools.prefetch(round_)
         for name, args in round_:
             calls.append({"name": name, "arguments": args, "result": tools.call(name, args)})
+    from_task = TASK_FIRST if from_task is None else from_task
     tasks = task_match.read_tasks(store) if from_task else []
     steps = compose_structured(goal, calls, lex, from_task=from_task, tasks=tasks)
     return PlanResult(goal, participant, steps, [{"tool": c["name"], "arguments": c["arguments"]} for c in calls])

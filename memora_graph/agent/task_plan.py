@@ -75,3 +75,21 @@ def acts_on_place(verb: str, noun: str, lex: Lexicon) -> bool:
     kind = (noun or "").split(":")[0].replace(" ", "_")
     return (lex.verb(verb) or verb) in MOVING and (
         kind in FIXTURES or kind.endswith("_area") or lex.noun_category.get(kind) in ("furniture", "storage"))
+
+
+def without_places(draft: list[dict[str, Any]], lex: Lexicon, labels: dict[str, str] | None = None
+                   ) -> list[dict[str, Any]]:
+    """A draft in which no step carries a place (`acts_on_place`): when the step's words (memory's
+    name for the object, or the person's label for it in `labels`, noun class -> label) name a
+    thing besides the place ("take the pot hob": the pot), the step carries that thing; else it is
+    left out ("put down the fridge")."""
+    out = []
+    for d in draft:
+        if not acts_on_place(d["verb_class"], d["noun"], lex):
+            out.append(d)
+            continue
+        words = f"{d.get('name') or ''} {(labels or {}).get(d['noun'], '')}"
+        other = [n for n in lex.noun_classes(words) if not acts_on_place(d["verb_class"], n, lex)]
+        if other:
+            out.append({**d, "noun": other[0], "name": compose.display(other[0])})
+    return out

@@ -14,8 +14,9 @@ Deterministic, from the typed steps alone (`consolidate.memory.MemoryStep`):
      run's objects or work a fixture (turn on the tap before washing up).
    A piece shorter than `MIN_STEPS` steps joins the task before it (the first one the task after).
 2. **Name** by what the task produces, when it handles a product (coffee, tea, toast, boiled water:
-   `PRODUCTS`; the one handled most) in at least `MIN_PRODUCT` of its steps and is no wash-up or put-away:
-   "make coffee", "make tea", "make toast", "boil water". Else by the dominant verb family and the
+   `PRODUCTS`) in at least `MIN_PRODUCT` of its steps, some product in at least `PRODUCT_SHARE` of
+   them, and is no wash-up or put-away: the product handled most, boiled water only when nothing
+   else is made (a tea boils water too): "make coffee", "make tea", "make toast", "boil water". Else by the dominant verb family and the
    object the family's steps handle most: "wash up saucepan", "prepare onion", "eat bread"; a
    cooking task by its cooking verb when it is no plain "cook" ("fry egg", "pour oil"); a task
    that puts at least `MIN_GROCERIES` kinds of food away in storage "put away groceries", any
@@ -186,7 +187,8 @@ def _stage(steps: list[MemoryStep], family: str, product: str | None = None) -> 
 def _product(steps: list[MemoryStep], family: str = "") -> str | None:
     """The product the task is named after (rule 2): of the `PRODUCTS` goals whose objects are
     handled in at least MIN_PRODUCT steps, the one handled in most (the first in `PRODUCTS` on a
-    tie; boiling water only when nothing else is made); none for a wash-up or a put-away."""
+    tie; boiling water only when nothing else is made), when some product is handled in at least
+    PRODUCT_SHARE of the steps; none for a wash-up or a put-away."""
     if family in ("cleanup", "store"):
         return None
     per_goal = Counter()
@@ -194,10 +196,11 @@ def _product(steps: list[MemoryStep], family: str = "") -> str | None:
         for g in {PRODUCTS[k] for k in _objects(s) + [s.destination] if k in PRODUCTS}:
             per_goal[g] += 1
     order = list(dict.fromkeys(PRODUCTS.values()))
-    least = max(MIN_PRODUCT, PRODUCT_SHARE * len(steps))
-    made = sorted((g for g, n in per_goal.items() if n >= least), key=lambda g: (g == FALLBACK_PRODUCT,
+    made = sorted((g for g, n in per_goal.items() if n >= MIN_PRODUCT), key=lambda g: (g == FALLBACK_PRODUCT,
                                                                                         -per_goal[g], order.index(g)))
-    return next(k for k, g in PRODUCTS.items() if g == made[0]) if made else None
+    if not made or max(per_goal.values()) < PRODUCT_SHARE * len(steps):
+        return None
+    return next(k for k, g in PRODUCTS.items() if g == made[0])
 
 
 def _groceries(steps: list[MemoryStep]) -> bool:
