@@ -90,3 +90,11 @@ def test_no_step_of_any_draft_carries_a_place():
              {"verb_class": "take", "noun": "cup", "name": "cup", "place": "cupboard"}]
     kept = without_places(draft, lex)
     assert [(d["verb_class"], d["noun"]) for d in kept] == [("take", "pot"), ("open", "fridge"), ("take", "cup")]
+
+
+def test_how_one_usually_does_a_task_is_answered_with_its_stages(tea_bank):
+    from memora_graph.agent.ask import ask
+
+    result = ask(tea_bank, "P01", "how do I usually make tea?")
+    assert "task 'make tea'" in result.answer and "main:" in result.answer
+    assert "kettle" in result.answer
