@@ -17,7 +17,8 @@ Deterministic, from the typed steps alone (`consolidate.memory.MemoryStep`):
    `PRODUCTS`) in at least `MIN_PRODUCT` of its steps, some product in at least `PRODUCT_SHARE` of
    them, and is no wash-up or put-away: the product handled most, boiled water only when nothing
    else is made (a tea boils water too): "make coffee", "make tea", "make toast", "boil water". Else by the dominant verb family and the
-   object the family's steps handle most: "wash up saucepan", "prepare onion", "eat bread"; a
+   object the family's steps handle most: "wash up saucepan", "prepare onion", "eat bread" (a
+   wash-up of no object but a fixture, wiped with a cloth: "clean top"); a
    cooking task by its cooking verb when it is no plain "cook" ("fry egg", "pour oil"); a task
    that puts at least `MIN_GROCERIES` kinds of food away in storage "put away groceries", any
    other storing "put away milk".
@@ -230,6 +231,9 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
     family = _family(steps)
     work = [s for s in steps if (_category(s) or "store") == family] or steps
     counts = Counter(o.kind for s in work for o in s.objects[:1] if not o.is_fixture and not _is_tool(o.category))
+    surface = ""
+    if not counts and family == "cleanup":  # wiping the worktop with a cloth: the worktop is what is cleaned
+        surface = next((k for k, _ in Counter(s.main.kind for s in work if s.main.is_fixture).most_common(1)), "")
     if not counts:
         counts = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     main = counts.most_common(1)[0][0] if counts else steps[0].main.kind
@@ -245,7 +249,7 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
         out_steps.append(TaskStep(action=a, stage=st, t=round(s.t, 2), segment=s.segment, text=s.text()))
     return Task(
         id=stable_id(participant, "task", steps[0].video, steps[0].segment, *([nth] if nth else [])),
-        video=steps[0].video, goal=_goal(steps, family, main), family=family, main_object=main,
+        video=steps[0].video, goal=f"clean {display(surface)}" if surface else _goal(steps, family, main), family=family, main_object=main,
         t_start=round(steps[0].t, 2), t_end=round(steps[-1].t, 2), steps=out_steps,
         objects=[k for k, _ in everything.most_common()], tools=tools,
         places=list(dict.fromkeys(s.location for s in steps if s.location)),
