@@ -25,7 +25,7 @@ from collections import Counter
 from typing import Any
 
 from memora_graph.agent import compose
-from memora_graph.agent.task_plan import acts_on_place
+from memora_graph.agent.task_plan import FIXTURES, acts_on_place
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.tasks import FALLBACK_PRODUCT, FOOD, PRODUCTS
 from memora_graph.perceive.lexicon import Lexicon
@@ -188,8 +188,6 @@ def _area(step: dict[str, Any]) -> bool:
 
 
 def _fixture(kind: str, lex: Lexicon) -> bool:
-    from memora_graph.agent.task_plan import FIXTURES
-
     return kind in FIXTURES or lex.noun_category.get(kind) in ("furniture", "storage")
 
 

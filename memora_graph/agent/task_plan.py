@@ -6,6 +6,10 @@ A task routine does the goal when every object the goal names is among the routi
 or key objects, and the goal's action (if the goal names one besides make/prepare) is among its
 steps. Steps that act on a place as an object ("put down the fridge": taking or putting a
 fixture) are left out, and each (action, object) is kept once (no repeated cycles).
+
+`memora plan --from-task` tries the person's own Task rows first (`agent.task_match`), this
+module's task routines second. `acts_on_place` / `without_places` are the guard every plan passes
+through: no step carries a place.
 """
 
 from __future__ import annotations
