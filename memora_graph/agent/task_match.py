@@ -9,7 +9,8 @@ fits. Of the tasks that fit, the one named after the goal comes first, then the 
 steps on the product, then on the goal's objects, then the shorter.
 
 **Which steps.** The goal's key objects are its objects and product; for a task named after the
-goal, also the task's main object. A step is kept when it acts on a key object, puts something into
+goal, also the task's main object (for a product, unless it is a food: the main object of a
+toast task may be the milk poured beside it; of a tea, the jug that fills the kettle). A step is kept when it acts on a key object, puts something into
 one, or (a fixture: the tap, a cupboard) opens the way to the next kept step. For a task named after
 the goal, the objects a kept step works with (poured into, scooped, turned on) become key too, twice
 over: the kettle and the teapot of a tea. Then each (action, object) is kept once: a cycle done three
@@ -128,8 +129,10 @@ def best(goal: str, tasks: list[dict[str, Any]], lex: Lexicon) -> tuple[dict[str
     if not scored:
         return None
     (named, *_), t, key = max(scored, key=lambda x: x[0])
-    if named and t.get("main_object"):
-        key = _closure(t, key | {t["main_object"]})
+    if named:  # the task is the goal: its main object and what its work is done with too
+        main = t.get("main_object") or ""
+        side = product and (main in product_kinds or _cat(main, lex) in FOOD)  # milk poured beside the toast
+        key = _closure(t, key | ({main} if main and not side else set()))
     return t, key
 
 
