@@ -551,7 +551,7 @@ def ground(draft: list[dict[str, Any]], found: dict[str, Grounding], goal_object
         step = {"action": d["say"], "verb": d["say"], "verb_class": d["verb_class"], "entity": obj, "object": obj,
                 "location": place, "place": place, "grounded": grounded, "preconditions": preconditions,
                 "evidence": evidence, "source": d["source"],
-                "text": render(d["say"], obj, place, note, "from" if d.get("fetch") else None)}
+                "text": render(d["say"], obj, place, note, "from" if d.get("fetch") else d.get("preposition"))}
         if note:
             step["note"] = note
         if d.get("transferred_from"):

@@ -41,6 +41,7 @@ from memora_graph.agent import lookups
 from memora_graph.agent.confidence import load_calibration
 from memora_graph.agent.evidence import budgeted_events
 from memora_graph.agent.loop import AgentState, PolicyReply
+from memora_graph.agent import planner
 from memora_graph.agent.planner import task_text, compose_structured, plan_lookups, plan_text
 from memora_graph.agent.reading import ReaderDecision, parse_question, score
 from memora_graph.embed import get_embedder
@@ -190,4 +191,4 @@ class OfflinePolicy:
         """The plan composed from the calls' results (`agent.compose`): procedures adapted and
         chained for the goal's parts, objects grounded, preferences inserted; every step with its
         evidence ids. A plan from the request alone when memory returned no procedure."""
-        return compose_structured(task_query, calls, self.lexicon)
+        return compose_structured(task_query, calls, self.lexicon, from_task=planner.TASK_FIRST)

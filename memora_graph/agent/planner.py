@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from memora_graph.agent import compose, task_plan
+from memora_graph.agent import compose, task_match, task_plan
 from memora_graph.consolidate.vocab import past_tense
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve.results import PreferenceRecord
@@ -28,6 +28,10 @@ from memora_graph.text import KITCHEN_NOUNS, tokenize
 
 MAX_STEPS = compose.MAX_STEPS
 MAX_PLAN_STEPS = 15  # what a plan answer is read to (bench.answers.extract_plan)
+# Plans start from the person's task only when asked (`memora plan --from-task`): on P01-P03 task-first
+# lowered Replay RGP .576 -> .541 and Generalize .523 -> .466 (docs/planning.md, "Plans from tasks").
+TASK_FIRST = False
+MAX_TASK_PLAN_STEPS = 20  # a plan from one of the person's tasks (`memora plan`): the whole task, focused
 MAX_PREFERENCES = 6  # retrieved preferences considered for one plan
 MAX_PREFERENCE_STEPS = 4  # steps a plan may gain from them
 ROUTINES_K = 8  # routines retrieved for the whole goal
@@ -102,21 +106,41 @@ def plan_lookups(goal: str, tools: list[str], calls: list[dict[str, Any]], lex: 
 # -- the plan --------------------------------------------------------------------------------------
 
 def compose_structured(task_query: str, calls: list[dict[str, Any]], lex: Lexicon,
-                       from_task: bool = False) -> list[dict[str, Any]]:
+                       from_task: bool = False, tasks: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """Structured steps for a goal from the calls' results (see the module docstring); the plan from
-    the request alone (`generic_plan`) when memory returned no procedure for it. `from_task`: start
-    from the person's recurring task that does the goal (`agent.task_plan`), when one does (off in
-    the benchmark: on the calibration cohort it lowered Replay OrderExec .591 -> .509)."""
+    the request alone (`generic_plan`) when memory returned no procedure for it.
+
+    `from_task`: start from the person's task that does the goal, when one does: one of `tasks`
+    (their Task rows, `agent.task_match`), else a retrieved recurring task routine
+    (`agent.task_plan`); compose only when no single task fits. Whatever the draft, a step that
+    carries a place as an object ("put down the fridge") is left out."""
     goal = task_text(task_query)
-    task = task_plan.matching(goal, calls, lex) if from_task else None  # the person's own task for the goal, when one does it
-    draft = task_plan.draft(task, lex) if task is not None else compose.compose(goal, calls, lex)
+    draft = None
+    limit = MAX_PLAN_STEPS
+    if from_task:
+        hit = task_match.best(goal, tasks or [], lex)
+        if hit is not None:
+            draft, limit = task_match.draft(*hit, lex), MAX_TASK_PLAN_STEPS
+        elif (task := task_plan.matching(goal, calls, lex)) is not None:
+            draft = task_plan.draft(task, lex)
+    if not draft:
+        draft = compose.compose(goal, calls, lex)
+    found = compose.groundings(calls, lex)
+    draft = task_plan.without_places(draft, lex, {n: g.label for n, g in found.items()})
     if not draft:
         return generic_plan(task_query)
-    found = compose.groundings(calls, lex)
+    for d in draft:  # a task's object is one the person handled in it, whatever the entity lookups found
+        if d["source"] == "task" and d["noun"] and d["noun"] not in found:
+            found[d["noun"]] = compose.Grounding(d["name"], d["name"], "", d["evidence"][-1:])
     goal_objects = {o for p in compose.goal_parts(goal, lex) for o in p.objects}
     steps = compose.ground(draft, found, goal_objects, memory=bool(calls), general=lambda n: compose._general(n, lex))
     prefs = relevant_preferences(goal, calls, steps)
-    return apply_preferences(steps, prefs, say=compose._say)[:MAX_PLAN_STEPS]
+    if limit == MAX_PLAN_STEPS:
+        return apply_preferences(steps, prefs, say=compose._say)[:limit]
+    # a task's plan: a preference adds no step the task already does (the task's own stays, in its place)
+    done = {(s["verb"], s["object"]) for s in steps}
+    out = apply_preferences(steps, prefs, say=compose._say, limit=limit + MAX_PREFERENCE_STEPS)
+    return [s for s in out if not s.get("preference") or (s["verb"], s["object"]) not in done][:limit]
 
 
 def plan_text(steps: list[dict[str, Any]]) -> str:
@@ -171,7 +195,8 @@ def _after_words(text: str | None) -> str:
 
 
 def apply_preferences(steps: list[dict[str, Any]], prefs: list[PreferenceRecord],
-                      say: Callable[[str], str] | None = None) -> list[dict[str, Any]]:
+                      say: Callable[[str], str] | None = None, limit: int = MAX_STEPS + MAX_PREFERENCE_STEPS
+                      ) -> list[dict[str, Any]]:
     """Honour retrieved preferences in a plan, the way a person's helper would, reading each
     preference's structured fields:
 
@@ -224,7 +249,7 @@ def apply_preferences(steps: list[dict[str, Any]], prefs: list[PreferenceRecord]
         if new is not None:
             out.insert(*new)
             added += 1
-    return out[:MAX_STEPS + MAX_PREFERENCE_STEPS]
+    return out[:limit]
 
 
 _HELP = re.compile(r"^\s*help\s+(?:p\d+|the participant|the person)\s+(?:to\s+)?", re.I)
@@ -281,7 +306,8 @@ class PlanResult:
         return {"goal": self.goal, "participant": self.participant, "steps": steps, "calls": self.calls}
 
 
-def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", from_task: bool = False) -> PlanResult:
+def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", from_task: bool | None = None
+         ) -> PlanResult:
     """A plan for `goal` from `participant`'s memory in `bank` (the offline planner's lookups and
     composition, without the agent loop). `memory` picks the representation the tools read."""
     from memora_graph.limits import check_text
@@ -297,7 +323,8 @@ def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", 
             closer()
 
 
-def plan_memory(store, participant: str, goal: str, memory: str = "memora", from_task: bool = False) -> PlanResult:
+def plan_memory(store, participant: str, goal: str, memory: str = "memora", from_task: bool | None = None
+                ) -> PlanResult:
     """`plan` over a memory already open (a server plans many goals from one open bank)."""
     from memora_graph.limits import check_text
     from memora_graph.retrieve.registry import tool_names, tool_set
@@ -315,5 +342,7 @@ def plan_memory(store, participant: str, goal: str, memory: str = "memora", from
         tools.prefetch(round_)
         for name, args in round_:
             calls.append({"name": name, "arguments": args, "result": tools.call(name, args)})
-    steps = compose_structured(goal, calls, lex, from_task=from_task)
+    from_task = TASK_FIRST if from_task is None else from_task
+    tasks = task_match.read_tasks(store) if from_task else []
+    steps = compose_structured(goal, calls, lex, from_task=from_task, tasks=tasks)
     return PlanResult(goal, participant, steps, [{"tool": c["name"], "arguments": c["arguments"]} for c in calls])

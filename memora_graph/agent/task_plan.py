@@ -6,6 +6,10 @@ A task routine does the goal when every object the goal names is among the routi
 or key objects, and the goal's action (if the goal names one besides make/prepare) is among its
 steps. Steps that act on a place as an object ("put down the fridge": taking or putting a
 fixture) are left out, and each (action, object) is kept once (no repeated cycles).
+
+`memora plan --from-task` tries the person's own Task rows first (`agent.task_match`), this
+module's task routines second. `acts_on_place` / `without_places` are the guard every plan passes
+through: no step carries a place.
 """
 
 from __future__ import annotations
@@ -66,4 +70,30 @@ def draft(r: RoutineRecord, lex: Lexicon) -> list[dict[str, Any]]:
         seen.add(key)
         out.append({"verb_class": s.verb, "say": s.say, "noun": s.noun, "name": s.name, "place": s.place,
                     "evidence": list(s.evidence), "source": "task", "transferred_from": None})
+    return out
+
+
+def acts_on_place(verb: str, noun: str, lex: Lexicon) -> bool:
+    """A step that carries a place as if it were an object ("put down the fridge", "take the
+    counter"): its verb moves things and its object is a fixture or furniture."""
+    kind = (noun or "").split(":")[0].replace(" ", "_")
+    return (lex.verb(verb) or verb) in MOVING and (
+        kind in FIXTURES or kind.endswith("_area") or lex.noun_category.get(kind) in ("furniture", "storage"))
+
+
+def without_places(draft: list[dict[str, Any]], lex: Lexicon, labels: dict[str, str] | None = None
+                   ) -> list[dict[str, Any]]:
+    """A draft in which no step carries a place (`acts_on_place`): when the step's words (memory's
+    name for the object, or the person's label for it in `labels`, noun class -> label) name a
+    thing besides the place ("take the pot hob": the pot), the step carries that thing; else it is
+    left out ("put down the fridge")."""
+    out = []
+    for d in draft:
+        if not acts_on_place(d["verb_class"], d["noun"], lex):
+            out.append(d)
+            continue
+        words = f"{d.get('name') or ''} {(labels or {}).get(d['noun'], '')}"
+        other = [n for n in lex.noun_classes(words) if not acts_on_place(d["verb_class"], n, lex)]
+        if other:
+            out.append({**d, "noun": other[0], "name": compose.display(other[0])})
     return out

@@ -6,12 +6,22 @@ Deterministic, from the typed steps alone (`consolidate.memory.MemoryStep`):
 1. **Cut** between two steps when
    - there is a pause of more than `PAUSE` seconds, or
    - the person moves to another place and the objects of the next `AHEAD` steps share nothing
-     with the objects of the last `BEHIND` steps (object-set continuity breaks).
+     with the objects of the last `BEHIND` steps (object-set continuity breaks), or
+   - the kind of work changes (verb families): each work step is labelled clean / prep / cook /
+     eat by its verb, each label is smoothed to the majority of the `WINDOW` work steps around it,
+     and where a run of one label (at least `MIN_RUN` work steps) follows a run of another, the
+     task is cut before the new run, together with the steps just before it that fetch the new
+     run's objects or work a fixture (turn on the tap before washing up).
    A piece shorter than `MIN_STEPS` steps joins the task before it (the first one the task after).
-2. **Name** by the dominant verb family (cleanup, cooking, prep, setup; else storing things away)
-   and the object the family's steps handle most: "wash up saucepan", "cook egg", "prepare onion",
-   "put away milk". A task whose objects include a drink or dish it produces is named after it
-   ("make coffee", "make tea", "make toast").
+2. **Name** by what the task produces, when it handles a product (coffee, tea, toast, boiled water:
+   `PRODUCTS`) in at least `MIN_PRODUCT` of its steps, some product in at least `PRODUCT_SHARE` of
+   them, and is no wash-up or put-away: the product handled most, boiled water only when nothing
+   else is made (a tea boils water too): "make coffee", "make tea", "make toast", "boil water". Else by the dominant verb family and the
+   object the family's steps handle most: "wash up saucepan", "prepare onion", "eat bread" (a
+   wash-up of no object but a fixture, wiped with a cloth: "clean top"); a
+   cooking task by its cooking verb when it is no plain "cook" ("fry egg", "pour oil"); a task
+   that puts at least `MIN_GROCERIES` kinds of food away in storage "put away groceries", any
+   other storing "put away milk".
 3. **Stages**: `main` runs from the first to the last step of the dominant family (of a task named
    after its product, from the first to the last step handling the product); steps before it
    are `setup`; after it, from the first cleanup step (a cleanup verb, or something thrown away or
@@ -32,12 +42,25 @@ from memora_graph.consolidate.task_records import Task, TaskStep
 PAUSE = 40.0  # seconds without a step: a new task
 AHEAD, BEHIND = 4, 8  # steps compared for object-set continuity
 MIN_STEPS = 4  # a shorter piece is not a task of its own
-# What a task produces, named after its product when one of these is handled.
-PRODUCTS = {"coffee": "make coffee", "tea": "make tea", "teabag": "make tea", "toast": "make toast",
-            "toaster": "make toast", "sandwich": "make a sandwich", "salad": "prepare a salad",
-            "omelette": "make an omelette", "pasta": "cook pasta", "rice": "cook rice", "porridge": "make porridge",
-            "smoothie": "make a smoothie", "cereal": "have cereal", "washing:machine": "load the washing machine"}
-FAMILY_VERB = {"cleanup": "wash up", "cooking": "cook", "prep": "prepare", "setup": "set up", "store": "put away"}
+WINDOW = 7  # work steps a step's work label is smoothed over
+MIN_RUN = 4  # work steps of one label that make a task of their own
+MIN_PRODUCT = 2  # steps handling a product for the task to be named after it ...
+PRODUCT_SHARE = 0.1  # ... and at least this share of its steps (a kettle used once in an hour of baking is no tea)
+MIN_GROCERIES = 3  # kinds of food put away in storage: "put away groceries"
+# What a task produces, named after its product when one of these is handled; first the most telling
+# (a tea task boils water too: it is named after the tea).
+PRODUCTS = {"coffee": "make coffee", "coffee_maker": "make coffee", "tea": "make tea", "teabag": "make tea",
+            "teapot": "make tea", "toast": "make toast", "toaster": "make toast", "sandwich": "make a sandwich",
+            "salad": "prepare a salad", "omelette": "make an omelette", "pasta": "cook pasta", "rice": "cook rice",
+            "porridge": "make porridge", "smoothie": "make a smoothie", "cereal": "have cereal",
+            "washing:machine": "load the washing machine", "kettle": "boil water"}
+FALLBACK_PRODUCT = "boil water"  # a sub-goal of making tea or coffee: the name only when nothing else is made
+FAMILY_VERB = {"cleanup": "wash up", "cooking": "cook", "prep": "prepare", "setup": "set up", "store": "put away",
+               "eat": "eat"}
+EATING = frozenset({"eat", "drink"})  # verbs of the eat family (no cleanup / prep / cooking category)
+FOOD = frozenset({"vegetables", "fruits and nuts", "dairy and eggs", "meat and substitute", "baked goods and grains",
+                  "spices and herbs and sauces", "prepared food", "drinks"})  # object categories that are food
+_LABEL = {"cleanup": "clean", "prep": "prep", "cooking": "cook"}
 STORAGE = vocab.STORAGE_KINDS | {"bin", "rubbish", "trash"}
 
 
@@ -47,6 +70,46 @@ def _objects(s: MemoryStep) -> list[str]:
 
 def _is_tool(category: str) -> bool:
     return category in vocab.TOOL_CATEGORIES
+
+
+def _label(s: MemoryStep) -> str | None:
+    """The kind of work a step does (clean / prep / cook / eat), None for fetching and setting up."""
+    if s.verb in EATING:
+        return "eat"
+    return _LABEL.get(vocab.category(s.verb) or "")
+
+
+def _work_cuts(steps: list[MemoryStep]) -> set[int]:
+    """Indices where the kind of work changes (rule 1, third case)."""
+    work = [(i, lab) for i, s in enumerate(steps) if (lab := _label(s))]
+    if len(work) < 2 * MIN_RUN:
+        return set()
+    half = WINDOW // 2
+    smooth = []
+    for j in range(len(work)):
+        near = Counter(lab for _, lab in work[max(0, j - half):j + half + 1])
+        top = max(near.values())
+        smooth.append(work[j][1] if near[work[j][1]] == top else near.most_common(1)[0][0])
+    runs: list[list[int]] = []  # [label index start, end) over `work`
+    for j, lab in enumerate(smooth):
+        if runs and smooth[runs[-1][0]] == lab:
+            runs[-1][1] = j + 1
+        else:
+            runs.append([j, j + 1])
+    long_runs = [r for r in runs if r[1] - r[0] >= MIN_RUN]
+    cuts = set()
+    for a, b in zip(long_runs, long_runs[1:]):
+        if smooth[a[0]] == smooth[b[0]]:
+            continue
+        first = work[b[0]][0]
+        ahead = {k for x in steps[first:first + AHEAD + 2] for k in _objects(x)}
+        i = first
+        lower = work[a[1] - 1][0] + 1  # never before the last step of the run before
+        while i - 1 >= lower and not _label(steps[i - 1]) and (
+                steps[i - 1].main.is_fixture or steps[i - 1].main.kind in ahead):
+            i -= 1
+        cuts.add(i)
+    return cuts
 
 
 def cut(steps: list[MemoryStep]) -> list[list[MemoryStep]]:
@@ -66,6 +129,7 @@ def cut(steps: list[MemoryStep]) -> list[list[MemoryStep]]:
         cur.append(s)
     if cur:
         pieces.append(cur)
+    pieces = [q for p in pieces for q in _split(p)]
     out: list[list[MemoryStep]] = []
     for p in pieces:
         if out and len(p) < MIN_STEPS:
@@ -77,8 +141,18 @@ def cut(steps: list[MemoryStep]) -> list[list[MemoryStep]]:
     return out
 
 
+def _split(piece: list[MemoryStep]) -> list[list[MemoryStep]]:
+    bounds = sorted(_work_cuts(piece) - {0})
+    edges = [0, *bounds, len(piece)]
+    return [piece[a:b] for a, b in zip(edges, edges[1:]) if b > a]
+
+
+def _category(s: MemoryStep) -> str | None:
+    return "eat" if s.verb in EATING else vocab.category(s.verb)
+
+
 def _family(steps: list[MemoryStep]) -> str:
-    fam = Counter(vocab.category(s.verb) for s in steps if vocab.category(s.verb))
+    fam = Counter(c for s in steps if (c := _category(s)))
     if not fam:
         return "store"
     best, n = fam.most_common(1)[0]
@@ -90,9 +164,10 @@ def _family(steps: list[MemoryStep]) -> str:
 
 def _stage(steps: list[MemoryStep], family: str, product: str | None = None) -> list[str]:
     if product:  # a task named after its product: the main work is what is done with the product
-        fam_idx = [i for i, s in enumerate(steps) if product in _objects(s)]
+        kinds = {k for k, g in PRODUCTS.items() if g == PRODUCTS[product]}
+        fam_idx = [i for i, s in enumerate(steps) if kinds & {*_objects(s), s.destination}]
     else:
-        fam_idx = [i for i, s in enumerate(steps) if (vocab.category(s.verb) or "store") == family
+        fam_idx = [i for i, s in enumerate(steps) if (_category(s) or "store") == family
                    or (family == "store" and s.verb in vocab.RELEASING)]
     first, last = (fam_idx[0], fam_idx[-1]) if fam_idx else (0, len(steps) - 1)
     out = []
@@ -110,26 +185,59 @@ def _stage(steps: list[MemoryStep], family: str, product: str | None = None) -> 
     return out
 
 
-def _product(steps: list[MemoryStep]) -> str | None:
-    kinds = {k for s in steps for k in _objects(s)}
-    return next((k for k in PRODUCTS if k in kinds), None)
+def _product(steps: list[MemoryStep], family: str = "") -> str | None:
+    """The product the task is named after (rule 2): of the `PRODUCTS` goals whose objects are
+    handled in at least MIN_PRODUCT steps, the one handled in most (the first in `PRODUCTS` on a
+    tie; boiling water only when nothing else is made), when some product is handled in at least
+    PRODUCT_SHARE of the steps; none for a wash-up or a put-away."""
+    if family in ("cleanup", "store"):
+        return None
+    per_goal = Counter()
+    for s in steps:
+        for g in {PRODUCTS[k] for k in _objects(s) + [s.destination] if k in PRODUCTS}:
+            per_goal[g] += 1
+    order = list(dict.fromkeys(PRODUCTS.values()))
+    made = sorted((g for g, n in per_goal.items() if n >= MIN_PRODUCT), key=lambda g: (g == FALLBACK_PRODUCT,
+                                                                                        -per_goal[g], order.index(g)))
+    if not made or max(per_goal.values()) < PRODUCT_SHARE * len(steps):
+        return None
+    return next(k for k, g in PRODUCTS.items() if g == made[0])
+
+
+def _groceries(steps: list[MemoryStep]) -> bool:
+    """At least MIN_GROCERIES kinds of food put away in storage."""
+    kinds = {s.main.kind for s in steps if s.verb in vocab.RELEASING and s.destination in vocab.STORAGE_KINDS
+             and s.main.category in FOOD}
+    return len(kinds) >= MIN_GROCERIES
 
 
 def _goal(steps: list[MemoryStep], family: str, main: str) -> str:
-    product = _product(steps)
-    return PRODUCTS[product] if product else f"{FAMILY_VERB[family]} {display(main)}".strip()
+    product = _product(steps, family)
+    if product:
+        return PRODUCTS[product]
+    if family == "store" and _groceries(steps):
+        return "put away groceries"
+    verb = FAMILY_VERB[family]
+    if family == "cooking":  # "fry egg", "pour oil": the cooking verb the task does most to its object
+        verbs = Counter(s.verb for s in steps if s.main.kind == main and vocab.category(s.verb) == "cooking")
+        if verbs and "cook" not in verbs:
+            verb = vocab.phrase(verbs.most_common(1)[0][0])
+    return f"{verb} {display(main)}".strip()
 
 
 def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
     from memora_graph.consolidate.rules import stable_id
 
     family = _family(steps)
-    work = [s for s in steps if (vocab.category(s.verb) or "store") == family] or steps
+    work = [s for s in steps if (_category(s) or "store") == family] or steps
     counts = Counter(o.kind for s in work for o in s.objects[:1] if not o.is_fixture and not _is_tool(o.category))
+    surface = ""
+    if not counts and family == "cleanup":  # wiping the worktop with a cloth: the worktop is what is cleaned
+        surface = next((k for k, _ in Counter(s.main.kind for s in work if s.main.is_fixture).most_common(1)), "")
     if not counts:
         counts = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     main = counts.most_common(1)[0][0] if counts else steps[0].main.kind
-    stages = _stage(steps, family, _product(steps))
+    stages = _stage(steps, family, _product(steps, family))
     everything = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     tools = list(dict.fromkeys(o.kind for s in steps for o in s.objects if _is_tool(o.category)))
     out_steps = []
@@ -141,7 +249,7 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
         out_steps.append(TaskStep(action=a, stage=st, t=round(s.t, 2), segment=s.segment, text=s.text()))
     return Task(
         id=stable_id(participant, "task", steps[0].video, steps[0].segment, *([nth] if nth else [])),
-        video=steps[0].video, goal=_goal(steps, family, main), family=family, main_object=main,
+        video=steps[0].video, goal=f"clean {display(surface)}" if surface else _goal(steps, family, main), family=family, main_object=main,
         t_start=round(steps[0].t, 2), t_end=round(steps[-1].t, 2), steps=out_steps,
         objects=[k for k, _ in everything.most_common()], tools=tools,
         places=list(dict.fromkeys(s.location for s in steps if s.location)),

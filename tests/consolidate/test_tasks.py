@@ -55,11 +55,49 @@ def test_a_pause_or_a_move_to_new_objects_starts_a_new_task():
     assert len(cut(same)) == 1  # moved, but the objects continue
 
 
+def test_a_change_of_work_at_one_place_starts_a_new_task_with_the_steps_that_fetch_for_it():
+    # no pause, no move: cut the onion, then wash up at the same counter
+    v = "P01_101"
+    cutting = [_step(v, i, "cut", ONION, KNIFE, loc="counter_area") for i in range(5)]
+    fetch = [_step(v, 5, "turn-on", TAP, loc="counter_area"), _step(v, 6, "take", SAUCEPAN, loc="counter_area")]
+    washing = [_step(v, 7 + i, verb, SAUCEPAN, SPONGE, loc="counter_area")
+               for i, verb in enumerate(["wash", "scrub", "rinse", "wash", "rinse"])]
+    pieces = cut(cutting + fetch + washing)
+    assert [len(p) for p in pieces] == [5, 7]  # the tap and taking the saucepan open the wash-up
+    assert [t.goal for t in video_tasks("P01", cutting + fetch + washing)] == ["prepare onion", "wash up saucepan"]
+    one_off = cutting + [_step(v, 5, "wash", KNIFE, loc="counter_area")] + cutting[:3]
+    assert len(cut(one_off)) == 1  # one rinse of the knife between cuts is no new task
+
+
+def test_a_task_is_named_after_its_product_unless_it_washes_or_stores_it():
+    v = "P01_101"
+    tea, kettle, cup = ("tea", "drinks", False), ("kettle", "appliances", False), ("cup", "crockery", False)
+    making = [_step(v, 0, "fill", kettle), _step(v, 1, "turn-on", kettle), _step(v, 2, "take", tea),
+              _step(v, 3, "insert", tea, dest="cup"), _step(v, 4, "pour", ("water", "drinks", False), dest="cup")]
+    assert video_tasks("P01", making)[0].goal == "make tea"
+    assert video_tasks("P01", making[:2] + [_step(v, 3, "pour", ("water", "drinks", False))])[0].goal == "boil water"
+    washing = [_step(v, i, verb, cup, SPONGE) for i, verb in enumerate(["wash", "scrub", "rinse"])] + \
+        [_step(v, 4, "take", tea), _step(v, 5, "put", tea)]
+    assert video_tasks("P01", washing)[0].goal == "wash up cup"  # the tea handled there is not made
+
+
+def test_putting_several_foods_away_is_putting_away_groceries():
+    v = "P01_101"
+    fridge = ("fridge", "fixture", True)
+    foods = [("milk", "dairy and eggs"), ("butter", "dairy and eggs"), ("carrot", "vegetables")]
+    steps = [_step(v, 0, "open", fridge, loc="fridge_area")]
+    for i, (kind, cat) in enumerate(foods):
+        steps += [_step(v, 1 + 2 * i, "take", (kind, cat, False), loc="fridge_area"),
+                  _step(v, 2 + 2 * i, "insert", (kind, cat, False), dest="fridge", loc="fridge_area")]
+    assert video_tasks("P01", steps)[0].goal == "put away groceries"
+    assert video_tasks("P01", steps[:5])[0].goal == "put away milk"  # two foods: no shopping
+
+
 def test_tasks_are_named_by_goal_with_stages_tools_places_and_stable_ids():
     steps = _washing_up("P01_101", 0.0) + _dough("P01_101", 20.0)
     wash, dough = video_tasks("P01", steps)
     assert wash.goal == "wash up saucepan" and wash.family == "cleanup"
-    assert dough.goal == "cook dough" and dough.main_object == "dough"
+    assert dough.goal == "stretch dough" and dough.main_object == "dough"  # its cooking verb, not a plain "cook"
     assert [s.stage for s in wash.steps][:2] == ["setup", "setup"]  # take, empty: before the first wash... verb
     assert "main" in {s.stage for s in wash.steps}
     assert wash.tools == ["sponge"] and wash.places == ["sink_area"]

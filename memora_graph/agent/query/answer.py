@@ -894,12 +894,17 @@ def _routine(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     goal = q.query.subject.goal or _text(q.verb, _subject(q)[0] if subject else None) or " ".join(q.surface)
     best = None
     if goal:
+        fits = []
         for r in get_routine_skill(view, goal_query=goal, top_k=5).routines:
             gnouns = {n for c in lex.parse(r.goal) for n in c.nouns} | \
                 {n for o in r.key_objects for n in lex.noun_classes(o.object.replace("_", " "))}
             if (subject and subject & gnouns) or (not subject and (r.similarity or 0.0) >= ROUTINE_SIMILARITY):
-                best = r
-                break
+                fits.append(r)
+        # how the person usually does the whole task (its stages) before a run of steps around the object
+        named = [r for r in fits if r.kind == "task_routine" and subject & {n for c in lex.parse(r.goal) for n in c.nouns}]
+        best = (named or fits or [None])[0]
+    if best is not None and best.kind == "task_routine":
+        return _task_answer(best, lex, base)
     if best is not None:
         steps = []
         for i, st in enumerate(best.canonical_steps):
@@ -926,6 +931,27 @@ def _routine(view, q: _Ask, log: Steps, lex: Lexicon, base: dict) -> OpenAnswer:
     return OpenAnswer(**base, kind="routine", answer=" -> ".join(s.text for s in steps) + f" (seen {counted(n, 'time')})",
                       in_memory=True, steps=steps, support=n, detail="the most common sequence around it in the episodes",
                       features=_features(n, n / sum(windows.values()), 0.0, True, False))
+
+
+def _task_answer(r, lex: Lexicon, base: dict) -> OpenAnswer:
+    """A recurring task's stages ("setup: open cupboard, take filter; main: pour coffee, ..."), from
+    its task routine (canonical steps said "stage: step")."""
+    steps, stages = [], {}
+    for i, st in enumerate(r.canonical_steps):
+        stage, _, text = st.action.partition(": ")
+        if not text:
+            stage, text = "main", st.action
+        c = next(iter(lex.parse(text)), None)
+        steps.append(RoutineStep(order=i + 1, verb=(c.verb if c and c.verb else ""),
+                                 noun=(c.nouns[0] if c and c.nouns else ""), text=text))
+        stages.setdefault(stage, []).append(text)
+    n = int(r.count or 0)
+    goal = r.goal.split(" (")[0]
+    said = "; ".join(f"{stage}: {', '.join(texts)}" for stage, texts in stages.items())
+    return OpenAnswer(**base, kind="routine", answer=f"{said} (task '{goal}', done {counted(n, 'time')})",
+                      in_memory=True, steps=steps, evidence=[r.routine_id, *r.supporting_episodes[:5]], support=n,
+                      detail=f"the person's task '{goal}', its usual stages (get_routine_skill)",
+                      features=_features(n, float(r.confidence or 0.5), 1.0, exact=False))
 
 
 MAX_STEPS = 12

@@ -1,0 +1,100 @@
+"""`memora plan --from-task` over a real bank: the person's task that does the goal, its key objects
+in their remembered order, no place carried, no cycle repeated; and the place guard of every plan."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from memora_graph.agent import task_match
+from memora_graph.agent.planner import plan
+from memora_graph.agent.task_plan import acts_on_place, without_places
+from memora_graph.perceive.lexicon import Lexicon
+
+TEA = ["open cupboard", "take cup", "close cupboard", "put cup on counter", "take kettle", "turn on tap",
+       "fill kettle", "turn off tap", "turn on kettle", "open cupboard", "take teabag", "close cupboard",
+       "put teabag in cup", "take kettle", "pour water into cup", "put kettle on counter", "open fridge",
+       "take milk", "pour milk into cup", "put milk in fridge", "close fridge"]
+KNIVES = ["turn on tap", "take sponge"] + ["take knife", "scrub knife", "rinse knife", "put knife on drying rack"] * 3 + \
+    ["turn off tap", "put sponge on sink"]
+TIDY = ["open fridge", "take butter", "put butter in fridge", "take cheese", "put cheese in fridge", "close fridge"]
+
+
+@pytest.fixture(scope="module")
+def tea_bank(tmp_path_factory):
+    from memora_graph.pipeline import build_bank
+
+    root = tmp_path_factory.mktemp("teabank")
+    path = root / "narrations.csv"
+    rows = []
+    for video, texts in (("P01_01", TEA + KNIVES), ("P01_02", TEA + TIDY)):
+        for i, text in enumerate(texts):
+            rows.append({"video_id": video, "start": 2.0 * i, "end": 2.0 * i + 1.5, "text": text})
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["video_id", "start", "end", "text"])
+        w.writeheader()
+        w.writerows(rows)
+    bank = root / "bank"
+    build_bank(bank, None, narrations=path, participant="P01")
+    return bank
+
+
+def _objects(result) -> list[str]:
+    return [str(s["object"]) for s in result.steps]
+
+
+def test_a_tea_plan_keeps_cup_kettle_and_teabag_in_their_order_and_carries_no_place(tea_bank):
+    lex = Lexicon.load()
+    result = plan(tea_bank, "P01", "make a cup of tea", from_task=True)
+    objects = _objects(result)
+    assert any(s.get("source") == "task" for s in result.steps)  # from the person's task, not composed
+    first = {o: objects.index(o) for o in ("cup", "kettle", "tea") if o in objects}  # "teabag" is read as tea
+    assert set(first) == {"cup", "kettle", "tea"}
+    assert first["cup"] < first["kettle"] < first["tea"]  # the order the person did it in
+    assert not any(acts_on_place(s["verb_class"], s["object"], lex) for s in result.steps if s.get("verb_class"))
+    said = [(s["verb"], s["object"], s["place"]) for s in result.steps]
+    assert len(said) == len(set(said))  # nothing said twice
+    assert all("not in memory" not in s["text"] for s in result.steps)  # the task's objects are the person's
+
+
+def test_a_washing_cycle_done_three_times_is_planned_once(tea_bank):
+    result = plan(tea_bank, "P01", "wash the knife", from_task=True)
+    texts = [s["text"].lower() for s in result.steps]
+    assert sum("scrub the knife" in t for t in texts) == 1
+    assert any("knife" in t and "drying rack" in t for t in texts)
+    assert all("tea" not in t and "milk" not in t for t in texts)  # only the knife's steps of that task
+
+
+def test_tasks_are_read_and_a_goal_no_task_does_is_composed(tea_bank):
+    from memora_graph.retrieve.registry import get_family
+
+    lex = Lexicon.load()
+    view = get_family("memora").open(tea_bank, "P01")
+    try:
+        tasks = task_match.read_tasks(view)
+    finally:
+        view.close()
+    assert {t["goal"] for t in tasks} >= {"make tea"}
+    assert task_match.best("make a cup of tea", tasks, lex)[0]["goal"] == "make tea"
+    assert task_match.best("fry the egg", tasks, lex) is None  # no task does it: plan as usual
+    composed = plan(tea_bank, "P01", "fry the egg", from_task=True)
+    assert not any(s.get("source") == "task" for s in composed.steps)
+
+
+def test_no_step_of_any_draft_carries_a_place():
+    lex = Lexicon.load()
+    draft = [{"verb_class": "put", "noun": "fridge", "name": "fridge", "place": "fridge area"},
+             {"verb_class": "take", "noun": "hob", "name": "pot hob", "place": "hob"},
+             {"verb_class": "open", "noun": "fridge", "name": "fridge", "place": ""},
+             {"verb_class": "take", "noun": "cup", "name": "cup", "place": "cupboard"}]
+    kept = without_places(draft, lex)
+    assert [(d["verb_class"], d["noun"]) for d in kept] == [("take", "pot"), ("open", "fridge"), ("take", "cup")]
+
+
+def test_how_one_usually_does_a_task_is_answered_with_its_stages(tea_bank):
+    from memora_graph.agent.ask import ask
+
+    result = ask(tea_bank, "P01", "how do I usually make tea?")
+    assert "task 'make tea'" in result.answer and "main:" in result.answer
+    assert "kettle" in result.answer
