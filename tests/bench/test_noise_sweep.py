@@ -11,6 +11,7 @@ import pytest
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import list_conditions
 from memora_graph.bench.noise import break_even, parse_errors, parse_rates, run_noise
+from memora_graph.bench.run import run_bench
 from memora_graph.errors import MemoraError
 from memora_graph.perceive.noise import read_errors
 
@@ -18,7 +19,7 @@ from memora_graph.perceive.noise import read_errors
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, tiny_tasks):
     out = tmp_path_factory.mktemp("noise") / "sweep"
-    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2)
+    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2, jobs=2)
     return out, result
 
 
@@ -42,6 +43,26 @@ def test_the_clean_cell_is_the_bank_a_plain_build_makes_and_noise_changes_it(swe
     assert read_errors(out / "cells" / "clean-0" / "annotations") == []
     noisy = Bank(out / "cells" / "mixed-0.3" / "banks" / "edited").manifest()["participants"]["P37"]["counts"]
     assert noisy != plain
+
+
+def test_shared_cells_give_the_records_of_banks_built_and_read_one_by_one(sweep, tiny_tasks, tmp_path):
+    """The sweep's cells run in two long-lived workers that keep their embedding caches from cell
+    to cell; the noisy cell's records are those of its three banks built each in a fresh process
+    (`isolate`) and read by a `bench run` with fresh worker processes."""
+    from memora_graph.bench.compare import compare_runs
+    from memora_graph.bench.noise import BANKS
+    from memora_graph.pipeline import build_bank
+
+    out, result = sweep
+    assert result.jobs == 2 and len({c["pid"] for c in result.cells}) >= 1
+    cell = out / "cells" / "mixed-0.3"
+    for kind, opts in BANKS.items():
+        build_bank(tmp_path / kind, ["P37"], annotations=cell / "annotations" / "annotations.csv", isolate=True, **opts)
+    run_bench(tmp_path / "edited", tmp_path / "run", participants=["P37"], tasks=tiny_tasks, raw_bank=tmp_path / "raw",
+              episodic_bank=tmp_path / "episodic", workers=2)
+    cmp = compare_runs(cell / "run", tmp_path / "run")
+    assert cmp.rows and cmp.identical, cmp.differences[:5]
+    assert {r["condition"] for r in cmp.rows} == set(list_conditions())
 
 
 def test_the_repair_table_accounts_for_every_injected_error(sweep):
