@@ -114,7 +114,7 @@ def run_noise(out: str | Path, participants: list[str], rates: list[float], erro
     durations = dict(load_video_info(meta).select("video_id", "duration").iter_rows())
     families = verb_families(meta)
     sweep = NoiseSweep(out)
-    cells = list(dict.fromkeys(("clean" if r == 0 else e, r) for e in errors for r in rates))
+    cells = list(dict.fromkeys(("clean" if r == 0 else e, r) for r in coarse_first(rates) for e in errors))
     specs = []
     for error, rate in cells:  # the noisy annotations first (seconds), then the cells' work
         name = cell_name(error, rate)
@@ -143,6 +143,17 @@ def run_noise(out: str | Path, participants: list[str], rates: list[float], erro
                "load_at_end": [round(x, 2) for x in os.getloadavg()], "cells": sweep.cells}
     timing.write_text(json.dumps([*old, session], indent=1) + "\n")
     return sweep
+
+
+def coarse_first(rates: list[float]) -> list[float]:
+    """The order cells run in: rate 0, the middle rate, the highest, the lowest, then the rest
+    (each for every error type in turn), so a sweep stopped early has a coarse curve in every panel."""
+    rest = [r for r in sorted(set(rates)) if r > 0]
+    head = [0.0] if 0 in rates else []
+    if not rest:
+        return head
+    first = list(dict.fromkeys([rest[(len(rest) - 1) // 2], rest[-1], rest[0]]))
+    return head + first + [r for r in rest if r not in first]
 
 
 def auto_cell_jobs(n_cells: int) -> int:
@@ -183,10 +194,14 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
               workers=workers)
     repair = repair_table(cell, participants)
     (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
+    done = {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
+            "cpu_seconds": round(_cpu_seconds() - c0, 1), "pid": os.getpid(),
+            "load_at_end": [round(x, 2) for x in os.getloadavg()]}
+    with open(cell / "timing.jsonl", "a") as fh:  # one line per session that worked on the cell
+        fh.write(json.dumps(done) + "\n")
     if on_step:
-        on_step(f"{name}: done")
-    return {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
-            "cpu_seconds": round(_cpu_seconds() - c0, 1), "pid": os.getpid()}
+        on_step(f"{name}: done in {done['seconds']:.0f} s, {done['cpu_seconds']:.0f} CPU-s")
+    return done
 
 
 def _say(text: str) -> None:
