@@ -13,11 +13,17 @@ evaluation with `bench/run.py` (`run_bench`, resumable item by item), and reads 
     OUT/figures/*.png              accuracy and RGP against rate, one panel per error type
     OUT/report.md, OUT/report.json break-even rates, processed vs raw, the repair table
 
-Rate 0 is one shared clean cell (`clean-0`) for every error type. All banks are built in this
-process one participant at a time, so the process-wide embedding cache encodes each distinct
-text once for the whole sweep: the segment and identity texts a noisy cell shares with the clean
-one (most of them at low rates) are not encoded again. A cell whose banks and run are complete
-is skipped; an interrupted one resumes (its build and its run both resume).
+Rate 0 is one shared clean cell (`clean-0`) for every error type. The noisy annotations of every
+cell are written first (seconds); then the cells run side by side in `jobs` long-lived worker
+processes (default one per core), each building a cell's three banks and reading them in-process
+with one reader, so the embedding model, the reader and the tool stores load once per worker, not
+once per bank and run process. Cells run coarse to fine (`coarse_first`): a sweep stopped early
+has a coarse curve in every panel. Each build and each run starts from an empty embedding cache
+(`clear_embedding_caches`): a vector's last bits depend on the other texts of its batch, and
+vectors kept from another bank or cell changed a few tool results' last digit, so a cell's
+records are those of its banks built by `memora build` and read by `bench run`, one by one. A cell
+whose banks and run are complete is skipped; an interrupted one resumes (its build and its run
+both resume). Each cell appends its wall and CPU-seconds to its `timing.jsonl`.
 """
 
 from __future__ import annotations
@@ -38,8 +44,10 @@ import polars as pl
 
 from memora_graph.bank import Bank
 from memora_graph.bench.aggregate import eam_scores, planning_panel
+from memora_graph.bench.conditions import resolve_conditions
 from memora_graph.bench.items import KINDS
-from memora_graph.bench.run import load_run, run_bench
+from memora_graph.bench.run import load_run, resolve_workers, run_bench, split_conditions
+from memora_graph.embed import clear_embedding_caches
 from memora_graph.errors import MemoraError
 from memora_graph.form.repair import REPAIRS_ENV
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info, noun_phrase
@@ -170,9 +178,8 @@ def _cpu_seconds() -> float:
 def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: list[str], conditions, kinds, limit,
               tasks, repairs: bool, workers: int | None = None, on_step: Callable[[str], None] | None = None) -> dict:
     """Build a cell's three banks (skipping complete ones) from its noisy annotations, run (or
-    resume) its evaluation and write its repair table. Every build and the run happen in this
-    process (unless `workers` > 1), so the process-wide embedding cache keeps the vectors of the
-    texts earlier cells of this process already embedded."""
+    resume) its evaluation and write its repair table, all in this process unless `workers` > 1
+    (the embedding cache emptied before each build and the run: the records of fresh processes)."""
     from memora_graph.pipeline import build_bank
 
     t0, c0 = time.perf_counter(), _cpu_seconds()
@@ -184,14 +191,24 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
             continue
         if on_step:
             on_step(f"{name}: building the {kind} bank")
+        clear_embedding_caches()  # each bank as a fresh `memora build` makes it, vector for vector
         with _repairs_switch(repairs):
             build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
         (bank / ".complete").write_text("")
     if on_step:
         on_step(f"{name}: running the evaluation")
-    run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, participants=participants, tasks=tasks,
-              raw_bank=cell / "banks" / "raw", episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit,
-              workers=workers)
+    run = dict(participants=participants, tasks=tasks, raw_bank=cell / "banks" / "raw",
+               episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit)
+    if workers is not None and workers > 1:
+        run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, workers=workers, **run)
+    else:
+        # `bench run`'s own worker processes take the conditions in groups (`split_conditions`),
+        # each group's embeddings made in a fresh process: here each group runs in turn from an
+        # empty embedding cache, so its vectors and records are those groups' (tests check it)
+        conds = resolve_conditions(conditions)
+        for group in split_conditions(conds, resolve_workers(None, "offline", len(conds))):
+            clear_embedding_caches()
+            run_bench(cell / "banks" / "edited", cell / "run", conditions=[c.name for c in group], workers=1, **run)
     repair = repair_table(cell, participants)
     (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
     done = {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
@@ -210,8 +227,8 @@ def _say(text: str) -> None:
 
 def _run_cells_parallel(specs: list[dict], common: dict, jobs: int, on_step: Callable[[str], None] | None) -> list[dict]:
     """The cells over `jobs` long-lived worker processes (spawned: no forked Kùzu or torch state),
-    each running whole cells in-process with one reader (`workers=1`) and keeping its embedding
-    cache from cell to cell. The clean cell goes first; records do not depend on `jobs`."""
+    each running whole cells in-process with one reader (`workers=1`), its models loaded once. The
+    clean cell goes first; records do not depend on `jobs`."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 

@@ -4,6 +4,7 @@ and the break-even arithmetic; the calibration sweep itself is behind `-m slow`.
 from __future__ import annotations
 
 import json
+import os
 
 import polars as pl
 import pytest
@@ -19,7 +20,7 @@ from memora_graph.perceive.noise import read_errors
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, tiny_tasks):
     out = tmp_path_factory.mktemp("noise") / "sweep"
-    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2, jobs=2)
+    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2, jobs=1)
     return out, result
 
 
@@ -45,16 +46,38 @@ def test_the_clean_cell_is_the_bank_a_plain_build_makes_and_noise_changes_it(swe
     assert noisy != plain
 
 
-def test_shared_cells_give_the_records_of_banks_built_and_read_one_by_one(sweep, tiny_tasks, tmp_path):
-    """The sweep's cells run in two long-lived workers that keep their embedding caches from cell
-    to cell; the noisy cell's records are those of its three banks built each in a fresh process
-    (`isolate`) and read by a `bench run` with fresh worker processes."""
+def _vectors(bank) -> dict:
+    """Every vector of a bank: its segments' and entities' embeddings as stored, and those a run
+    embedded for its corpora (BANK/.cache/embeddings-*.npz), by key."""
+    import numpy as np
+
+    out = {}
+    with Bank(bank).open("P37") as store:
+        for table in ("segment", "entity"):
+            out.update({(table, r["id"]): np.asarray(r["emb"]) for r in store.rows(f"_tool_vectors_{table}", participant="P37")})
+    for f in sorted((bank / ".cache").glob("embeddings-*.npz")):
+        with np.load(f) as data:
+            out.update({(f.name, str(k)): data["vectors"][i] for i, k in enumerate(data["keys"])})
+    return out
+
+
+def _same_vectors(a, b) -> bool:
+    import numpy as np
+
+    va, vb = _vectors(a), _vectors(b)
+    return bool(va) and va.keys() == vb.keys() and all(np.array_equal(va[k], vb[k]) for k in va)
+
+
+def test_a_cell_gives_the_records_and_vectors_of_banks_built_and_read_one_by_one(sweep, tiny_tasks, tmp_path):
+    """The noisy cell is built and read in the process that made the clean cell just before; its
+    records and its vectors (bit for bit) are those of its three banks each built in a
+    fresh process (`isolate`) and read by a `bench run` with fresh worker processes."""
     from memora_graph.bench.compare import compare_runs
     from memora_graph.bench.noise import BANKS
     from memora_graph.pipeline import build_bank
 
     out, result = sweep
-    assert result.jobs == 2 and len({c["pid"] for c in result.cells}) >= 1
+    assert result.jobs == 1
     cell = out / "cells" / "mixed-0.3"
     for kind, opts in BANKS.items():
         build_bank(tmp_path / kind, ["P37"], annotations=cell / "annotations" / "annotations.csv", isolate=True, **opts)
@@ -63,6 +86,26 @@ def test_shared_cells_give_the_records_of_banks_built_and_read_one_by_one(sweep,
     cmp = compare_runs(cell / "run", tmp_path / "run")
     assert cmp.rows and cmp.identical, cmp.differences[:5]
     assert {r["condition"] for r in cmp.rows} == set(list_conditions())
+    for kind in BANKS:
+        assert _same_vectors(cell / "banks" / kind, tmp_path / kind), kind
+
+
+def test_cells_side_by_side_give_the_same_records(sweep, tiny_tasks, tmp_path):
+    """Two worker processes (`jobs=2`), each building and reading a cell in-process: the same
+    records and vectors, cell for cell."""
+    from memora_graph.bench.compare import compare_runs
+
+    out, _ = sweep
+    result = run_noise(tmp_path / "par", ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2, jobs=2)
+    assert result.jobs == 2 and [c["cell"] for c in result.cells] == ["clean-0", "mixed-0.3"]
+    assert len({c["pid"] for c in result.cells} | {os.getpid()}) >= 2  # not run in the test's process
+    for name in ("clean-0", "mixed-0.3"):
+        cmp = compare_runs(out / "cells" / name / "run", tmp_path / "par" / "cells" / name / "run")
+        assert cmp.identical, (name, cmp.differences[:5])
+        for kind in ("edited", "raw", "episodic"):
+            assert _same_vectors(out / "cells" / name / "banks" / kind, tmp_path / "par" / "cells" / name / "banks" / kind)
+        assert all(json.loads(line)["cpu_seconds"] > 0 for line in
+                   (tmp_path / "par" / "cells" / name / "timing.jsonl").read_text().splitlines())
 
 
 def test_the_repair_table_accounts_for_every_injected_error(sweep):
