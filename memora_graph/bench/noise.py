@@ -325,8 +325,8 @@ def _cell_rows(out: Path) -> list[dict]:
         for rate in meta["rates"]:
             name = cell_name(error, rate)
             run = out / "cells" / name / "run"
-            if not (run / "records").is_dir():
-                continue
+            if not (out / "cells" / name / "repair.json").exists():
+                continue  # not finished yet (a cell writes its repair table after its run): partial records would mislead
             data = load_run(run)
             for cond in sorted(set(data["eam_qa"]) | set(data["planning"])):
                 eam = eam_scores(data["eam_qa"].get(cond, [])) if data["eam_qa"].get(cond) else None

@@ -127,6 +127,20 @@ def test_a_second_sweep_resumes_without_running_anything_again(sweep, tiny_tasks
         run_noise(out, ["P37"], [0.3], ["mixed"], tasks=tiny_tasks, seed=3)
 
 
+def test_the_report_leaves_out_a_cell_whose_run_has_not_finished(sweep, tmp_path):
+    """A cell writes its repair table after its run: without it, its partial records stay out."""
+    import shutil
+
+    from memora_graph.bench.noise import write_noise_report
+
+    out, _ = sweep
+    copy = tmp_path / "sweep"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("banks"))
+    (copy / "cells" / "mixed-0.3" / "repair.json").unlink()
+    write_noise_report(copy)
+    assert set(pl.read_parquet(copy / "curves.parquet")["rate"].to_list()) == {0.0}
+
+
 def test_break_even_interpolates_where_memora_meets_the_best_baselines_clean_accuracy():
     rows = [{"error": "swap", "rate": 0.0, "condition": "memora_full", "accuracy": 60.0},
             {"error": "swap", "rate": 0.0, "condition": "flat_1d_raw", "accuracy": 50.0},
