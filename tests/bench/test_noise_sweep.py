@@ -162,7 +162,7 @@ def test_rates_and_errors_are_checked_by_name():
 
 @pytest.mark.slow
 def test_the_calibration_sweep_names_a_break_even_rate_per_error_type(tmp_path):
-    """The issue's sweep: P01-P04, five rates, four error types, 17 cells (about 4,800 CPU-s: ~40 min on 2
+    """The issue's sweep: P01-P04, five rates, four error types, 17 cells (about 5,400 CPU-s: ~45 min on 2
     idle cores, hours on a busy shared machine; docs/robustness.md)."""
     out = tmp_path / "noise"
     run_noise(out, ["P01", "P02", "P03", "P04"], [0, 0.1, 0.2, 0.3, 0.5], ["mixed", "drop", "swap", "alias"])
