@@ -437,10 +437,11 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
 @click.option("--delta", default=5.0, show_default=True, type=click.FloatRange(min=0),
               help="Largest time shift of the 'time' error, in seconds.")
 @click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
-@click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`); with --jobs 1 only.")
+@click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`; with --jobs 1 only) [default: the cell's "
+                   "process runs bench run's condition groups in turn].")
 @click.option("--jobs", type=int, default=None,
-              help="Cells side by side, each worker process building and reading whole cells with its own embedding "
-                   "cache [default: one per core]. Records do not depend on it.")
+              help="Cells side by side in long-lived worker processes, each building and reading whole cells "
+                   "in-process [default: one per core]. Records do not depend on it.")
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="EPIC-style annotation CSV to perturb (default: the bundled annotations).")
 @click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
