@@ -335,6 +335,14 @@ def uses_torch(embedder, kind: str) -> bool:
 _DEFAULT: dict[tuple[str, str], CachedEmbedder] = {}
 
 
+def clear_embedding_caches() -> None:
+    """Forget the vectors of every process-wide embedder (their models stay loaded). A vector is
+    computed in a batch, and its last bits depend on the batch's other texts: work that must give
+    what a fresh process gives (a noise sweep's next bank, bench/noise.py) starts from here."""
+    for embedder in _DEFAULT.values():
+        embedder.clear()
+
+
 def get_embedder(model: str | None = None, query_encoder: str | None = None) -> CachedEmbedder:
     """The process-wide cached embedder for a model (MEMORA_EMBED_MODEL or the MiniLM default),
     with its queries embedded by `query_encoder` (MEMORA_QUERY_ENCODER or the default)."""

@@ -13,18 +13,26 @@ evaluation with `bench/run.py` (`run_bench`, resumable item by item), and reads 
     OUT/figures/*.png              accuracy and RGP against rate, one panel per error type
     OUT/report.md, OUT/report.json break-even rates, processed vs raw, the repair table
 
-Rate 0 is one shared clean cell (`clean-0`) for every error type. All banks are built in this
-process one participant at a time, so the process-wide embedding cache encodes each distinct
-text once for the whole sweep: the segment and identity texts a noisy cell shares with the clean
-one (most of them at low rates) are not encoded again. A cell whose banks and run are complete
-is skipped; an interrupted one resumes (its build and its run both resume).
+Rate 0 is one shared clean cell (`clean-0`) for every error type. The noisy annotations of every
+cell are written first (seconds); then the cells run side by side in `jobs` long-lived worker
+processes (default one per core), each building a cell's three banks and reading them in-process
+with one reader, so the embedding model, the reader and the tool stores load once per worker, not
+once per bank and run process. Cells run coarse to fine (`coarse_first`): a sweep stopped early
+has a coarse curve in every panel. Each build and each run starts from an empty embedding cache
+(`clear_embedding_caches`): a vector's last bits depend on the other texts of its batch, and
+vectors kept from another bank or cell changed a few tool results' last digit, so a cell's
+records are those of its banks built by `memora build` and read by `bench run`, one by one. A cell
+whose banks and run are complete is skipped; an interrupted one resumes (its build and its run
+both resume). Each cell appends its wall and CPU-seconds to its `timing.jsonl`.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import resource
 import shutil
+import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -36,8 +44,10 @@ import polars as pl
 
 from memora_graph.bank import Bank
 from memora_graph.bench.aggregate import eam_scores, planning_panel
+from memora_graph.bench.conditions import resolve_conditions
 from memora_graph.bench.items import KINDS
-from memora_graph.bench.run import load_run, run_bench
+from memora_graph.bench.run import load_run, resolve_workers, run_bench, split_conditions
+from memora_graph.embed import clear_embedding_caches
 from memora_graph.errors import MemoraError
 from memora_graph.form.repair import REPAIRS_ENV
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info, noun_phrase
@@ -54,8 +64,10 @@ BANKS = {"edited": dict(mode="edited"), "raw": dict(mode="raw"), "episodic": dic
 @dataclass
 class NoiseSweep:
     out: Path
-    cells: list[dict] = field(default_factory=list)  # one per (error, rate): seconds, counts
+    cells: list[dict] = field(default_factory=list)  # one per (error, rate): seconds, CPU-seconds
     seconds: float = 0.0
+    cpu_seconds: float = 0.0  # this process and its workers
+    jobs: int = 1
 
 
 def cell_name(error: str, rate: float) -> str:
@@ -82,10 +94,10 @@ def parse_errors(text: str) -> list[str]:
 
 def run_noise(out: str | Path, participants: list[str], rates: list[float], errors: list[str], *,
               conditions: str | list[str] = "all", seed: int = 0, delta: float = 5.0, kinds: tuple[str, ...] = KINDS,
-              limit: int | None = None, workers: int | None = None, annotations: str | Path | None = None,
+              limit: int | None = None, workers: int | None = None, jobs: int | None = None, annotations: str | Path | None = None,
               repairs: bool = False, tasks: str | Path | None = None, on_step: Callable[[str], None] | None = None) -> NoiseSweep:
     """Run (or resume) the sweep into `out` and write its report (see the module doc)."""
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), _cpu_seconds()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     options = {"participants": sorted(participants), "seed": seed, "delta": delta, "kinds": list(kinds), "limit": limit,
@@ -110,43 +122,124 @@ def run_noise(out: str | Path, participants: list[str], rates: list[float], erro
     durations = dict(load_video_info(meta).select("video_id", "duration").iter_rows())
     families = verb_families(meta)
     sweep = NoiseSweep(out)
-    cells = list(dict.fromkeys(("clean" if r == 0 else e, r) for e in errors for r in rates))
-    for error, rate in cells:
+    cells = list(dict.fromkeys(("clean" if r == 0 else e, r) for r in coarse_first(rates) for e in errors))
+    specs = []
+    for error, rate in cells:  # the noisy annotations first (seconds), then the cells' work
         name = cell_name(error, rate)
-        cell = out / "cells" / name
-        t0 = time.perf_counter()
         spec = NoiseSpec.of(MIXED if error == "clean" else error, rate, delta=delta, seed=seed)
-        folder = cell / "annotations"
+        folder = out / "cells" / name / "annotations"
         if not (folder / "noise.json").exists():
             if on_step:
                 on_step(f"{name}: injecting errors")
             write_noisy(folder, inject_noise(df, classes, spec, durations, families), meta, spec,
                         source=str(annotations or "bundled annotations"))
-        for kind, opts in BANKS.items():
-            bank = cell / "banks" / kind
-            if (bank / ".complete").exists():
-                continue
-            if on_step:
-                on_step(f"{name}: building the {kind} bank")
-            from memora_graph.pipeline import build_bank
-
-            with _repairs_switch(repairs):
-                build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
-            (bank / ".complete").write_text("")
-        if on_step:
-            on_step(f"{name}: running the evaluation")
-        run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, participants=participants, tasks=tasks,
-                  raw_bank=cell / "banks" / "raw", episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit,
-                  workers=workers)
-        repair = repair_table(cell, participants)
-        (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
-        sweep.cells.append({"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1)})
+        specs.append(dict(cell=str(out / "cells" / name), name=name, error=error, rate=rate))
+    common = dict(participants=participants, conditions=conditions, kinds=kinds, limit=limit, tasks=tasks, repairs=repairs)
+    jobs = max(1, min(jobs if jobs is not None else auto_cell_jobs(len(specs)), len(specs)))
+    if jobs == 1:
+        for s in specs:
+            sweep.cells.append(_run_cell(**s, **common, workers=workers, on_step=on_step))
+    else:
+        sweep.cells = _run_cells_parallel(specs, common, jobs, on_step)
+    sweep.jobs = jobs
     sweep.seconds = time.perf_counter() - t_start
+    sweep.cpu_seconds = _cpu_seconds() - c_start
     write_noise_report(out)
     timing = out / "timing.json"
     old = json.loads(timing.read_text()) if timing.exists() else []
-    timing.write_text(json.dumps([*old, {"seconds": round(sweep.seconds, 1), "cells": sweep.cells}], indent=1) + "\n")
+    session = {"seconds": round(sweep.seconds, 1), "cpu_seconds": round(sweep.cpu_seconds, 1), "jobs": sweep.jobs,
+               "load_at_end": [round(x, 2) for x in os.getloadavg()], "cells": sweep.cells}
+    timing.write_text(json.dumps([*old, session], indent=1) + "\n")
     return sweep
+
+
+def coarse_first(rates: list[float]) -> list[float]:
+    """The order cells run in: rate 0, the middle rate, the highest, the lowest, then the rest
+    (each for every error type in turn), so a sweep stopped early has a coarse curve in every panel."""
+    rest = [r for r in sorted(set(rates)) if r > 0]
+    head = [0.0] if 0 in rates else []
+    if not rest:
+        return head
+    first = list(dict.fromkeys([rest[(len(rest) - 1) // 2], rest[-1], rest[0]]))
+    return head + first + [r for r in rest if r not in first]
+
+
+def auto_cell_jobs(n_cells: int) -> int:
+    """Cells side by side: one process per core (each builds and reads its cells in-process)."""
+    return max(1, min(n_cells, os.cpu_count() or 1))
+
+
+def _cpu_seconds() -> float:
+    """CPU-seconds of this process and of its finished children (user + system)."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: list[str], conditions, kinds, limit,
+              tasks, repairs: bool, workers: int | None = None, on_step: Callable[[str], None] | None = None) -> dict:
+    """Build a cell's three banks (skipping complete ones) from its noisy annotations, run (or
+    resume) its evaluation and write its repair table, all in this process unless `workers` > 1
+    (the embedding cache emptied before each build and the run: the records of fresh processes)."""
+    from memora_graph.pipeline import build_bank
+
+    t0, c0 = time.perf_counter(), _cpu_seconds()
+    cell = Path(cell)
+    folder = cell / "annotations"
+    for kind, opts in BANKS.items():
+        bank = cell / "banks" / kind
+        if (bank / ".complete").exists():
+            continue
+        if on_step:
+            on_step(f"{name}: building the {kind} bank")
+        clear_embedding_caches()  # each bank as a fresh `memora build` makes it, vector for vector
+        with _repairs_switch(repairs):
+            build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
+        (bank / ".complete").write_text("")
+    if on_step:
+        on_step(f"{name}: running the evaluation")
+    run = dict(participants=participants, tasks=tasks, raw_bank=cell / "banks" / "raw",
+               episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit)
+    if workers is not None and workers > 1:
+        run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, workers=workers, **run)
+    else:
+        # `bench run`'s own worker processes take the conditions in groups (`split_conditions`),
+        # each group's embeddings made in a fresh process: here each group runs in turn from an
+        # empty embedding cache, so its vectors and records are those groups' (tests check it)
+        conds = resolve_conditions(conditions)
+        for group in split_conditions(conds, resolve_workers(None, "offline", len(conds))):
+            clear_embedding_caches()
+            run_bench(cell / "banks" / "edited", cell / "run", conditions=[c.name for c in group], workers=1, **run)
+    repair = repair_table(cell, participants)
+    (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
+    done = {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
+            "cpu_seconds": round(_cpu_seconds() - c0, 1), "pid": os.getpid(),
+            "load_at_end": [round(x, 2) for x in os.getloadavg()]}
+    with open(cell / "timing.jsonl", "a") as fh:  # one line per session that worked on the cell
+        fh.write(json.dumps(done) + "\n")
+    if on_step:
+        on_step(f"{name}: done in {done['seconds']:.0f} s, {done['cpu_seconds']:.0f} CPU-s")
+    return done
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _run_cells_parallel(specs: list[dict], common: dict, jobs: int, on_step: Callable[[str], None] | None) -> list[dict]:
+    """The cells over `jobs` long-lived worker processes (spawned: no forked Kùzu or torch state),
+    each running whole cells in-process with one reader (`workers=1`), its models loaded once. The
+    clean cell goes first; records do not depend on `jobs`."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    done: list[dict] = []
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(_run_cell, **s, **common, workers=1, on_step=_say if on_step else None): s["name"]
+                   for s in specs}
+        for f in as_completed(futures):
+            done.append(f.result())  # a failed cell raises here; finished cells are kept for a resume
+    order = [s["name"] for s in specs]
+    return sorted(done, key=lambda c: order.index(c["cell"]))
 
 
 @contextmanager
@@ -232,8 +325,8 @@ def _cell_rows(out: Path) -> list[dict]:
         for rate in meta["rates"]:
             name = cell_name(error, rate)
             run = out / "cells" / name / "run"
-            if not (run / "records").is_dir():
-                continue
+            if not (out / "cells" / name / "repair.json").exists():
+                continue  # not finished yet (a cell writes its repair table after its run): partial records would mislead
             data = load_run(run)
             for cond in sorted(set(data["eam_qa"]) | set(data["planning"])):
                 eam = eam_scores(data["eam_qa"].get(cond, [])) if data["eam_qa"].get(cond) else None

@@ -437,7 +437,11 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
 @click.option("--delta", default=5.0, show_default=True, type=click.FloatRange(min=0),
               help="Largest time shift of the 'time' error, in seconds.")
 @click.option("--limit", type=int, default=None, help="At most N items per participant and task kind (smoke runs).")
-@click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`).")
+@click.option("--workers", type=int, default=None, help="Processes per cell's run (as `bench run --workers`; with --jobs 1 only) [default: the cell's "
+                   "process runs bench run's condition groups in turn].")
+@click.option("--jobs", type=int, default=None,
+              help="Cells side by side in long-lived worker processes, each building and reading whole cells "
+                   "in-process [default: one per core]. Records do not depend on it.")
 @click.option("--annotations", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="EPIC-style annotation CSV to perturb (default: the bundled annotations).")
 @click.option("--tasks", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
@@ -446,7 +450,7 @@ def synth_cmd(participant, hours, out, seed, rename_share, reorder_share, annota
               help="Build with the editor's repair rules (form/repair.py: alias, implied state; MEMORA_REPAIRS=on): "
                    "the curve after them.")
 @quiet_option
-def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, annotations, tasks,
+def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, limit, workers, jobs, annotations, tasks,
               repairs, quiet):
     """Noise curves: every condition under perception errors injected at known rates.
 
@@ -469,11 +473,12 @@ def noise_cmd(out, participants, rates, errors, conditions, kinds, seed, delta, 
             raise click.BadParameter("name the participants", param_hint="'--participants'")
         sweep = run_noise(out, participants, parse_rates(rates), parse_errors(errors), conditions=conditions,
                           seed=seed, delta=delta, kinds=tuple(k.strip() for k in kinds.split(",") if k.strip()),
-                          limit=limit, workers=workers, annotations=annotations, repairs=repairs,
+                          limit=limit, workers=workers, jobs=jobs, annotations=annotations, repairs=repairs,
                           tasks=tasks, on_step=None if quiet else (lambda s: click.echo(s, err=True)))
     except MemoraError as exc:
         raise click.ClickException(str(exc)) from exc
-    click.echo(f"{len(sweep.cells)} cells in {sweep.seconds:.1f} s; report in {out}/report.md")
+    click.echo(f"{len(sweep.cells)} cells in {sweep.seconds:.1f} s wall, {sweep.cpu_seconds:.0f} CPU-s, {sweep.jobs} "
+               f"job(s); report in {out}/report.md")
 
 
 @bench_group.command("perceiver-errors")

@@ -4,6 +4,7 @@ and the break-even arithmetic; the calibration sweep itself is behind `-m slow`.
 from __future__ import annotations
 
 import json
+import os
 
 import polars as pl
 import pytest
@@ -11,6 +12,7 @@ import pytest
 from memora_graph.bank import Bank
 from memora_graph.bench.conditions import list_conditions
 from memora_graph.bench.noise import break_even, parse_errors, parse_rates, run_noise
+from memora_graph.bench.run import run_bench
 from memora_graph.errors import MemoraError
 from memora_graph.perceive.noise import read_errors
 
@@ -18,7 +20,7 @@ from memora_graph.perceive.noise import read_errors
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, tiny_tasks):
     out = tmp_path_factory.mktemp("noise") / "sweep"
-    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2)
+    result = run_noise(out, ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2, jobs=1)
     return out, result
 
 
@@ -44,6 +46,68 @@ def test_the_clean_cell_is_the_bank_a_plain_build_makes_and_noise_changes_it(swe
     assert noisy != plain
 
 
+def _vectors(bank) -> dict:
+    """Every vector of a bank: its segments' and entities' embeddings as stored, and those a run
+    embedded for its corpora (BANK/.cache/embeddings-*.npz), by key."""
+    import numpy as np
+
+    out = {}
+    with Bank(bank).open("P37") as store:
+        for table in ("segment", "entity"):
+            out.update({(table, r["id"]): np.asarray(r["emb"]) for r in store.rows(f"_tool_vectors_{table}", participant="P37")})
+    for f in sorted((bank / ".cache").glob("embeddings-*.npz")):
+        with np.load(f) as data:
+            out.update({(f.name, str(k)): data["vectors"][i] for i, k in enumerate(data["keys"])})
+    return out
+
+
+def _same_vectors(a, b) -> bool:
+    import numpy as np
+
+    va, vb = _vectors(a), _vectors(b)
+    return bool(va) and va.keys() == vb.keys() and all(np.array_equal(va[k], vb[k]) for k in va)
+
+
+def test_a_cell_gives_the_records_and_vectors_of_banks_built_and_read_one_by_one(sweep, tiny_tasks, tmp_path):
+    """The noisy cell is built and read in the process that made the clean cell just before; its
+    records and its vectors (bit for bit) are those of its three banks each built in a
+    fresh process (`isolate`) and read by a `bench run` with fresh worker processes."""
+    from memora_graph.bench.compare import compare_runs
+    from memora_graph.bench.noise import BANKS
+    from memora_graph.pipeline import build_bank
+
+    out, result = sweep
+    assert result.jobs == 1
+    cell = out / "cells" / "mixed-0.3"
+    for kind, opts in BANKS.items():
+        build_bank(tmp_path / kind, ["P37"], annotations=cell / "annotations" / "annotations.csv", isolate=True, **opts)
+    run_bench(tmp_path / "edited", tmp_path / "run", participants=["P37"], tasks=tiny_tasks, raw_bank=tmp_path / "raw",
+              episodic_bank=tmp_path / "episodic", workers=2)
+    cmp = compare_runs(cell / "run", tmp_path / "run")
+    assert cmp.rows and cmp.identical, cmp.differences[:5]
+    assert {r["condition"] for r in cmp.rows} == set(list_conditions())
+    for kind in BANKS:
+        assert _same_vectors(cell / "banks" / kind, tmp_path / kind), kind
+
+
+def test_cells_side_by_side_give_the_same_records(sweep, tiny_tasks, tmp_path):
+    """Two worker processes (`jobs=2`), each building and reading a cell in-process: the same
+    records and vectors, cell for cell."""
+    from memora_graph.bench.compare import compare_runs
+
+    out, _ = sweep
+    result = run_noise(tmp_path / "par", ["P37"], [0.0, 0.3], ["mixed"], tasks=tiny_tasks, seed=2, jobs=2)
+    assert result.jobs == 2 and [c["cell"] for c in result.cells] == ["clean-0", "mixed-0.3"]
+    assert len({c["pid"] for c in result.cells} | {os.getpid()}) >= 2  # not run in the test's process
+    for name in ("clean-0", "mixed-0.3"):
+        cmp = compare_runs(out / "cells" / name / "run", tmp_path / "par" / "cells" / name / "run")
+        assert cmp.identical, (name, cmp.differences[:5])
+        for kind in ("edited", "raw", "episodic"):
+            assert _same_vectors(out / "cells" / name / "banks" / kind, tmp_path / "par" / "cells" / name / "banks" / kind)
+        assert all(json.loads(line)["cpu_seconds"] > 0 for line in
+                   (tmp_path / "par" / "cells" / name / "timing.jsonl").read_text().splitlines())
+
+
 def test_the_repair_table_accounts_for_every_injected_error(sweep):
     out, _ = sweep
     errors = read_errors(out / "cells" / "mixed-0.3" / "annotations")
@@ -61,6 +125,20 @@ def test_a_second_sweep_resumes_without_running_anything_again(sweep, tiny_tasks
     assert sessions[-1]["done"] == 0 and sessions[-1]["skipped"] > 0
     with pytest.raises(MemoraError, match="other options"):
         run_noise(out, ["P37"], [0.3], ["mixed"], tasks=tiny_tasks, seed=3)
+
+
+def test_the_report_leaves_out_a_cell_whose_run_has_not_finished(sweep, tmp_path):
+    """A cell writes its repair table after its run: without it, its partial records stay out."""
+    import shutil
+
+    from memora_graph.bench.noise import write_noise_report
+
+    out, _ = sweep
+    copy = tmp_path / "sweep"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("banks"))
+    (copy / "cells" / "mixed-0.3" / "repair.json").unlink()
+    write_noise_report(copy)
+    assert set(pl.read_parquet(copy / "curves.parquet")["rate"].to_list()) == {0.0}
 
 
 def test_break_even_interpolates_where_memora_meets_the_best_baselines_clean_accuracy():
@@ -84,7 +162,8 @@ def test_rates_and_errors_are_checked_by_name():
 
 @pytest.mark.slow
 def test_the_calibration_sweep_names_a_break_even_rate_per_error_type(tmp_path):
-    """The issue's sweep: P01-P04, five rates, four error types (about an hour on 2 busy cores)."""
+    """The issue's sweep: P01-P04, five rates, four error types, 17 cells (about 5,400 CPU-s: ~45 min on 2
+    idle cores, hours on a busy shared machine; docs/robustness.md)."""
     out = tmp_path / "noise"
     run_noise(out, ["P01", "P02", "P03", "P04"], [0, 0.1, 0.2, 0.3, 0.5], ["mixed", "drop", "swap", "alias"])
     report = json.loads((out / "report.json").read_text())
