@@ -26,6 +26,7 @@ import logging
 import os
 import shutil
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 from memora_graph.errors import BankError
@@ -40,8 +41,10 @@ def journal_path(bank: Path, participant: str) -> Path:
 
 
 class Journal:
-    """A participant's intake journal (see the module): `append` before an answer, `clear` after a
-    checkpoint, `entries` to re-apply."""
+    """A participant's intake journal (see the module). A remember calls `begin` before its
+    transaction (the line is written and fsync'd in a thread while Kùzu commits), `done` after
+    it commits (waits for the fsync: only then may it answer) or `cancel` if it failed; `clear`
+    after a checkpoint; `entries` reads it back."""
 
     def __init__(self, bank: Path, participant: str):
         self.path = journal_path(bank, participant)
@@ -51,12 +54,34 @@ class Journal:
         if new:  # the file's name durable too: a journal that vanishes with a crash journals nothing
             _fsync_dir(self.path.parent)
         self.lines = 0  # appended since the last clear (by this writer)
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="memora-intake")
+        self._pending: Future | None = None
+
+    def begin(self, key: str, entry: dict) -> None:
+        """Write one moment's input, and start making it durable (fdatasync, in a thread)."""
+        line = json.dumps({"key": key, **entry}, separators=(",", ":"), default=str) + "\n"
+        os.write(self._fd, line.encode())
+        self.lines += 1
+        self._pending = self._pool.submit(os.fdatasync, self._fd)
+
+    def done(self) -> None:
+        """The moment committed: wait until its line is durable (before the answer)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
+    def cancel(self, key: str) -> None:
+        """The moment's transaction failed (nothing of it was kept): its line no longer counts."""
+        try:
+            self.done()
+        finally:
+            self.append(key, {"cancel": True})
 
     def append(self, key: str, entry: dict) -> None:
         """Append one acknowledged moment's input, durable (fsync'd) when this returns."""
         line = json.dumps({"key": key, **entry}, separators=(",", ":"), default=str) + "\n"
         os.write(self._fd, line.encode())
-        os.fsync(self._fd)
+        os.fdatasync(self._fd)  # (the data and the file's new size: what reading it back needs)
         self.lines += 1
 
     def clear(self) -> None:
@@ -67,19 +92,21 @@ class Journal:
             self.lines = 0
 
     def close(self) -> None:
+        self._pool.shutdown(wait=True)
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1
 
 
 def entries(bank: Path, participant: str) -> list[dict]:
-    """The journal's moments in order, one per key (the first); a torn last line (a kill while it
-    was written: never acknowledged) is left out; a damaged line elsewhere is an error naming it."""
+    """The journal's moments in order, one per key (the first not cancelled: a moment whose
+    transaction failed is followed by a cancel line); a torn last line (a kill while it was
+    written: never acknowledged) is left out; a damaged line elsewhere is an error naming it."""
     path = journal_path(bank, participant)
     if not path.exists():
         return []
     lines = path.read_bytes().split(b"\n")
-    out, seen = [], set()
+    out: dict[str, dict] = {}
     for i, raw in enumerate(lines, 1):
         if not raw.strip():
             continue
@@ -90,10 +117,11 @@ def entries(bank: Path, participant: str) -> list[dict]:
             if i == len(lines):  # the last line, without its newline: its append never returned
                 break
             raise BankError(f"{path}, line {i}: not a journal entry (damaged); nothing was re-applied") from None
-        if key not in seen:
-            seen.add(key)
-            out.append(entry)
-    return out
+        if entry.get("cancel"):
+            out.pop(key, None)
+        elif key not in out:
+            out[key] = entry
+    return list(out.values())
 
 
 def has_journal(bank: Path, participant: str) -> bool:
@@ -128,22 +156,43 @@ def recover_without_log(bank: Path, participant: str, db: Path, why: Exception) 
 def reapply(writer) -> int:
     """Re-apply the journal's moments the writer's database lacks (by key), in order; then
     checkpoint, which empties the journal. Returns how many were written."""
+    from memora_graph.errors import MemoraError
     from memora_graph.form.live import Moment
 
-    done = 0
-    for entry in entries(writer.bank.path, writer.participant):
-        key = entry["key"]
-        if key in writer._keys:
-            continue
-        if "segment" in entry:
-            writer.remember_segment(entry["segment"], key=key)
-        else:
-            m = entry["moment"]
-            writer.remember(Moment(m["video"], m["start"], m["end"], m["text"], key))
-        done += 1
+    todo = [e for e in entries(writer.bank.path, writer.participant) if e["key"] not in writer._keys]
+    if not todo:
+        return 0
+    hook, writer._on_commit = writer._on_commit, None  # (as the writer opens: its readers are not yet there)
+    try:
+        done = _reapply(writer, todo)
+    finally:
+        writer._on_commit = hook
     if done:
         log.warning(f"{writer.store.path}: re-applied {done} acknowledged moment(s) from the intake journal")
         writer.checkpoint()
+    return done
+
+
+def _reapply(writer, todo: list[dict]) -> int:
+    from memora_graph.errors import MemoraError
+    from memora_graph.form.live import Moment
+
+    done = 0
+    for entry in todo:
+        key = entry["key"]
+        if key in writer._keys:
+            continue
+        try:
+            if "segment" in entry:
+                writer.remember_segment(entry["segment"], key=key)
+            else:
+                m = entry["moment"]
+                writer.remember(Moment(m["video"], m["start"], m["end"], m["text"], key))
+        except MemoraError as exc:  # a moment whose writer died in its transaction (never acknowledged), or
+            log.warning(f"{journal_path(writer.bank.path, writer.participant)}: {key!r} could not be re-applied "
+                        f"({exc}); left out")  # one failing again: the rest go on
+            continue
+        done += 1
     return done
 
 

@@ -11,9 +11,12 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import pytest
+
+from memora_graph.errors import StoreError
 from memora_graph.files import RECOVERY
 from memora_graph.form.checkpoint import CheckpointPolicy
-from memora_graph.form.intake import journal_path
+from memora_graph.form.intake import entries, journal_path
 from memora_graph.form.live import LiveWriter
 from memora_graph.integrity.verify import accept, verify_bank
 from support.live import moments
@@ -33,10 +36,10 @@ def _keys(memory: LiveWriter) -> dict[str, str]:
 def test_each_moment_is_journaled_before_remember_answers_and_a_checkpoint_empties_it(tmp_path, monkeypatch):
     bank = tmp_path / "bank"
     synced = []
-    real_fsync = os.fsync
+    real_fsync = os.fdatasync
     with LiveWriter(bank, "P01", checkpoint=CheckpointPolicy(0, 0, 0)) as memory:
         journal_fd = memory.journal._fd
-        monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
+        monkeypatch.setattr(os, "fdatasync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
         done = []
         for m in moments(5):
             done.append(memory.remember(m))
@@ -53,22 +56,32 @@ def test_each_moment_is_journaled_before_remember_answers_and_a_checkpoint_empti
     assert journal_path(bank, "P01").stat().st_size == 0  # a clean close checkpoints: empty
 
 
-def test_the_journal_line_is_written_before_the_answer(tmp_path, monkeypatch):
-    """The answer is not returned if the journal cannot be written (no acknowledgement without it)."""
+def test_no_answer_before_the_journal_line_is_durable(tmp_path, monkeypatch):
+    """A journal that cannot be made durable fails the remember (no acknowledgement without it);
+    a moment whose transaction fails is cancelled in the journal (never re-applied)."""
     bank = tmp_path / "bank"
     with LiveWriter(bank, "P01", checkpoint=CheckpointPolicy(0, 0, 0)) as memory:
-        memory.remember(moments(1)[0])
+        first = memory.remember(moments(1)[0])
 
-        def refuse(key, entry):
-            raise OSError(28, "No space left on device")
+        def refuse(fd):
+            raise OSError(5, "Input/output error")
 
-        monkeypatch.setattr(memory.journal, "append", refuse)
-        try:
-            memory.remember(moments(2)[1])
-        except OSError:
-            pass
-        else:
-            raise AssertionError("remember answered though its journal line could not be written")
+        with monkeypatch.context() as m:
+            m.setattr(os, "fdatasync", refuse)
+            with pytest.raises(OSError):
+                memory.remember(moments(2)[1])
+
+        def fail(*args):
+            raise StoreError("the transaction failed")
+
+        with monkeypatch.context() as m:
+            m.setattr(memory, "_transaction", fail)
+            with pytest.raises(StoreError):
+                memory.remember(moments(3)[2])
+        assert _journal(bank)[-1] == {"key": moments(3)[2].client_key(), "cancel": True}
+        assert [e["key"] for e in entries(bank, "P01")] == [first.key, moments(2)[1].client_key()]
+        after = memory.remember(moments(4)[3])  # the writer goes on: the next turn, the next segment
+        assert after.turn == 2 and not after.duplicate
 
 
 def _killed_copy(tmp_path: Path, checkpointed: int, after: int) -> tuple[Path, dict[str, str]]:
