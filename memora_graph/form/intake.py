@@ -132,7 +132,8 @@ def set_log_aside(db: Path) -> Path:
     """Move a database's write-ahead log (and shadow file) into BANK/.recovery/ (never deleted), so
     the database opens as its last completed checkpoint left it. Returns the folder."""
     db = Path(db)
-    dest = db.parent / RECOVERY / f"{db.name}-unreplayable-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}-{os.getpid()}"
+    # (not named like keep_log's copies, which it prunes to the newest few)
+    dest = db.parent / RECOVERY / f"unreplayable-{db.name}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}-{os.getpid()}"
     dest.mkdir(parents=True, exist_ok=True)
     for side in side_files(db):
         shutil.move(str(side), dest / side.name)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from memora_graph.bank import Bank
 from memora_graph.errors import StoreError
 from memora_graph.files import RECOVERY
 from memora_graph.form.checkpoint import CheckpointPolicy
@@ -127,7 +128,7 @@ def test_a_log_kuzu_cannot_replay_loses_no_acknowledged_moment(tmp_path):
     with LiveWriter(bank, "P01") as memory:  # sets the log aside, opens the checkpoint, re-applies the journal
         stored = _keys(memory)
     assert {k: stored.get(k) for k in acked} == acked, "an acknowledged moment was lost or got another segment"
-    kept = list((bank / RECOVERY).glob("P01.kuzu-unreplayable-*/P01.kuzu.wal"))
+    kept = list((bank / RECOVERY).glob("unreplayable-P01.kuzu-*/P01.kuzu.wal"))
     assert len(kept) == 1 and kept[0].read_bytes() == damaged  # the log as found, never deleted
     assert journal_path(bank, "P01").stat().st_size == 0
     assert verify_bank(bank).ok
@@ -140,6 +141,9 @@ def test_verify_accept_recovers_from_the_journal(tmp_path):
     assert verify_bank(bank).ok
     with LiveWriter(bank, "P01") as memory:
         assert {k: v for k, v in _keys(memory).items() if k in acked} == acked
+    removed = Bank(bank).forget("P01")  # forgetting a person takes their journal and the logs set aside too
+    assert str(journal_path(bank, "P01")) in removed and not journal_path(bank, "P01").exists()
+    assert not list((bank / RECOVERY).glob("*P01.kuzu-*"))
 
 
 def test_a_log_replayed_short_is_completed_from_the_journal(tmp_path):
