@@ -74,8 +74,12 @@ class Journal:
         """The moment's transaction failed (nothing of it was kept): its line no longer counts."""
         try:
             self.done()
-        finally:
+        except OSError:
+            pass  # (its line may not be durable: no matter, it is cancelled)
+        try:
             self.append(key, {"cancel": True})
+        except OSError as exc:  # the failure the caller raises matters more; re-applying tolerates the line
+            log.warning(f"{self.path}: could not cancel {key!r} ({exc}); re-applying it may write it later")
 
     def append(self, key: str, entry: dict) -> None:
         """Append one acknowledged moment's input, durable (fsync'd) when this returns."""

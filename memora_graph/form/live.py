@@ -41,11 +41,11 @@ from memora_graph import schema
 from memora_graph.bank import Bank, pid_alive
 from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
+from memora_graph.form import intake
 from memora_graph.form.build import entity_row, place_row
 from memora_graph.form.checkpoint import CheckpointPolicy, Checkpointer
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
-from memora_graph.form import intake
 from memora_graph.files import side_files
 from memora_graph.perceive.narration import MomentContext, perceive_moment
 from memora_graph.perceive.narrations import NarrationReader, check_moment
