@@ -6,8 +6,9 @@ a checkpoint can leave a log Kùzu 0.11.3 refuses to replay ("Found duplicated p
 checkpoint only. So the guarantee that no acknowledged moment is lost (docs/live-memory.md,
 "Durability") does not rest on the log alone:
 
-- before `remember` answers, the moment's input (its key and the moment or segment as given) is
-  appended to `BANK/.live/intake-<participant>.jsonl`, flushed and fsync'd;
+- before the moment's transaction (so before `remember` answers), its input (its key and the
+  moment or segment as given) is appended to `BANK/.live/intake-<participant>.jsonl` and
+  fdatasync'd; a transaction that fails appends a cancel line for the key;
 - after each completed checkpoint (and a clean close) the journal is emptied: it holds the moments
   since the last checkpoint, as the log does;
 - a writer that finds a log it cannot replay, and a journal, moves the log aside into
@@ -26,7 +27,6 @@ import logging
 import os
 import shutil
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 from memora_graph.errors import BankError
@@ -41,10 +41,11 @@ def journal_path(bank: Path, participant: str) -> Path:
 
 
 class Journal:
-    """A participant's intake journal (see the module). A remember calls `begin` before its
-    transaction (the line is written and fsync'd in a thread while Kùzu commits), `done` after
-    it commits (waits for the fsync: only then may it answer) or `cancel` if it failed; `clear`
-    after a checkpoint; `entries` reads it back."""
+    """A participant's intake journal (see the module). A remember calls `append` before its
+    transaction (the line is durable when it returns) and `cancel` if the transaction failed;
+    `clear` after a checkpoint; `entries` reads it back. (Its fsync in a thread overlapping the
+    commit made remember slower, not faster: p50 ~20 ms against ~13 inline on a 10 h bank; see
+    docs/findings/live-intake-journal.md.)"""
 
     def __init__(self, bank: Path, participant: str):
         self.path = journal_path(bank, participant)
@@ -54,39 +55,32 @@ class Journal:
         if new:  # the file's name durable too: a journal that vanishes with a crash journals nothing
             _fsync_dir(self.path.parent)
         self.lines = 0  # appended since the last clear (by this writer)
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="memora-intake")
-        self._pending: Future | None = None
 
-    def begin(self, key: str, entry: dict) -> None:
-        """Write one moment's input, and start making it durable (fdatasync, in a thread)."""
-        line = json.dumps({"key": key, **entry}, separators=(",", ":"), default=str) + "\n"
-        os.write(self._fd, line.encode())
+    def append(self, key: str, entry: dict) -> None:
+        """Append one moment's input, durable (fdatasync'd: the data and the file's new size) when
+        this returns; if it cannot be made durable, a cancel line follows it (best effort) and the
+        error is raised."""
+        self._write({"key": key, **entry})
+        try:
+            os.fdatasync(self._fd)
+        except OSError:
+            try:
+                self._write({"key": key, "cancel": True})
+            except OSError:
+                pass
+            raise
         self.lines += 1
-        self._pending = self._pool.submit(os.fdatasync, self._fd)
-
-    def done(self) -> None:
-        """The moment committed: wait until its line is durable (before the answer)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.result()
 
     def cancel(self, key: str) -> None:
         """The moment's transaction failed (nothing of it was kept): its line no longer counts."""
         try:
-            self.done()
-        except OSError:
-            pass  # (its line may not be durable: no matter, it is cancelled)
-        try:
-            self.append(key, {"cancel": True})
+            self._write({"key": key, "cancel": True})
+            os.fdatasync(self._fd)
         except OSError as exc:  # the failure the caller raises matters more; re-applying tolerates the line
             log.warning(f"{self.path}: could not cancel {key!r} ({exc}); re-applying it may write it later")
 
-    def append(self, key: str, entry: dict) -> None:
-        """Append one acknowledged moment's input, durable (fsync'd) when this returns."""
-        line = json.dumps({"key": key, **entry}, separators=(",", ":"), default=str) + "\n"
-        os.write(self._fd, line.encode())
-        os.fdatasync(self._fd)  # (the data and the file's new size: what reading it back needs)
-        self.lines += 1
+    def _write(self, entry: dict) -> None:
+        os.write(self._fd, (json.dumps(entry, separators=(",", ":"), default=str) + "\n").encode())
 
     def clear(self) -> None:
         """Empty the journal: what it held is in the database file (a checkpoint completed)."""
@@ -96,7 +90,6 @@ class Journal:
             self.lines = 0
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True)
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1

@@ -445,7 +445,7 @@ class LiveWriter:
             # repaired into an ADD): those are copied, not the registry, which grows with the hours.
             touchable = self.editor.active_of_kinds({o.kind for o in segment.objects})
             snapshot = self._snapshot(touchable)
-            self.journal.begin(key, given or {})  # durable (fsync'd while Kùzu commits) before the answer
+            self.journal.append(key, given or {})  # durable before the transaction (form/intake.py)
             try:
                 # one short text at a time: torch's thread pool only spins against the readers' threads
                 with torch_threads(1, self.embedder, kind="passage"):
@@ -454,13 +454,12 @@ class LiveWriter:
                 self._restore(snapshot)
                 self.journal.cancel(key)
                 raise
+            self.checkpointer.committed()  # wakes the checkpoint thread if a bound is reached
             n_actions = len(segment.activity.action_breakdown)
             v.turns, v.last_segment = turn + 1, segment.segment_id
             v.duration, v.actions = max(v.duration, segment.t_end), v.actions + n_actions
             self.videos[video] = v
             self.since_consolidation += 1
-            self.journal.done()  # its line durable (else no answer: the moment is committed, not acknowledged)
-            self.checkpointer.committed()  # wakes the checkpoint thread if a bound is reached
             answer = Remembered(key=key, participant=p, segment=segment.segment_id, video=video, turn=turn,
                                 ops=result, unknown_words=list(unknown or []), note=note, delta=rows)
             answer.seconds = time.perf_counter() - t0
