@@ -197,7 +197,8 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
                 row["log"] = "cannot be replayed"
                 add("journal", f"{exc}; recoverable from the intake journal: the log is set aside (kept in "
                                f"{bank.path / RECOVERY}), the database opens as its last checkpoint left it and the "
-                               f"journal re-applies the {n} moment(s) acknowledged since, by key (`memora verify "
+                               f"journal re-applies the {n} moment(s) it holds, by key (those the checkpoint has are "
+                               f"duplicates: nothing written) (`memora verify "
                                f"{bank.path} --accept {p}`, or the next writer)")
             else:
                 add("cannot_open", str(exc))
