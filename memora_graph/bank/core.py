@@ -244,6 +244,10 @@ class Bank:
         db = self.db_path(participant)
         found = [p for p in sorted(self.path.glob(f"{db.name}*"))]
         found += [p for p in (self.path / ".staging" / participant,) if p.exists()]
+        # the live writer's intake journal (form/intake.py) and the copies of logs kept before a replay
+        found += [p for p in (self.path / ".live" / f"intake-{participant}.jsonl",) if p.exists()]
+        found += sorted(self.path.glob(f".recovery/{db.name}-*"))
+        found += sorted(self.path.glob(f".recovery/unreplayable-{db.name}-*"))
         # by exact name: `robot` must not take `robot-7`'s files (an id may hold '-' and '_')
         trash = self.path / ".trash"
         found += sorted(p for p in trash.iterdir() if re.fullmatch(rf"{re.escape(participant)}-\d+", p.name)) \

@@ -89,8 +89,9 @@ class Checkpointer:
     use of the store. `committed()` after each commit (outside `store_lock`) wakes the thread
     when a bound is reached; the thread also wakes on its own for the `seconds` bound."""
 
-    def __init__(self, policy: CheckpointPolicy, store: Callable[[], object], writer_lock, store_lock):
-        self.policy = policy
+    def __init__(self, policy: CheckpointPolicy, store: Callable[[], object], writer_lock, store_lock,
+                 after: Callable[[], None] | None = None):
+        self.policy, self._after = policy, after  # after(): once a checkpoint completed (empties the journal)
         self._store, self._writer_lock, self._store_lock = store, writer_lock, store_lock
         self.moments = 0  # committed since the last checkpoint
         self._first_at: float | None = None  # monotonic time of the oldest commit not checkpointed
@@ -161,6 +162,8 @@ class Checkpointer:
                 log.warning(f"{store.path}: checkpoint ({reason}) failed, the write-ahead log keeps every commit "
                             f"({log_bytes / MB:.1f} MB, {moments} moments); tried again in {RETRY_S:g} s: {exc}")
                 return False
+            if self._after is not None:
+                self._after()
         self.moments, self._first_at, self._due_at = 0, None, None
         self.runs.append({"reason": reason, "log_bytes": log_bytes, "moments": moments,
                           "seconds": time.perf_counter() - t0, "ok": True})

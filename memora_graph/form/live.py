@@ -41,6 +41,7 @@ from memora_graph import schema
 from memora_graph.bank import Bank, pid_alive
 from memora_graph.embed import torch_threads
 from memora_graph.errors import BankError, DataError, StoreError
+from memora_graph.form import intake
 from memora_graph.form.build import entity_row, place_row
 from memora_graph.form.checkpoint import CheckpointPolicy, Checkpointer
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
@@ -203,7 +204,11 @@ def recover(bank: Bank, participant: str) -> bool:
         from memora_graph.files import keep_log, replay  # there is an error here), its pool sized from the log
 
         kept = keep_log(db)
-        replayed = replay(db, participant)["replay"]
+        try:
+            replayed = replay(db, participant)["replay"]
+        except BankError as exc:  # a log Kùzu refuses: the intake journal re-applies what it held, if kept
+            if mark.get("op") != OP or not (kept := intake.recover_without_log(bank.path, participant, db, exc)):
+                raise
     bank.mark_writing(participant, mark.get("op") or OP)
     with Store(db, read_only=False) as store:  # (a log left now is replayed here; the close checkpoints it)
         videos = [r["video"] for r in store.rows("_live_videos", participant=participant)]
@@ -297,14 +302,18 @@ class LiveWriter:
             # database's integrity, and the writer opens that (so the stores can be tied to it)
             store, self.store = self.store, None
             store.close()
+        self.journal = intake.Journal(self.bank.path, p)
+        self._stack.callback(self.journal.close)
         self._stack.callback(self._close_store)
-        self.checkpointer = Checkpointer(self.checkpoint_policy, lambda: self.store, self._lock, self._store_lock)
+        self.checkpointer = Checkpointer(self.checkpoint_policy, lambda: self.store, self._lock, self._store_lock,
+                                         after=self.journal.clear)
         self._stack.callback(self.checkpointer.stop)  # (before the store closes, which checkpoints)
         self.opened_sha256: str | None = opened
         self.commits = 0  # moments committed by this writer (a reader opened after one must not use stores)
         self._load()
         self.reader = reader or NarrationReader()
         self.since_consolidation = 0  # segments written since the last (incremental) consolidation
+        intake.reapply(self)  # moments acknowledged that the database lacks (its log was set aside)
 
     def _busy_message(self, why: str = "") -> str:
         mark = (self.bank.manifest().get("writing", {}) if self.bank.exists() else {}).get(self.participant)
@@ -363,6 +372,7 @@ class LiveWriter:
             store, self.store = self.store, None
             videos = sorted(self.videos)
             store.close()  # checkpoints; records the integrity (Bank.open's on_close)
+            self.journal.clear()
             _record_videos(self.bank, self.participant, videos)
 
     def close(self) -> None:
@@ -397,7 +407,9 @@ class LiveWriter:
                                     narration_id=moment.client_key())
         note = (f"no word of this moment is one memory knows ({', '.join(reading.unknown)}): it is remembered as its "
                 "text, with no new object or place" if reading.text_only and reading.unknown else "")
-        return self._commit(moment.client_key(), moment.video, action=action, unknown=reading.unknown, note=note)
+        return self._commit(moment.client_key(), moment.video, action=action, unknown=reading.unknown, note=note,
+                            given={"moment": {"video": moment.video, "start": moment.start, "end": moment.end,
+                                               "text": moment.text}})
 
     def remember_segment(self, segment: LayeredSegment | dict, key: str | None = None) -> Remembered:
         """Commit a segment record perceived elsewhere (the project's LayeredSegment schema, e.g.
@@ -405,10 +417,11 @@ class LiveWriter:
         seg = segment if isinstance(segment, LayeredSegment) else LayeredSegment.model_validate(segment)
         if seg.participant_id != self.participant:
             raise DataError(f"remember: the record is {seg.participant_id}'s, this writer writes {self.participant}'s")
-        return self._commit(key or f"{seg.video_id}@{seg.t_start:.3f}", seg.video_id, segment=seg)
+        return self._commit(key or f"{seg.video_id}@{seg.t_start:.3f}", seg.video_id, segment=seg,
+                            given={"segment": seg.model_dump(mode="json")})
 
     def _commit(self, key: str, video: str, action: dict | None = None, segment: LayeredSegment | None = None,
-                unknown: list[str] | None = None, note: str = "") -> Remembered:
+                unknown: list[str] | None = None, note: str = "", given: dict | None = None) -> Remembered:
         t0 = time.perf_counter()
         with self._lock:
             if self.store is None:
@@ -432,12 +445,14 @@ class LiveWriter:
             # repaired into an ADD): those are copied, not the registry, which grows with the hours.
             touchable = self.editor.active_of_kinds({o.kind for o in segment.objects})
             snapshot = self._snapshot(touchable)
+            self.journal.append(key, given or {})  # durable before the transaction (form/intake.py)
             try:
                 # one short text at a time: torch's thread pool only spins against the readers' threads
                 with torch_threads(1, self.embedder, kind="passage"):
                     result, rows = self._write(key, segment, v, turn, touchable)
             except BaseException:
                 self._restore(snapshot)
+                self.journal.cancel(key)
                 raise
             self.checkpointer.committed()  # wakes the checkpoint thread if a bound is reached
             n_actions = len(segment.activity.action_breakdown)

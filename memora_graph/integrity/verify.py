@@ -19,6 +19,8 @@ import polars as pl
 from memora_graph.bank import BUILD_LOCK, MANIFEST, VERIFIED, Bank, pid_alive
 from memora_graph.bank.derived import sha256_file
 from memora_graph.errors import BankError
+from memora_graph.form.intake import FOLDER, has_journal, set_log_aside
+from memora_graph.form.intake import entries as journal_entries
 from memora_graph.form.staging import Staging
 from memora_graph.files import RECOVERY, file_kind, file_sha256, keep_log, probe, replay, side_files
 from memora_graph.ids import PATTERN, is_participant_id
@@ -40,6 +42,8 @@ KINDS = {
     "no_hash": "no integrity record (a bank from before them)",
     "hash_differs": "size or sha256 not as recorded, no write in progress",
     "cannot_open": "Kùzu cannot open it (with its log), in a child process",
+    "journal": "a live writer's log Kùzu cannot replay; its intake journal re-applies the moments acknowledged since "
+               "the last checkpoint (recoverable: the next writer, or --accept)",
     "other_participant_rows": "rows of another participant",
     "tables_differ": "rows per table not as recorded (expected while a write is interrupted)",
     "counts_differ": "record counts not as in the manifest",
@@ -56,7 +60,7 @@ KINDS = {
 # recoverable); "not opened" (the file differs from its record with no write to explain it);
 # "cannot be replayed"; "present" (not looked at: the database is not opened).
 LOG_STATES = ("none", "empty", "replayed", "checkpoint", "not opened", "cannot be replayed", "present")
-KNOWN = {MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash", RECOVERY}
+KNOWN = {FOLDER, MANIFEST, MANIFEST + ".tmp", ".manifest.lock", BUILD_LOCK, VERIFIED, ".staging", ".cache", ".trash", RECOVERY}
 PROBE_TIMEOUT_S = 60
 
 
@@ -188,7 +192,16 @@ def _participant(bank: Bank, data: dict, p: str) -> dict:
             if wal in sides:
                 row["wal"], row["log"] = f"{wal.stat().st_size / 1e6:.1f} MB: cannot be replayed here", \
                     "cannot be replayed"
-            add("cannot_open", str(exc))
+            if mark and mark.get("op") == "live" and not pid_alive(mark.get("pid")) and has_journal(bank.path, p):
+                n = len(journal_entries(bank.path, p))
+                row["log"] = "cannot be replayed"
+                add("journal", f"{exc}; recoverable from the intake journal: the log is set aside (kept in "
+                               f"{bank.path / RECOVERY}), the database opens as its last checkpoint left it and the "
+                               f"journal re-applies the {n} moment(s) it holds, by key (those the checkpoint has are "
+                               f"duplicates: nothing written) (`memora verify "
+                               f"{bank.path} --accept {p}`, or the next writer)")
+            else:
+                add("cannot_open", str(exc))
     if counts is not None:
         tables = counts["tables"]
         row["other_participant_rows"] = sum(v["other_participant"] for v in tables.values())
@@ -338,7 +351,17 @@ def accept(path: str | Path, participant: str) -> dict:
     bank.checked_db_file(participant)
     if side_files(db):  # a copy of the log first, then replayed into the file in a child process (its
         keep_log(db)    # buffer pool sized from the log; a crash there is an error here)
-        replay(db, participant, timeout=PROBE_TIMEOUT_S)
+        try:
+            replay(db, participant, timeout=PROBE_TIMEOUT_S)
+        except BankError:  # a live writer's log Kùzu refuses: set aside, its intake journal re-applied
+            if not (mark and mark.get("op") == "live" and has_journal(bank.path, participant)):
+                raise
+            from memora_graph.form.live import LiveWriter
+
+            set_log_aside(db)
+            with LiveWriter(bank.path, participant):  # opens the last checkpoint, re-applies, closes
+                pass
+            return bank.record_integrity(participant)
     else:
         probe(db, participant, timeout=PROBE_TIMEOUT_S)
     bank.mark_writing(participant, "accept")
