@@ -45,6 +45,7 @@ from memora_graph.form.build import entity_row, place_row
 from memora_graph.form.checkpoint import CheckpointPolicy, Checkpointer
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
+from memora_graph.form.live_journal import Journal
 from memora_graph.files import side_files
 from memora_graph.perceive.narration import MomentContext, perceive_moment
 from memora_graph.perceive.narrations import NarrationReader, check_moment
@@ -297,6 +298,7 @@ class LiveWriter:
             # database's integrity, and the writer opens that (so the stores can be tied to it)
             store, self.store = self.store, None
             store.close()
+        self.journal = Journal(self.bank, p, opened)  # what the persisted tool stores lack from here on
         self._stack.callback(self._close_store)
         self.checkpointer = Checkpointer(self.checkpoint_policy, lambda: self.store, self._lock, self._store_lock)
         self._stack.callback(self.checkpointer.stop)  # (before the store closes, which checkpoints)
@@ -364,6 +366,7 @@ class LiveWriter:
             videos = sorted(self.videos)
             store.close()  # checkpoints; records the integrity (Bank.open's on_close)
             _record_videos(self.bank, self.participant, videos)
+            self.journal.close()  # leads the stores' database to the one just recorded
 
     def close(self) -> None:
         with self._lock:
@@ -544,6 +547,7 @@ class LiveWriter:
                                      **{e.id: {**entity_row(e), "emb": _floats(e.emb if e.emb is not None else
                                                                              np.zeros(dim, np.float32))}
                                         for e in new_ents}}}
+            self.journal.append(delta)
             if self._on_commit is not None:
                 self._on_commit(delta)
         return ops, delta

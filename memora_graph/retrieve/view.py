@@ -183,8 +183,10 @@ class MemoryView:
                     if why.damaged:  # stale is expected after any write; damage is worth a word
                         log.warning(f"{why}; reading the database instead (and writing them again)")
                 else:
-                    return cls(None, participant, embedder, config, owns_store=True, persisted=stores,
+                    view = cls(None, participant, embedder, config, owns_store=True, persisted=stores,
                                open_store=lambda: b.open(participant, read_only=True))
+                    view.replay(stores.journal)
+                    return view
         store = b.open(participant, read_only=True)
         try:
             view = cls(store, participant, embedder, config, owns_store=True)
@@ -242,6 +244,7 @@ class MemoryView:
             return out
         out = cls(None, participant, embedder, config, persisted=stores, open_store=lambda: store)
         out._store = store
+        out.replay(stores.journal)
         return out
 
     @property
@@ -580,6 +583,26 @@ class MemoryView:
         graph = self._grown("graph")
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
+
+    def replay(self, journal: list[dict]) -> None:
+        """Take in the moments remembered since the persisted stores were written (their journal,
+        form/live_journal.py), as a writable server's readers took each in when it was remembered:
+        the stores are not computed or written again. The entity registry and vectors are loaded
+        from the stores first, so that the moments' entities are taken in by id, not read whole
+        from the database."""
+        if not journal:
+            return
+        t0 = time.perf_counter()
+        if any(d.get("entities") for d in journal):
+            _ = self.entities
+            if self._persisted_for("entity"):
+                self.vectors("entity")
+        for delta in journal:
+            if delta.get("inferred"):
+                self.reload_inferred()
+            else:
+                self.absorb(delta)
+        self.replayed = (len(journal), time.perf_counter() - t0)
 
     @property
     def steps(self) -> StepRows:

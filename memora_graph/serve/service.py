@@ -576,6 +576,8 @@ class MemoryService:
 
     def _consolidated(self) -> None:
         """After a background consolidation committed (under the lock): readers load the new records."""
+        if self.writer is not None:
+            self.writer.journal.note_inferred()  # (form/live_journal.py) a later open takes it in too
         for view in self._views.values():
             view.reload_inferred()
 

@@ -5,6 +5,7 @@ batch run. Real Kùzu in tmp dirs, the bundled MiniLM, the mcp SDK's client over
 from __future__ import annotations
 
 import json
+import shutil
 
 import urllib.error
 import urllib.request
@@ -358,11 +359,20 @@ def test_a_writable_server_reads_the_stores_and_answers_as_a_fresh_open(stored_b
         service.close()
     assert live != before
     assert verify_bank(bank).ok
-    # the writer's close recorded the database's new sha256: the stores are stale, written again on open
-    with pytest.raises(Exception, match="stale"):
-        from memora_graph.retrieve.persist import PersistedStores
+    # the writer's close recorded the database's new sha256 and the journal of the moments leading
+    # to it (form/live_journal.py): a reader opens the same stores and takes the moments in
+    from memora_graph.retrieve.persist import PersistedStores
 
-        PersistedStores.open(bank, P, Bank(bank).checked_sha256(P), meta["embed_model"])
+    stores = PersistedStores.open(bank, P, Bank(bank).checked_sha256(P), meta["embed_model"])
+    assert stores.meta["db_sha256"] == meta["db_sha256"] and len(stores.journal) == len(LIVE)
+    reader = MemoryService(bank, P)
+    try:
+        assert reader._views[P].persisted_written is None and reader._views[P].replayed[0] == len(LIVE)
+        journaled = _reads(reader)
+    finally:
+        reader.close()
+    assert live == journaled
+    shutil.rmtree(store_dir(bank, P))  # and as a reader computing every store from the database
     reader = MemoryService(bank, P)
     try:
         assert reader._views[P].persisted_written is not None
@@ -373,12 +383,27 @@ def test_a_writable_server_reads_the_stores_and_answers_as_a_fresh_open(stored_b
 
 
 def test_a_restarted_writer_never_reads_stores_older_than_its_database(stored_bank):
-    """A writable server after another wrote (closed, so its sha256 was recorded) writes the
-    stores again from the database before reading them, and answers as a fresh open does."""
+    """A writable server after another wrote (closed, so its sha256 was recorded) reads the
+    stores of the database before, with the journal of what was remembered since; a writer
+    killed before its close recorded the journal's end makes them stale: written again from
+    the database. Either way it answers as a fresh open does."""
+    from memora_graph.form.live_journal import RECORD
+
     bank = stored_bank
     with LiveWriter(bank, P) as memory:
         for m in moments(5, video="P37_live"):
             memory.remember(m)
+    service = MemoryService(bank, P, writable=True)
+    try:
+        view = service._views[P]
+        assert view._persisted is not None and view.persisted_written is None, "the stores and the journal"
+        assert view.replayed[0] == 5
+        got = _reads(service)
+    finally:
+        service.close()
+    with MemoryService(bank, P, recipe="inprocess") as reader:
+        assert got == _reads(reader)
+    Bank(bank).derived.drop(P, RECORD)  # (as a killed writer leaves it: no journal leading to the database)
     service = MemoryService(bank, P, writable=True)
     try:
         view = service._views[P]
