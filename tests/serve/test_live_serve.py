@@ -430,3 +430,48 @@ def test_perf_live_without_consolidation(stored_bank, tmp_path):
     named = {n: v for n, v in row["tool_idle_p95_by_tool_ms"].items() if n.startswith("query_")}
     assert row["named_query_worst"] in named and row["named_query_worst_p95_ms"] >= max(named.values())
     assert sorted(p.name for p in stored_bank.rglob("*")) == before, "the given bank is never written"
+    # after the remembers, both opens read the stores with the journal of what was remembered
+    assert row["reopen_writable_stores"].startswith("read + ") and row["first_read_stores"].startswith("read + ")
+    assert row["reopen_writable_s"] > 0 and row["first_read_first_ask_s"] > 0
+
+
+def test_opens_after_remembers_append_to_the_journal_and_never_rewrite_the_stores(stored_bank, monkeypatch):
+    """Batches of remembers (the CLI's writer, then a writable server's), each followed by a
+    writable and a read-only open: the persisted stores' files are never written again (same
+    bytes, same inode and change time); the journal only grows, by the moments remembered; and
+    every open answers as one computing the stores from the database."""
+    from memora_graph.form.live_journal import RECORD, journal_path
+    from memora_graph.retrieve.persist import store_dir
+
+    bank = stored_bank
+    root = store_dir(bank, P)
+
+    def files() -> dict:
+        return {f.name: (f.stat().st_ino, f.stat().st_ctime_ns, f.read_bytes()) for f in root.iterdir()
+                if f.name != "verified.json"}
+
+    kept = files()
+    sizes = []
+    with LiveWriter(bank, P) as memory:  # `memora remember` (no server)
+        for m in moments(4, video="P37_cli"):
+            memory.remember(m)
+    for batch in range(2):
+        service = MemoryService(bank, P, writable=True)
+        try:
+            assert service._views[P].persisted_written is None and service._views[P].replayed[0] == 4 + 3 * batch
+            for m in moments(3, video=f"P37_srv{batch}"):
+                service.call("remember", {"text": m.text, "video": m.video, "start": m.start, "end": m.end})
+        finally:
+            service.close()
+        sizes.append(journal_path(bank, P).stat().st_size)
+        with MemoryService(bank, P) as reader:
+            assert reader._views[P].persisted_written is None and reader._views[P].replayed[0] == 7 + 3 * batch
+            journaled = _reads(reader)
+        assert files() == kept, "the stores' files were not written again"
+        monkeypatch.setenv("MEMORA_TOOL_STORES", "0")  # what Kùzu holds, read whole
+        with MemoryService(bank, P) as fresh:
+            assert fresh._views[P]._persisted is None
+            assert journaled == _reads(fresh)
+        monkeypatch.delenv("MEMORA_TOOL_STORES")
+    assert sizes[0] < sizes[1] and Bank(bank).derived.get(P, RECORD)["n"] == 10
+    assert verify_bank(bank).ok
