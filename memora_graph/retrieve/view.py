@@ -204,7 +204,16 @@ class MemoryView:
 
     @classmethod
     def live(cls, store: Store, bank: str | Path, participant: str, db_sha256: str | None, embedder=None,
-             config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
+             config: SearchConfig | str = DEFAULT_RECIPE, own: bool = False) -> MemoryView:
+        """`_live`'s view; `own`: the view closes `store` when it closes (a reader connection
+        of the writer's database, `Store.reader`, opened for it)."""
+        view = cls._live(store, bank, participant, db_sha256, embedder, config)
+        view._owns = own
+        return view
+
+    @classmethod
+    def _live(cls, store: Store, bank: str | Path, participant: str, db_sha256: str | None, embedder=None,
+              config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
         """A view for the readers of a live writer (`memora serve --writable`), on the writer's own
         `store` (read-write, not closed by the view). `db_sha256`: the database's sha256 as the
         writer opened it, checked against its integrity record (form/live.py `opened_sha256`),

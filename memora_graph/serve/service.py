@@ -266,6 +266,25 @@ class _Guard:
                 interrupt()
 
 
+class _Both:
+    """Two locks taken in order (and released in reverse) by one `with`."""
+
+    def __init__(self, first, second):
+        self.first, self.second = first, second
+
+    def __enter__(self) -> None:
+        self.first.acquire()
+        try:
+            self.second.acquire()
+        except BaseException:
+            self.first.release()
+            raise
+
+    def __exit__(self, *exc) -> None:
+        self.second.release()
+        self.first.release()
+
+
 class _Owned:
     def __init__(self, guard: _Guard):
         self.guard = guard
@@ -317,8 +336,9 @@ class MemoryService:
             participant = check_participant(participant, "--participant")
             # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
             # and commits and updates the readers' caches inside it
+            # (the readers read through a connection of their own: a commit does not hold them up)
             self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb,
-                                     checkpoint=checkpoint)
+                                     checkpoint=checkpoint, readers_apart=True)
         elif consolidate_every is not None:
             raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)
@@ -350,7 +370,7 @@ class MemoryService:
         if self.writer is not None and consolidate_every is not None:
             from memora_graph.consolidate.live import BackgroundConsolidation
 
-            self.consolidator = BackgroundConsolidation(self.writer, every=consolidate_every, lock=self._lock,
+            self.consolidator = BackgroundConsolidation(self.writer, every=consolidate_every, lock=self.write_locks(),
                                                         on_done=self._consolidated)
         if participant is not None:
             self.warm(participant)  # a damaged database is refused now, before the first call
@@ -374,8 +394,15 @@ class MemoryService:
             # the persisted tool stores, if computed from the database as the writer opened it (and
             # nothing was written since: the view could not absorb it), else the writer's store
             sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
-            view = self._views[participant] = MemoryView.live(self.writer.store, self.bank.path, participant, sha,
-                                                              config=self.recipe)
+            # a connection of the view's own on the writer's database (the last committed snapshot):
+            # a remember's commit runs beside the readers, who wait only while their caches take it in
+            reader = self.writer.store.reader(counted=False)
+            try:
+                view = self._views[participant] = MemoryView.live(reader, self.bank.path, participant, sha,
+                                                                  config=self.recipe, own=True)
+            except BaseException:
+                reader.close()
+                raise
         else:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view
@@ -568,6 +595,12 @@ class MemoryService:
             self.consolidator.added(1)
         return RememberResult.model_validate(done.as_dict()).model_dump(mode="json")
 
+    def write_locks(self) -> _Both:
+        """What another writer through the writer's store (a background consolidation) holds
+        around its write: the writer's lock (no remember's transaction runs meanwhile on that
+        connection), then the readers' (they take the new records in at once)."""
+        return _Both(self.writer.write_lock, self._lock)
+
     def _absorb(self, delta: dict) -> None:
         """Right after a remember committed, inside the readers' lock: their caches take it in."""
         view = self._views.get(self.participant)
@@ -595,8 +628,10 @@ class MemoryService:
                 params = bind_params(statement, arguments["params"], participant)
             except QueryRefused as exc:
                 raise QueryRefused(for_agents(str(exc))) from None
-            with self._guards[participant].lock, self._guards[participant].owned():
-                store = self.writer.store
+            with self._named_lock:  # the named queries' connection (the last committed snapshot)
+                if self._named_reader is None:
+                    self._named_reader = self.writer.store.reader(counted=False)
+                store = self._named_reader
                 store.set_timeout(self._cypher_timeout(arguments["timeout"]))
                 try:
                     frame = store.query(statement.text, params)
@@ -647,7 +682,7 @@ class MemoryService:
                 # readers' lock, so remembers and the other tools do not wait for it
                 with self._named_lock:
                     if self._named_reader is None:
-                        self._named_reader = self.writer.store.reader()
+                        self._named_reader = self.writer.store.reader(counted=False)  # short queries only
                     frame = self._named_reader.run(name, participant=participant, **arguments)
                 return _rows(frame, participant, self.max_rows)
             with self._guards[participant].lock, self._guards[participant].owned():

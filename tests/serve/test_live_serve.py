@@ -4,6 +4,7 @@ batch run. Real Kùzu in tmp dirs, the bundled MiniLM, the mcp SDK's client over
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 
@@ -91,6 +92,47 @@ def test_named_queries_of_a_writable_server_read_a_snapshot_without_the_readers_
         service.call("remember", {"text": "close the fridge", "video": "kitchen-1", "start": 9.0})
         assert service.call("query_baseline_segments", {"video": "kitchen-1"})["row_count"] == 4, "the next snapshot holds the new moment"
     finally:
+        service.close()
+    assert verify_bank(tmp_path / "bank").ok
+
+
+def test_tools_answer_while_a_remember_commits(tmp_path, monkeypatch):
+    """A writable server's readers read through a connection of their own (the last committed
+    snapshot): a tool call made while a remember's transaction is open (held for a second here)
+    answers before the commit, without the moment; the next call, after it, sees it."""
+    import threading
+    import time
+
+    service = MemoryService(tmp_path / "bank", "P01", writable=True)
+    try:
+        service.call("remember", {"text": "put the kettle on the counter", "video": "kitchen-1", "start": 0.0})
+        inside, release = threading.Event(), threading.Event()
+        real = service.writer.store.transaction
+
+        @contextlib.contextmanager
+        def slow_transaction():
+            with real():
+                yield
+                inside.set()
+                release.wait(20)  # the statements ran; the commit waits
+
+        monkeypatch.setattr(service.writer.store, "transaction", slow_transaction)
+        done = {}
+        t = threading.Thread(target=lambda: done.update(service.call(
+            "remember", {"text": "put the mug in the sink", "video": "kitchen-1", "start": 5.0})), daemon=True)
+        t.start()
+        assert inside.wait(20)
+        t0 = time.perf_counter()
+        during = service.call("search_objects", {"query": "mug"})
+        history = service.call("get_object_history", {"object_query": "kettle"})
+        waited = time.perf_counter() - t0
+        release.set()
+        t.join(20)
+        assert waited < 5.0 and not t.is_alive() and done["segment"] == "kitchen-1#t0001"
+        assert "kitchen-1" in json.dumps(history) and "mug" not in json.dumps(during).lower()
+        assert "mug" in json.dumps(service.call("search_objects", {"query": "mug"})).lower()
+    finally:
+        monkeypatch.undo()
         service.close()
     assert verify_bank(tmp_path / "bank").ok
 

@@ -195,7 +195,8 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         echo("  incremental consolidation")
         from memora_graph.consolidate.live import BackgroundConsolidation
 
-        cons = BackgroundConsolidation(service.writer, every=10**9, lock=service._lock, on_done=service._consolidated)
+        cons = BackgroundConsolidation(service.writer, every=10**9, lock=service.write_locks(),
+                                       on_done=service._consolidated)
         try:
             t0, c0 = time.perf_counter(), time.process_time()
             cons.run_once()
