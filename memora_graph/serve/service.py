@@ -14,6 +14,8 @@ without `--write`.
 
 from __future__ import annotations
 
+import collections
+
 import json
 import os
 import threading
@@ -266,25 +268,6 @@ class _Guard:
                 interrupt()
 
 
-class _Both:
-    """Two locks taken in order (and released in reverse) by one `with`."""
-
-    def __init__(self, first, second):
-        self.first, self.second = first, second
-
-    def __enter__(self) -> None:
-        self.first.acquire()
-        try:
-            self.second.acquire()
-        except BaseException:
-            self.first.release()
-            raise
-
-    def __exit__(self, *exc) -> None:
-        self.second.release()
-        self.first.release()
-
-
 class _Owned:
     def __init__(self, guard: _Guard):
         self.guard = guard
@@ -328,6 +311,7 @@ class MemoryService:
         self._lock = threading.Lock()
         self._named_lock = threading.Lock()  # the named queries' own connection (a writable server's)
         self._named_reader = None
+        self._pending: collections.deque = collections.deque()  # committed, not yet in the readers' caches
         if writable:
             if participant is None:
                 raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
@@ -336,9 +320,10 @@ class MemoryService:
             participant = check_participant(participant, "--participant")
             # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
             # and commits and updates the readers' caches inside it
-            # (the readers read through a connection of their own: a commit does not hold them up)
-            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb,
-                                     checkpoint=checkpoint, readers_apart=True)
+            # the readers read through a connection of their own and take each committed moment in at
+            # their next call (`_catch_up`): a remember never waits for a reader, nor a reader for a commit
+            self.writer = LiveWriter(bank, participant, on_commit=self._absorb, checkpoint=checkpoint,
+                                     readers_apart=True)
         elif consolidate_every is not None:
             raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)
@@ -386,8 +371,25 @@ class MemoryService:
         view = self._views.get(participant)
         if view is None:
             with shield():  # an open is never cut halfway by a call's budget (serve/budget.py)
-                view = self._open_view(participant)
+                if self.writer is None:
+                    view = self._open_view(participant)
+                else:
+                    with self.writer.write_lock:  # no commit while it reads: it holds every one before
+                        view = self._open_view(participant)
+                        self._pending.clear()
+        if self.writer is not None:
+            self._catch_up(view)
         return view
+
+    def _catch_up(self, view: MemoryView) -> None:
+        """Take in what was committed since this view last read (called under the readers' lock,
+        at the start of each call): the remembered moments, a consolidation's new records."""
+        while self._pending:
+            kind, delta = self._pending.popleft()
+            if kind == "moment":
+                view.absorb(delta)
+            else:
+                view.reload_inferred()
 
     def _open_view(self, participant: str) -> MemoryView:
         if self.writer is not None:
@@ -595,24 +597,22 @@ class MemoryService:
             self.consolidator.added(1)
         return RememberResult.model_validate(done.as_dict()).model_dump(mode="json")
 
-    def write_locks(self) -> _Both:
+    def write_locks(self):
         """What another writer through the writer's store (a background consolidation) holds
         around its write: the writer's lock (no remember's transaction runs meanwhile on that
-        connection), then the readers' (they take the new records in at once)."""
-        return _Both(self.writer.write_lock, self._lock)
+        connection). The readers take its records in at their next call (`_consolidated`)."""
+        return self.writer.write_lock
 
     def _absorb(self, delta: dict) -> None:
-        """Right after a remember committed, inside the readers' lock: their caches take it in."""
-        view = self._views.get(self.participant)
-        if view is not None:
-            view.absorb(delta)
+        """Right after a remember committed (the writer's thread, holding its lock): queued for
+        the readers, who take it in at their next call (`_catch_up`)."""
+        self._pending.append(("moment", delta))
 
     def _consolidated(self) -> None:
-        """After a background consolidation committed (under the lock): readers load the new records."""
-        if self.writer is not None:
-            self.writer.journal.note_inferred()  # (form/live_journal.py) a later open takes it in too
-        for view in self._views.values():
-            view.reload_inferred()
+        """After a background consolidation committed (holding the writer's lock): the readers
+        load the new records at their next call; a later open takes them in from the journal."""
+        self.writer.journal.note_inferred()  # (form/live_journal.py)
+        self._pending.append(("inferred", None))
 
     def _cypher(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.adhoc import run_query
