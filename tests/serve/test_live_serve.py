@@ -518,3 +518,10 @@ def test_opens_after_remembers_append_to_the_journal_and_never_rewrite_the_store
         monkeypatch.delenv("MEMORA_TOOL_STORES")
     assert sizes[0] < sizes[1] and Bank(bank).derived.get(P, RECORD)["n"] == 10
     assert verify_bank(bank).ok
+    # a journal that is not as recorded (edited) is damaged: the stores are computed again, never
+    # brought up to date with it
+    path = journal_path(bank, P)
+    path.write_bytes(path.read_bytes().replace(b"P37_srv1", b"P37_srvX", 1))
+    with MemoryService(bank, P) as reader:
+        assert reader._views[P].persisted_written is not None and "replayed" not in reader._views[P].__dict__
+        assert _reads(reader) == journaled
