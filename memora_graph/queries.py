@@ -7,6 +7,12 @@ Each file holds one query with a header:
     // params: participant, object
     // mode: read                       (read | write)
     // scope: participant               (participant | database)
+    // bound: limit 1000                 (or `page video`: what bounds the rows it returns; see below)
+
+`bound` says what bounds a query's rows (issue 36: every named query a server or the explorer
+offers is bounded by what it returns): `limit N`, where the body ends with `LIMIT N` (an
+aggregate of a few rows states it too), or `page P`, where the query reads one page keyed by its
+`$P` (a video, an object, a record: `videos` lists the videos). Checked at load time.
 
 At load time the declared params must equal the $tokens of the body, and a query that touches
 participant data must take $participant. A `scope: database` query reads or writes the
@@ -30,7 +36,8 @@ PARTICIPANT_TABLES = (
 )
 _TOKEN = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
 _LABEL = re.compile(r":\s*(" + "|".join(PARTICIPANT_TABLES) + r")\b")
-_HEADER = re.compile(r"^//\s*(name|description|params|mode|example|scope)\s*:\s*(.*)$")
+_HEADER = re.compile(r"^//\s*(name|description|params|mode|example|scope|bound)\s*:\s*(.*)$")
+_LIMIT = re.compile(r"\bLIMIT\s+(\d+)\s*$", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -43,6 +50,15 @@ class NamedQuery:
     path: Path
     example: str = ""
     scope: str = "participant"
+    bound: str = ""  # "limit N" or "page P" (see the module); "" where none is stated
+
+    @property
+    def limit(self) -> int | None:
+        return int(self.bound.split()[1]) if self.bound.startswith("limit ") else None
+
+    @property
+    def page(self) -> str | None:
+        return self.bound.split()[1] if self.bound.startswith("page ") else None
 
     @property
     def writes(self) -> bool:
@@ -89,7 +105,19 @@ def parse_query(path: Path) -> NamedQuery:
     mode = header.get("mode", "read")
     if mode not in ("read", "write"):
         raise QueryError(f"{path}: mode must be read or write, not {mode!r}")
-    return NamedQuery(name, header.get("description", ""), declared, mode, cypher, path, header.get("example", ""), scope)
+    bound = " ".join(header.get("bound", "").split())
+    if bound:
+        kind, _, what = bound.partition(" ")
+        end = _LIMIT.search(cypher)
+        if kind == "limit" and not (what.isdigit() and end and end.group(1) == what):
+            raise QueryError(f"{path}: bound: {bound!r} states a LIMIT its query does not end with"
+                             + (f" (it ends with LIMIT {end.group(1)})" if end else ""))
+        if kind == "page" and what not in declared:
+            raise QueryError(f"{path}: bound: {bound!r} names a page key that is not one of its params")
+        if kind not in ("limit", "page"):
+            raise QueryError(f"{path}: bound must be `limit N` or `page PARAM`, not {bound!r}")
+    return NamedQuery(name, header.get("description", ""), declared, mode, cypher, path, header.get("example", ""), scope,
+                      bound)
 
 
 @lru_cache(maxsize=4)

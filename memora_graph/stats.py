@@ -40,7 +40,7 @@ def memory_formation(bank_path: str | Path, participant: str) -> dict:
     the editor (ADD minus DELETE: the live entities), plus the decision counts. The data of the
     report's compression curve and decision-mix figures."""
     with Bank(bank_path).open(participant) as store:
-        rows = store.rows("compression_curve", participant=participant)
+        rows = store.rows("_compression_curve_all", participant=participant)
         decisions = {r["op"]: int(r["n"]) for r in store.rows("decision_mix", participant=participant)}
     per: dict[tuple[str, int], list[int]] = {}
     for r in rows:  # one row per segment and side (observations; decisions), merged here
@@ -58,7 +58,7 @@ def memory_formation(bank_path: str | Path, participant: str) -> dict:
             "compression": round(raw / edited, 2) if edited else None, "decisions": decisions}
 
 
-CALL_VIEWS = {"role": "model_calls_by_role", "segment": "model_calls_by_segment", "failed": "model_calls_failed"}
+CALL_VIEWS = {"role": "model_calls_by_role", "segment": "_model_calls_by_segment_all", "failed": "_model_calls_failed_all"}
 
 
 def call_stats(bank_path: str | Path, participants: list[str] | None = None, by: str = "role") -> pl.DataFrame:

@@ -1,6 +1,7 @@
 // description: One routine or preference (by id: `routines`, `preferences`) with the segments it cites and the segments it is linked to (SUPPORTED_BY).
 // params: participant, id
 // example: memora run BANK inferred_evidence -p participant P03 -p id P03:routine:4dbd90d58c
+// bound: page id
 MATCH (n:Routine:Preference {id: $id})
 WHERE n.participant = $participant
 OPTIONAL MATCH (n)-[:SUPPORTED_BY]->(g:Segment)

@@ -1,6 +1,7 @@
-// description: Model cost and latency per segment (10 s turn): calls, failures, tokens and seconds, per role.
+// description: Model cost and latency per segment (10 s turn): calls, failures, tokens and seconds, per role (at most 1000 rows).
 // params: participant
 // example: memora run BANK model_calls_by_segment -p participant P01
+// bound: limit 1000
 MATCH (c:ModelCall)
 WHERE c.participant = $participant
 WITH c.video AS video, c.turn AS turn, c.segment AS segment, count(*) AS calls,
@@ -15,3 +16,4 @@ RETURN video, turn, segment, calls, failed, CAST(tokens_in AS INT64) AS tokens_i
        round(perception_s, 3) AS perception_s, round(editor_s, 3) AS editor_s,
        CAST(retries AS INT64) AS retries, CAST(repairs AS INT64) AS repairs
 ORDER BY segment
+LIMIT 1000

@@ -1,6 +1,7 @@
-// description: Record counts per memory store for one participant.
+// description: Record counts per memory store for one participant (one row).
 // params: participant
 // example: memora run BANK store_counts -p participant P01
+// bound: limit 1
 MATCH (v:Video) WHERE v.participant = $participant
 WITH count(v) AS videos
 OPTIONAL MATCH (s:Segment) WHERE s.participant = $participant
@@ -15,3 +16,4 @@ OPTIONAL MATCH (r:Routine) WHERE r.participant = $participant
 WITH videos, segments, places, entity_records, entities, state_events, count(r) AS routines
 OPTIONAL MATCH (f:Preference) WHERE f.participant = $participant
 RETURN videos, segments, places, entity_records, entities, state_events, routines, count(f) AS preferences
+LIMIT 1

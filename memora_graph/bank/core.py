@@ -232,7 +232,7 @@ class Bank:
                 continue
             with self.open(p) as store:
                 out[p] = [{k: r[k] or "" for k in ("memory_id", "memory_name", "color", "material", "location")}
-                          for r in store.rows("object_registry", participant=p)]
+                          for r in store.rows("_object_registry_all", participant=p)]
         return out
 
     # -- forgetting ----------------------------------------------------------------------

@@ -99,11 +99,11 @@ def scoring_memory(bank: Path, participant: str) -> dict[str, Any]:
     offers a planner, not the yardstick it is scored against, which stays the one every earlier run
     was scored with."""
     with Bank(bank).open(participant) as store:
-        routines = [r for r in store.rows("baseline_routines", participant=participant)
+        routines = [r for r in store.rows("_baseline_routines_all", participant=participant)
                     if r.get("source") not in TASK_SOURCES]
-        prefs = [p for p in store.rows("baseline_preferences", participant=participant)
+        prefs = [p for p in store.rows("_baseline_preferences_all", participant=participant)
                  if p.get("source") not in TASK_SOURCES]
-        objects = store.rows("baseline_entities", participant=participant)
+        objects = store.rows("_baseline_entities_all", participant=participant)
     return {
         "routines": [{"goal": r["goal"], "canonical_steps": [{"action": s} for s in r["canonical_steps"] or []],
                       "key_objects": [{"object": o} for o in r["key_objects"] or []]} for r in routines],

@@ -34,7 +34,7 @@ def explorer_data(bank_path: str | Path, participant: str) -> dict:
         evidence = {r["id"]: sorted(set(r["linked"])) for r in store.fetch("_explore_evidence", participant=participant)}
         # tasks on the timeline (a bank consolidated before task memory has no Task table: none shown)
         data["tasks"] = [{**t, "stages": json.loads(t["stages"] or "{}"), "steps": None}
-                         for t in store.fetch("tasks", participant=participant)] if "Task" in store.tables() else []
+                         for t in store.fetch("_tasks_all", participant=participant)] if "Task" in store.tables() else []
         links: dict[str, list[str]] = {}
         for r in store.fetch("_tool_inferred_links", participant=participant):
             links.setdefault(r["id"], []).append(r["entity"])

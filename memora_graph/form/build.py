@@ -116,7 +116,7 @@ class ParticipantBuilder:
                 # a write interrupted before the schema's first file committed (a Ctrl-C, a kill)
                 # left a file that holds nothing yet: the write applies the schema and loads all
                 if not (self._resuming and "Video" not in store.tables()):
-                    self.in_db = set(store.run("videos", participant=participant)["video"].to_list())
+                    self.in_db = set(store.run("_videos_all", participant=participant)["video"].to_list())
                     entities = [self._entity_from_row(r["entity"])
                                 for r in store.fetch("_registry_entities", participant=participant)]
                     places = [PlaceState(**_pick(r["place"], schema.columns("Place", emb=False)))

@@ -46,6 +46,7 @@ from memora_graph.form.build import entity_row, place_row
 from memora_graph.form.checkpoint import CheckpointPolicy, Checkpointer
 from memora_graph.form.editor import EntityEditor, get_editor_policy, identity_text
 from memora_graph.form.environment import PlaceMemory, PlaceState, place_id
+from memora_graph.form.live_journal import Journal
 from memora_graph.files import side_files
 from memora_graph.perceive.narration import MomentContext, perceive_moment
 from memora_graph.perceive.narrations import NarrationReader, check_moment
@@ -234,14 +235,22 @@ class LiveWriter:
     """A participant's memory held open for writing, one moment at a time (see the module)."""
 
     def __init__(self, bank: str | Path, participant: str, embedder=None, reader: NarrationReader | None = None,
-                 lock_wait_s: float = 0.5, store_lock=None, on_commit=None, checkpoint: CheckpointPolicy | None = None):
+                 lock_wait_s: float = 0.5, store_lock=None, on_commit=None, checkpoint: CheckpointPolicy | None = None,
+                 readers_apart: bool = False):
         """`store_lock`: taken around every use of the store (the readers of a server share it,
         so perception, embedding and the editor's decision run outside it); `on_commit(delta)`
         runs inside it right after each commit (a server updates its readers' caches there).
         `checkpoint`: when the write-ahead log is checkpointed (default `CheckpointPolicy()`:
-        4 MB, 1,000 moments or 60 s, whichever comes first; form/checkpoint.py)."""
+        4 MB, 1,000 moments or 60 s, whichever comes first; form/checkpoint.py).
+        `readers_apart`: the readers read through connections of their own (`Store.reader`, the
+        last committed snapshot), never through `store`: the transaction (and a checkpoint) then
+        runs outside `store_lock`, which is taken only around `on_commit`, so a reader waits for
+        the readers' caches to take a moment in (a millisecond or so), not for Kùzu to commit it.
+        Whoever else writes through `store` then holds this writer's `lock` (`write_lock`)."""
         self.bank = Bank(bank)
         self._store_lock = store_lock if store_lock is not None else threading.RLock()
+        # what guards the writer's own connection: the readers' lock, unless they read apart
+        self._conn_lock = threading.RLock() if readers_apart else self._store_lock
         self._on_commit = on_commit
         self.participant = participant
         self.bank.db_path(participant)  # a malformed id fails here
@@ -302,11 +311,12 @@ class LiveWriter:
             # database's integrity, and the writer opens that (so the stores can be tied to it)
             store, self.store = self.store, None
             store.close()
-        self.journal = intake.Journal(self.bank.path, p)
-        self._stack.callback(self.journal.close)
+        self.intake = intake.Journal(self.bank.path, p)  # every acknowledged moment's input (form/intake.py)
+        self._stack.callback(self.intake.close)
+        self.journal = Journal(self.bank, p, opened)  # what the persisted tool stores lack from here on
         self._stack.callback(self._close_store)
-        self.checkpointer = Checkpointer(self.checkpoint_policy, lambda: self.store, self._lock, self._store_lock,
-                                         after=self.journal.clear)
+        self.checkpointer = Checkpointer(self.checkpoint_policy, lambda: self.store, self._lock, self._conn_lock,
+                                         after=self.intake.clear)
         self._stack.callback(self.checkpointer.stop)  # (before the store closes, which checkpoints)
         self.opened_sha256: str | None = opened
         self.commits = 0  # moments committed by this writer (a reader opened after one must not use stores)
@@ -367,13 +377,20 @@ class LiveWriter:
         return self.embedder.encode([text])[0]
 
     # -- closing -----------------------------------------------------------------------
+    @property
+    def write_lock(self):
+        """Held by a remember from start to answer: whoever else writes through `store` (a
+        background consolidation) holds it around its write."""
+        return self._lock
+
     def _close_store(self) -> None:
         if self.store is not None:
             store, self.store = self.store, None
             videos = sorted(self.videos)
             store.close()  # checkpoints; records the integrity (Bank.open's on_close)
-            self.journal.clear()
+            self.intake.clear()
             _record_videos(self.bank, self.participant, videos)
+            self.journal.close()  # leads the stores' database to the one just recorded
 
     def close(self) -> None:
         with self._lock:
@@ -429,7 +446,7 @@ class LiveWriter:
             p = self.participant
             done = None
             if key in self._keys:  # a retry: its first answer, from the database
-                with self._store_lock:
+                with self._conn_lock:
                     done = self.store.fetch("_live_remembered", participant=p, id=key)
             if done:
                 answer = json.loads(done[0]["result"])
@@ -445,14 +462,14 @@ class LiveWriter:
             # repaired into an ADD): those are copied, not the registry, which grows with the hours.
             touchable = self.editor.active_of_kinds({o.kind for o in segment.objects})
             snapshot = self._snapshot(touchable)
-            self.journal.append(key, given or {})  # durable before the transaction (form/intake.py)
+            self.intake.append(key, given or {})  # durable before the transaction (form/intake.py)
             try:
                 # one short text at a time: torch's thread pool only spins against the readers' threads
                 with torch_threads(1, self.embedder, kind="passage"):
                     result, rows = self._write(key, segment, v, turn, touchable)
             except BaseException:
                 self._restore(snapshot)
-                self.journal.cancel(key)
+                self.intake.cancel(key)
                 raise
             self.checkpointer.committed()  # wakes the checkpoint thread if a bound is reached
             n_actions = len(segment.activity.action_breakdown)
@@ -535,11 +552,12 @@ class LiveWriter:
         answer = {"key": key, "participant": p, "segment": sid, "video": seg.video_id, "turn": turn, "ops": ops}
         # Row by row (UNWIND ... CREATE): a COPY writes whole pages straight into the file and costs
         # 100-300 ms to commit where a small CREATE transaction costs a few (measured here).
-        with self._store_lock:
+        with self._conn_lock:
             self._transaction(key, seg, v, turn, answer, seg_row, seg_vec, new_places, changed_places, restated,
                               place_vecs,
                               new_ents, changed, relocated, located, in_place, spatial, result, op_rows, merged,
                               duration)
+        with self._store_lock:  # (the same lock, unless the readers read apart)
             # committed: the key is acknowledged and the vectors written (even if on_commit fails)
             self._keys.add(key)
             self.commits += 1
@@ -559,6 +577,7 @@ class LiveWriter:
                                      **{e.id: {**entity_row(e), "emb": _floats(e.emb if e.emb is not None else
                                                                              np.zeros(dim, np.float32))}
                                         for e in new_ents}}}
+            self.journal.append(delta)
             if self._on_commit is not None:
                 self._on_commit(delta)
         return ops, delta

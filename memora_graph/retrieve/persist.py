@@ -48,6 +48,7 @@ import numpy as np
 
 from memora_graph.bank import MANIFEST, Bank
 from memora_graph.errors import BankError
+from memora_graph.form import live_journal
 from memora_graph.retrieve.graph import ObservationGraph
 from memora_graph.retrieve.history import ARRAYS as HISTORY_ARRAYS
 from memora_graph.retrieve.history import HistoryIndex
@@ -104,6 +105,8 @@ class PersistedStores:
         self.record = record or {"of": meta.get("db_sha256"), "files": meta.get("files", {})}
         self.bank_path = bank_path
         self._checked: set[str] = set()
+        self.journal: list[dict] = []  # moments remembered since (replayed by the view: `MemoryView.replay`)
+        self.db_now = self.record.get("of")
 
     @classmethod
     def open(cls, bank_path: str | Path, participant: str, db_sha256: str | None,
@@ -122,13 +125,17 @@ class PersistedStores:
             raise StaleStores(f"{root / 'meta.json'}: unreadable ({exc})") from None
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise StaleStores(f"{root}: written in another format")
-        if not db_sha256 or meta.get("db_sha256") != db_sha256:
+        journal = None  # the moments remembered since the stores' database (form/live_journal.py)
+        if db_sha256 and meta.get("db_sha256") != db_sha256:
+            journal = live_journal.usable(Bank(bank_path), participant, meta.get("db_sha256"), db_sha256)
+        if not db_sha256 or (meta.get("db_sha256") != db_sha256 and journal is None):
             raise StaleStores(f"{root}: computed from another version of {participant}.kuzu (stale)")
         if meta.get("participant") != participant or meta.get("embed_model") != embed_model:
             raise StaleStores(f"{root}: computed for another participant or embedding model")
         if record is True:
             record = Bank(bank_path).derived.get(participant, RECORD)
-        if not isinstance(record, dict) or record.get("of") != db_sha256 or not isinstance(record.get("files"), dict):
+        if not isinstance(record, dict) or record.get("of") != meta.get("db_sha256") \
+                or not isinstance(record.get("files"), dict):
             raise StaleStores(f"{root}: not recorded in {MANIFEST} for this version of {participant}.kuzu "
                               "(written before stores were recorded there, or by a write that did not finish)")
         files = meta.get("files")
@@ -139,6 +146,13 @@ class PersistedStores:
             raise StaleStores(f"{root / 'meta.json'}: damaged: it does not match its record in {MANIFEST}{what}; "
                               f"{', '.join(str(root / n) for n in named) or 'its files'} cannot be trusted")
         stores = cls(root, meta, record, Path(bank_path))
+        stores.db_now = db_sha256  # the database now: what a record written by this open is tied to
+        if journal is not None:
+            try:
+                stores.journal = live_journal.read(bank_path, participant, journal)
+            except (OSError, ValueError) as exc:
+                raise StaleStores(f"{exc}: damaged; the stores of the database before it cannot be brought "
+                                  "up to date with it") from None
         stores._opened_ns = time.time_ns()  # before any hashing: what a stamp recorded later may vouch for
         stamps = {} if not trust_stamps else stores._stamps()
         for name in record["files"]:
@@ -178,7 +192,7 @@ class PersistedStores:
             if self.bank_path is not None:  # the manifest first: stamps it does not vouch for are ignored
                 record = {**self.record, "stamps": _sha256_bytes(text.encode())}
                 if not Bank(self.bank_path).derived.put(self.meta.get("participant"), RECORD, record,
-                                                        db_sha256=self.record.get("of")):
+                                                        db_sha256=self.db_now):
                     return
                 self.record = record
             tmp = self.root / f".verified.{os.getpid()}.tmp"

@@ -183,8 +183,10 @@ class MemoryView:
                     if why.damaged:  # stale is expected after any write; damage is worth a word
                         log.warning(f"{why}; reading the database instead (and writing them again)")
                 else:
-                    return cls(None, participant, embedder, config, owns_store=True, persisted=stores,
+                    view = cls(None, participant, embedder, config, owns_store=True, persisted=stores,
                                open_store=lambda: b.open(participant, read_only=True))
+                    view.replay(stores.journal)
+                    return view
         store = b.open(participant, read_only=True)
         try:
             view = cls(store, participant, embedder, config, owns_store=True)
@@ -202,7 +204,16 @@ class MemoryView:
 
     @classmethod
     def live(cls, store: Store, bank: str | Path, participant: str, db_sha256: str | None, embedder=None,
-             config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
+             config: SearchConfig | str = DEFAULT_RECIPE, own: bool = False) -> MemoryView:
+        """`_live`'s view; `own`: the view closes `store` when it closes (a reader connection
+        of the writer's database, `Store.reader`, opened for it)."""
+        view = cls._live(store, bank, participant, db_sha256, embedder, config)
+        view._owns = own
+        return view
+
+    @classmethod
+    def _live(cls, store: Store, bank: str | Path, participant: str, db_sha256: str | None, embedder=None,
+              config: SearchConfig | str = DEFAULT_RECIPE) -> MemoryView:
         """A view for the readers of a live writer (`memora serve --writable`), on the writer's own
         `store` (read-write, not closed by the view). `db_sha256`: the database's sha256 as the
         writer opened it, checked against its integrity record (form/live.py `opened_sha256`),
@@ -242,6 +253,7 @@ class MemoryView:
             return out
         out = cls(None, participant, embedder, config, persisted=stores, open_store=lambda: store)
         out._store = store
+        out.replay(stores.journal)
         return out
 
     @property
@@ -580,6 +592,26 @@ class MemoryView:
         graph = self._grown("graph")
         if graph is not None:
             graph.add(sid, delta.get("observations", []))
+
+    def replay(self, journal: list[dict]) -> None:
+        """Take in the moments remembered since the persisted stores were written (their journal,
+        form/live_journal.py), as a writable server's readers took each in when it was remembered:
+        the stores are not computed or written again. The entity registry and vectors are loaded
+        from the stores first, so that the moments' entities are taken in by id, not read whole
+        from the database."""
+        if not journal:
+            return
+        t0 = time.perf_counter()
+        if any(d.get("entities") for d in journal):
+            _ = self.entities
+            if self._persisted_for("entity"):
+                self.vectors("entity")
+        for delta in journal:
+            if delta.get("inferred"):
+                self.reload_inferred()
+            else:
+                self.absorb(delta)
+        self.replayed = (len(journal), time.perf_counter() - t0)
 
     @property
     def steps(self) -> StepRows:

@@ -14,6 +14,8 @@ without `--write`.
 
 from __future__ import annotations
 
+import collections
+
 import json
 import os
 import threading
@@ -309,6 +311,7 @@ class MemoryService:
         self._lock = threading.Lock()
         self._named_lock = threading.Lock()  # the named queries' own connection (a writable server's)
         self._named_reader = None
+        self._pending: collections.deque = collections.deque()  # committed, not yet in the readers' caches
         if writable:
             if participant is None:
                 raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
@@ -317,8 +320,10 @@ class MemoryService:
             participant = check_participant(participant, "--participant")
             # creates the bank or the participant if need be; perceives and embeds outside the readers' lock,
             # and commits and updates the readers' caches inside it
-            self.writer = LiveWriter(bank, participant, store_lock=self._lock, on_commit=self._absorb,
-                                     checkpoint=checkpoint)
+            # the readers read through a connection of their own and take each committed moment in at
+            # their next call (`_catch_up`): a remember never waits for a reader, nor a reader for a commit
+            self.writer = LiveWriter(bank, participant, on_commit=self._absorb, checkpoint=checkpoint,
+                                     readers_apart=True)
         elif consolidate_every is not None:
             raise BankError("--consolidate-every applies to a --writable server")
         self.bank = Bank(bank)
@@ -350,7 +355,7 @@ class MemoryService:
         if self.writer is not None and consolidate_every is not None:
             from memora_graph.consolidate.live import BackgroundConsolidation
 
-            self.consolidator = BackgroundConsolidation(self.writer, every=consolidate_every, lock=self._lock,
+            self.consolidator = BackgroundConsolidation(self.writer, every=consolidate_every, lock=self.write_locks(),
                                                         on_done=self._consolidated)
         if participant is not None:
             self.warm(participant)  # a damaged database is refused now, before the first call
@@ -366,16 +371,40 @@ class MemoryService:
         view = self._views.get(participant)
         if view is None:
             with shield():  # an open is never cut halfway by a call's budget (serve/budget.py)
-                view = self._open_view(participant)
+                if self.writer is None:
+                    view = self._open_view(participant)
+                else:
+                    with self.writer.write_lock:  # no commit while it reads: it holds every one before
+                        view = self._open_view(participant)
+                        self._pending.clear()
+        if self.writer is not None:
+            self._catch_up(view)
         return view
+
+    def _catch_up(self, view: MemoryView) -> None:
+        """Take in what was committed since this view last read (called under the readers' lock,
+        at the start of each call): the remembered moments, a consolidation's new records."""
+        while self._pending:
+            kind, delta = self._pending.popleft()
+            if kind == "moment":
+                view.absorb(delta)
+            else:
+                view.reload_inferred()
 
     def _open_view(self, participant: str) -> MemoryView:
         if self.writer is not None:
             # the persisted tool stores, if computed from the database as the writer opened it (and
             # nothing was written since: the view could not absorb it), else the writer's store
             sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
-            view = self._views[participant] = MemoryView.live(self.writer.store, self.bank.path, participant, sha,
-                                                              config=self.recipe)
+            # a connection of the view's own on the writer's database (the last committed snapshot):
+            # a remember's commit runs beside the readers, who wait only while their caches take it in
+            reader = self.writer.store.reader(counted=False)
+            try:
+                view = self._views[participant] = MemoryView.live(reader, self.bank.path, participant, sha,
+                                                                  config=self.recipe, own=True)
+            except BaseException:
+                reader.close()
+                raise
         else:
             view = self._views[participant] = MemoryView.open(self.bank.path, participant, config=self.recipe)
         return view
@@ -568,16 +597,22 @@ class MemoryService:
             self.consolidator.added(1)
         return RememberResult.model_validate(done.as_dict()).model_dump(mode="json")
 
+    def write_locks(self):
+        """What another writer through the writer's store (a background consolidation) holds
+        around its write: the writer's lock (no remember's transaction runs meanwhile on that
+        connection). The readers take its records in at their next call (`_consolidated`)."""
+        return self.writer.write_lock
+
     def _absorb(self, delta: dict) -> None:
-        """Right after a remember committed, inside the readers' lock: their caches take it in."""
-        view = self._views.get(self.participant)
-        if view is not None:
-            view.absorb(delta)
+        """Right after a remember committed (the writer's thread, holding its lock): queued for
+        the readers, who take it in at their next call (`_catch_up`)."""
+        self._pending.append(("moment", delta))
 
     def _consolidated(self) -> None:
-        """After a background consolidation committed (under the lock): readers load the new records."""
-        for view in self._views.values():
-            view.reload_inferred()
+        """After a background consolidation committed (holding the writer's lock): the readers
+        load the new records at their next call; a later open takes them in from the journal."""
+        self.writer.journal.note_inferred()  # (form/live_journal.py)
+        self._pending.append(("inferred", None))
 
     def _cypher(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.adhoc import run_query
@@ -593,8 +628,10 @@ class MemoryService:
                 params = bind_params(statement, arguments["params"], participant)
             except QueryRefused as exc:
                 raise QueryRefused(for_agents(str(exc))) from None
-            with self._guards[participant].lock, self._guards[participant].owned():
-                store = self.writer.store
+            with self._named_lock:  # the named queries' connection (the last committed snapshot)
+                if self._named_reader is None:
+                    self._named_reader = self.writer.store.reader(counted=False)
+                store = self._named_reader
                 store.set_timeout(self._cypher_timeout(arguments["timeout"]))
                 try:
                     frame = store.query(statement.text, params)
@@ -645,7 +682,7 @@ class MemoryService:
                 # readers' lock, so remembers and the other tools do not wait for it
                 with self._named_lock:
                     if self._named_reader is None:
-                        self._named_reader = self.writer.store.reader()
+                        self._named_reader = self.writer.store.reader(counted=False)  # short queries only
                     frame = self._named_reader.run(name, participant=participant, **arguments)
                 return _rows(frame, participant, self.max_rows)
             with self._guards[participant].lock, self._guards[participant].owned():

@@ -39,7 +39,7 @@ def test_each_moment_is_journaled_before_remember_answers_and_a_checkpoint_empti
     synced = []
     real_fsync = os.fdatasync
     with LiveWriter(bank, "P01", checkpoint=CheckpointPolicy(0, 0, 0)) as memory:
-        journal_fd = memory.journal._fd
+        journal_fd = memory.intake._fd
         monkeypatch.setattr(os, "fdatasync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
         done = []
         for m in moments(5):

@@ -4,7 +4,9 @@ batch run. Real Kùzu in tmp dirs, the bundled MiniLM, the mcp SDK's client over
 
 from __future__ import annotations
 
+import contextlib
 import json
+import shutil
 
 import urllib.error
 import urllib.request
@@ -90,6 +92,48 @@ def test_named_queries_of_a_writable_server_read_a_snapshot_without_the_readers_
         service.call("remember", {"text": "close the fridge", "video": "kitchen-1", "start": 9.0})
         assert service.call("query_baseline_segments", {"video": "kitchen-1"})["row_count"] == 4, "the next snapshot holds the new moment"
     finally:
+        service.close()
+    assert verify_bank(tmp_path / "bank").ok
+
+
+def test_tools_answer_while_a_remember_commits(tmp_path, monkeypatch):
+    """A writable server's readers read through a connection of their own (the last committed
+    snapshot): a tool call made while a remember's transaction is open (held for a second here)
+    answers before the commit, without the moment; the next call, after it, sees it."""
+    import threading
+    import time
+
+    service = MemoryService(tmp_path / "bank", "P01", writable=True)
+    try:
+        service.call("remember", {"text": "put the kettle on the counter", "video": "kitchen-1", "start": 0.0})
+        inside, release = threading.Event(), threading.Event()
+        real = service.writer.store.transaction
+
+        @contextlib.contextmanager
+        def slow_transaction():
+            with real():
+                yield
+                inside.set()
+                release.wait(20)  # the statements ran; the commit waits
+
+        monkeypatch.setattr(service.writer.store, "transaction", slow_transaction)
+        done = {}
+        t = threading.Thread(target=lambda: done.update(service.call(
+            "remember", {"text": "take the knife from the drawer", "video": "kitchen-1", "start": 5.0})), daemon=True)
+        t.start()
+        assert inside.wait(20)
+        t0 = time.perf_counter()
+        during = service.call("search_objects", {"query": "knife"})
+        history = service.call("get_object_history", {"object_query": "kettle"})
+        waited = time.perf_counter() - t0
+        release.set()
+        t.join(20)
+        assert waited < 5.0 and not t.is_alive() and done["segment"] == "kitchen-1#t0001"
+        added = [op["entity"] for op in done["ops"] if op["op"] == "ADD"]
+        assert added and "kitchen-1" in json.dumps(history) and added[0] not in json.dumps(during)
+        assert added[0] in json.dumps(service.call("search_objects", {"query": "knife"}))
+    finally:
+        monkeypatch.undo()
         service.close()
     assert verify_bank(tmp_path / "bank").ok
 
@@ -358,11 +402,20 @@ def test_a_writable_server_reads_the_stores_and_answers_as_a_fresh_open(stored_b
         service.close()
     assert live != before
     assert verify_bank(bank).ok
-    # the writer's close recorded the database's new sha256: the stores are stale, written again on open
-    with pytest.raises(Exception, match="stale"):
-        from memora_graph.retrieve.persist import PersistedStores
+    # the writer's close recorded the database's new sha256 and the journal of the moments leading
+    # to it (form/live_journal.py): a reader opens the same stores and takes the moments in
+    from memora_graph.retrieve.persist import PersistedStores
 
-        PersistedStores.open(bank, P, Bank(bank).checked_sha256(P), meta["embed_model"])
+    stores = PersistedStores.open(bank, P, Bank(bank).checked_sha256(P), meta["embed_model"])
+    assert stores.meta["db_sha256"] == meta["db_sha256"] and len(stores.journal) == len(LIVE)
+    reader = MemoryService(bank, P)
+    try:
+        assert reader._views[P].persisted_written is None and reader._views[P].replayed[0] == len(LIVE)
+        journaled = _reads(reader)
+    finally:
+        reader.close()
+    assert live == journaled
+    shutil.rmtree(store_dir(bank, P))  # and as a reader computing every store from the database
     reader = MemoryService(bank, P)
     try:
         assert reader._views[P].persisted_written is not None
@@ -373,12 +426,27 @@ def test_a_writable_server_reads_the_stores_and_answers_as_a_fresh_open(stored_b
 
 
 def test_a_restarted_writer_never_reads_stores_older_than_its_database(stored_bank):
-    """A writable server after another wrote (closed, so its sha256 was recorded) writes the
-    stores again from the database before reading them, and answers as a fresh open does."""
+    """A writable server after another wrote (closed, so its sha256 was recorded) reads the
+    stores of the database before, with the journal of what was remembered since; a writer
+    killed before its close recorded the journal's end makes them stale: written again from
+    the database. Either way it answers as a fresh open does."""
+    from memora_graph.form.live_journal import RECORD
+
     bank = stored_bank
     with LiveWriter(bank, P) as memory:
         for m in moments(5, video="P37_live"):
             memory.remember(m)
+    service = MemoryService(bank, P, writable=True)
+    try:
+        view = service._views[P]
+        assert view._persisted is not None and view.persisted_written is None, "the stores and the journal"
+        assert view.replayed[0] == 5
+        got = _reads(service)
+    finally:
+        service.close()
+    with MemoryService(bank, P, recipe="inprocess") as reader:
+        assert got == _reads(reader)
+    Bank(bank).derived.drop(P, RECORD)  # (as a killed writer leaves it: no journal leading to the database)
     service = MemoryService(bank, P, writable=True)
     try:
         view = service._views[P]
@@ -405,3 +473,55 @@ def test_perf_live_without_consolidation(stored_bank, tmp_path):
     named = {n: v for n, v in row["tool_idle_p95_by_tool_ms"].items() if n.startswith("query_")}
     assert row["named_query_worst"] in named and row["named_query_worst_p95_ms"] >= max(named.values())
     assert sorted(p.name for p in stored_bank.rglob("*")) == before, "the given bank is never written"
+    # after the remembers, both opens read the stores with the journal of what was remembered
+    assert row["reopen_writable_stores"].startswith("read + ") and row["first_read_stores"].startswith("read + ")
+    assert row["reopen_writable_s"] > 0 and row["first_read_first_ask_s"] > 0
+
+
+def test_opens_after_remembers_append_to_the_journal_and_never_rewrite_the_stores(stored_bank, monkeypatch):
+    """Batches of remembers (the CLI's writer, then a writable server's), each followed by a
+    writable and a read-only open: the persisted stores' files are never written again (same
+    bytes, same inode and change time); the journal only grows, by the moments remembered; and
+    every open answers as one computing the stores from the database."""
+    from memora_graph.form.live_journal import RECORD, journal_path
+    from memora_graph.retrieve.persist import store_dir
+
+    bank = stored_bank
+    root = store_dir(bank, P)
+
+    def files() -> dict:
+        return {f.name: (f.stat().st_ino, f.stat().st_ctime_ns, f.read_bytes()) for f in root.iterdir()
+                if f.name != "verified.json"}
+
+    kept = files()
+    sizes = []
+    with LiveWriter(bank, P) as memory:  # `memora remember` (no server)
+        for m in moments(4, video="P37_cli"):
+            memory.remember(m)
+    for batch in range(2):
+        service = MemoryService(bank, P, writable=True)
+        try:
+            assert service._views[P].persisted_written is None and service._views[P].replayed[0] == 4 + 3 * batch
+            for m in moments(3, video=f"P37_srv{batch}"):
+                service.call("remember", {"text": m.text, "video": m.video, "start": m.start, "end": m.end})
+        finally:
+            service.close()
+        sizes.append(journal_path(bank, P).stat().st_size)
+        with MemoryService(bank, P) as reader:
+            assert reader._views[P].persisted_written is None and reader._views[P].replayed[0] == 7 + 3 * batch
+            journaled = _reads(reader)
+        assert files() == kept, "the stores' files were not written again"
+        monkeypatch.setenv("MEMORA_TOOL_STORES", "0")  # what Kùzu holds, read whole
+        with MemoryService(bank, P) as fresh:
+            assert fresh._views[P]._persisted is None
+            assert journaled == _reads(fresh)
+        monkeypatch.delenv("MEMORA_TOOL_STORES")
+    assert sizes[0] < sizes[1] and Bank(bank).derived.get(P, RECORD)["n"] == 10
+    assert verify_bank(bank).ok
+    # a journal that is not as recorded (edited) is damaged: the stores are computed again, never
+    # brought up to date with it
+    path = journal_path(bank, P)
+    path.write_bytes(path.read_bytes().replace(b"P37_srv1", b"P37_srvX", 1))
+    with MemoryService(bank, P) as reader:
+        assert reader._views[P].persisted_written is not None and "replayed" not in reader._views[P].__dict__
+        assert _reads(reader) == journaled

@@ -195,7 +195,8 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
         echo("  incremental consolidation")
         from memora_graph.consolidate.live import BackgroundConsolidation
 
-        cons = BackgroundConsolidation(service.writer, every=10**9, lock=service._lock, on_done=service._consolidated)
+        cons = BackgroundConsolidation(service.writer, every=10**9, lock=service.write_locks(),
+                                       on_done=service._consolidated)
         try:
             t0, c0 = time.perf_counter(), time.process_time()
             cons.run_once()
@@ -221,6 +222,35 @@ def measure(bank: Path, participant: str, remembers: int, rate: float, tool_roun
     return out
 
 
+def reopen_figures(bank: Path, participant: str, checkpoint=None) -> dict:
+    """After the remembers above: opening the participant writable again (what `memora serve
+    --writable` pays at a restart), and read-only (the first read of another process after a
+    batch of remembers), each with its first `ask`; whether the tool stores were written again
+    (a full rewrite), read with the journal of remembered moments, or read as they were."""
+    from memora_graph.serve import MemoryService
+
+    question = {"question": "Where is the knife?"}
+    out = {}
+    for tag, writable in (("reopen_writable", True), ("first_read", False)):
+        t0, c0 = time.perf_counter(), time.process_time()
+        service = MemoryService(bank, participant, writable=writable,
+                                **({"checkpoint": checkpoint} if writable else {}))
+        try:
+            out[f"{tag}_s"] = round(time.perf_counter() - t0, 2)
+            out[f"{tag}_cpu_s"] = round(time.process_time() - c0, 2)
+            view = service._views[participant]
+            replayed = view.__dict__.get("replayed")
+            out[f"{tag}_stores"] = "written" if view.persisted_written else (
+                f"read + {replayed[0]} journaled moments" if replayed else
+                "read" if view._persisted is not None else "none (Kùzu)")
+            t0 = time.perf_counter()
+            service.call("ask", question)
+            out[f"{tag}_first_ask_s"] = round(time.perf_counter() - t0, 3)
+        finally:
+            service.close()
+    return out
+
+
 def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float, str], remembers: int, rate: float,
              tool_rounds: int, echo=print, consolidation: bool = True, checkpoint=None) -> list[dict]:
     work.mkdir(parents=True, exist_ok=True)
@@ -239,6 +269,9 @@ def run_live(participant: str, sizes: list[float], work: Path, banks: dict[float
         echo(f"{tag}: measuring on {run}")
         row = {"hours": hours, **measure(run, participant, remembers, rate, tool_rounds, echo, consolidation,
                                          checkpoint)}
+        echo("  opens after the remembers")
+        row.update(reopen_figures(run, participant, checkpoint))
+        row["peak_rss_mb"] = _peak_rss_mb()
         saved.write_text(json.dumps(row))
         rows.append(row)
         shutil.rmtree(run, ignore_errors=True)
@@ -303,6 +336,11 @@ def perf_live_cmd(participant, sizes, work, banks, remembers, rate, tool_rounds,
                    f"<= {TARGET_P50_MS:g} / {TARGET_P95_MS:g}; tool p95 while remembering {r['tool_p95_ratio']}x idle "
                    f"(target <= {TARGET_RATIO:g}); {cons}; load average {r.get('load_start')} "
                    f"-> {r.get('load_end')}")
+        if "reopen_writable_s" in r:
+            click.echo(f"{r['hours']:g} h: after the remembers, a writable open {r['reopen_writable_s']} s "
+                       f"(first ask {r['reopen_writable_first_ask_s']} s; stores {r['reopen_writable_stores']}), "
+                       f"a read-only open {r['first_read_s']} s (first ask {r['first_read_first_ask_s']} s; "
+                       f"stores {r['first_read_stores']}); target <= 2 s; peak RSS {r.get('peak_rss_mb')} MB")
         if "ask_idle_p95_ms" in r:
             click.echo(f"{r['hours']:g} h: open {r['open_s']} s; ask p95 {r['ask_idle_p95_ms']} / "
                        f"{r['ask_stream_p95_ms']} ms idle / while remembering, plan {r.get('plan_idle_p95_ms')} / "

@@ -1,0 +1,8 @@
+// description: Every row of `tasks` (for the code that needs them all; not offered by servers). A participant's tasks (task-level memory), in video and time order: goal, stages, steps, objects, tools, places, evidence segments.
+// params: participant
+MATCH (t:Task)
+WHERE t.participant = $participant
+RETURN t.id AS id, t.video AS video, t.goal AS goal, t.family AS family, t.main_object AS main_object,
+       t.t_start AS t_start, t.t_end AS t_end, t.objects AS objects, t.tools AS tools, t.places AS places,
+       t.segments AS segments, t.stages AS stages, t.steps AS steps
+ORDER BY video, t_start, id
