@@ -29,7 +29,7 @@ import shutil
 import time
 from pathlib import Path
 
-from memora_graph.errors import BankError
+from memora_graph.errors import BankError, MemoraError
 from memora_graph.files import RECOVERY, side_files
 
 FOLDER = ".live"  # BANK/.live/intake-<participant>.jsonl
@@ -151,18 +151,17 @@ def recover_without_log(bank: Path, participant: str, db: Path, why: Exception) 
     return dest
 
 
-def reapply(writer) -> int:
+def reapply(writer, moment) -> int:
     """Re-apply the journal's moments the writer's database lacks (by key), in order; then
-    checkpoint, which empties the journal. Returns how many were written."""
-    from memora_graph.errors import MemoraError
-    from memora_graph.form.live import Moment
-
+    checkpoint, which empties the journal. Returns how many were written. `moment`: the class
+    a moment is given to `writer.remember` as (form/live.py's `Moment`; passed in, so this
+    module does not import the writer's)."""
     todo = [e for e in entries(writer.bank.path, writer.participant) if e["key"] not in writer._keys]
     if not todo:
         return 0
     hook, writer._on_commit = writer._on_commit, None  # (as the writer opens: its readers are not yet there)
     try:
-        done = _reapply(writer, todo)
+        done = _reapply(writer, todo, moment)
     finally:
         writer._on_commit = hook
     if done:
@@ -171,10 +170,7 @@ def reapply(writer) -> int:
     return done
 
 
-def _reapply(writer, todo: list[dict]) -> int:
-    from memora_graph.errors import MemoraError
-    from memora_graph.form.live import Moment
-
+def _reapply(writer, todo: list[dict], moment) -> int:
     done = 0
     for entry in todo:
         key = entry["key"]
@@ -185,7 +181,7 @@ def _reapply(writer, todo: list[dict]) -> int:
                 writer.remember_segment(entry["segment"], key=key)
             else:
                 m = entry["moment"]
-                writer.remember(Moment(m["video"], m["start"], m["end"], m["text"], key))
+                writer.remember(moment(m["video"], m["start"], m["end"], m["text"], key))
         except MemoraError as exc:  # a moment whose writer died in its transaction (never acknowledged), or
             log.warning(f"{journal_path(writer.bank.path, writer.participant)}: {key!r} could not be re-applied "
                         f"({exc}); left out")  # one failing again: the rest go on

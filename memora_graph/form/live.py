@@ -323,7 +323,7 @@ class LiveWriter:
         self._load()
         self.reader = reader or NarrationReader()
         self.since_consolidation = 0  # segments written since the last (incremental) consolidation
-        intake.reapply(self)  # moments acknowledged that the database lacks (its log was set aside)
+        intake.reapply(self, Moment)  # moments acknowledged that the database lacks (its log was set aside)
 
     def _busy_message(self, why: str = "") -> str:
         mark = (self.bank.manifest().get("writing", {}) if self.bank.exists() else {}).get(self.participant)
