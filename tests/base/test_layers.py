@@ -132,3 +132,48 @@ def test_the_private_import_check_sees_one(tmp_path):
     bad = tmp_path / "m.py"
     bad.write_text("from memora_graph import text as _text\n\ndef f():\n    from memora_graph.bank import _PID, Bank\n")
     assert _private_imports(bad) == [(4, "memora_graph.bank._PID")]
+
+
+def _import_graph(modules: dict[str, Path]):
+    """Module -> the library modules it imports (any level; `from memora_graph.a import b` is
+    the module `a.b` when that is a module, else `a`)."""
+    import networkx as nx
+
+    graph = nx.DiGraph()
+    for module, path in modules.items():
+        graph.add_node(module)
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}".removeprefix("memora_graph.")
+                           in modules else node.module for a in node.names]
+            for name in targets:
+                if name.startswith("memora_graph."):
+                    target = name.removeprefix("memora_graph.")
+                    if target in modules and target != module:
+                        graph.add_edge(module, target)
+    return graph
+
+
+def test_no_import_circles():
+    """No two modules import each other, directly or around a circle (function-level imports
+    count too): a circle is a layer inside a layer."""
+    import networkx as nx
+
+    graph = _import_graph({m: p for m, p in _modules().items() if m})
+    circles = [c for c in nx.simple_cycles(graph) if not all(graph.has_edge(a, b) and
+               (a.startswith(b + ".") or b.startswith(a + ".")) for a, b in zip(c, c[1:] + c[:1]))]
+    assert not circles, "import circles:\n" + "\n".join(" -> ".join(c + c[:1]) for c in circles[:10])
+
+
+def test_the_circle_check_sees_one(tmp_path, monkeypatch):
+    """The checker itself: two modules that import each other (one at function level) are a circle."""
+    import networkx as nx
+
+    (tmp_path / "a.py").write_text("from memora_graph.b import x\n")
+    (tmp_path / "b.py").write_text("def f():\n    from memora_graph.a import y\n")
+    graph = _import_graph({"a": tmp_path / "a.py", "b": tmp_path / "b.py"})
+    assert list(nx.simple_cycles(graph))
