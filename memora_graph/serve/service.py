@@ -44,6 +44,7 @@ CYPHER_QUEUE = 8  # cypher calls waiting beyond those; past it a call is refused
 CYPHER_TIMEOUT = 30.0
 MAX_CYPHER_TIMEOUT = 300.0
 QUERY_PREFIX = "query_"  # a named query `object_history` is served as the tool `query_object_history`
+PENDING_MAX = 256  # committed moments queued for the readers before the writer folds them in itself, if no reader is busy
 SEGMENT_BYTES = 200_000  # JSON of one `remember` segment record at most
 SPIN_ENV = "MEMORA_TEST_SPIN_TOOL"  # test only: also serve `test_spin`, a call that runs in Python for as long as asked
 
@@ -605,8 +606,18 @@ class MemoryService:
 
     def _absorb(self, delta: dict) -> None:
         """Right after a remember committed (the writer's thread, holding its lock): queued for
-        the readers, who take it in at their next call (`_catch_up`)."""
+        the readers, who take it in at their next call (`_catch_up`). A long stream with no read
+        is folded in every PENDING_MAX moments, when no reader holds the view (never waiting for
+        one), so the queue stays bounded without a remember waiting on a reader."""
         self._pending.append(("moment", delta))
+        if len(self._pending) >= PENDING_MAX:
+            guard = self._guards.get(self.writer.participant) if hasattr(self, "_guards") else None
+            view = self._views.get(self.writer.participant)
+            if guard is not None and view is not None and guard.lock.acquire(blocking=False):
+                try:
+                    self._catch_up(view)
+                finally:
+                    guard.lock.release()
 
     def _consolidated(self) -> None:
         """After a background consolidation committed (holding the writer's lock): the readers

@@ -117,7 +117,10 @@ def test_a_writable_servers_log_takes_remembered_moments_in_and_holds_few_pendin
     from memora_graph.retrieve import view as view_mod
     from memora_graph.serve import MemoryService
 
+    from memora_graph.serve import service as service_mod
+
     monkeypatch.setattr(view_mod, "STEPS_PENDING_MAX", 3)
+    monkeypatch.setattr(service_mod, "PENDING_MAX", 3)
     texts = ["put the kettle on the counter", "take the knife from the drawer", "open the fridge", "wash the plate"]
     with MemoryService(tmp_path / "bank", "P01", writable=True) as service:
         service.call("remember", {"text": "open the cupboard", "video": "v2", "start": 1.0})
@@ -126,6 +129,8 @@ def test_a_writable_servers_log_takes_remembered_moments_in_and_holds_few_pendin
         for i in range(8):
             service.call("remember", {"text": texts[i % 4], "video": ["v2", "v1", "v3"][i % 3], "start": 2.0 + i})
             assert len(view.__dict__.get("_steps_pending", [])) < 3
+            assert len(service._pending) < 3  # the readers' queue is folded in, not held
+        service.call("search_objects", {"query": "kettle"})  # the next call takes the rest in
         got = step_log(view.steps, lex)
         whole = StepRows.build(view.store.fetch("_open_action_log", participant="P01"))
         assert list(got) == list(step_log(whole, lex)) and len(got) == 9
