@@ -15,7 +15,6 @@ without `--write`.
 from __future__ import annotations
 
 import collections
-
 import json
 import os
 import threading

@@ -40,6 +40,16 @@ def writer(bank: Path, participant: str, *options: str, stderr=None) -> subproce
                             text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
 
 
+def _feed(proc, todo: list[dict]) -> None:
+    """Write `todo` to a writer's stdin, one JSON line each, until it is killed."""
+    try:
+        for m in todo:
+            proc.stdin.write(json.dumps(m) + "\n")
+            proc.stdin.flush()
+    except (BrokenPipeError, OSError, ValueError):
+        pass
+
+
 def kill_after(bank: Path, participant: str, todo: list[dict], acks: int | None = None, *options: str,
                log_bytes: int | None = None) -> dict:
     """Feed `todo` to a writer and SIGKILL it once `acks` moments are acknowledged (or once its
@@ -49,15 +59,7 @@ def kill_after(bank: Path, participant: str, todo: list[dict], acks: int | None 
     proc = writer(bank, participant, *options, stderr=err)
     err.close()
 
-    def feed() -> None:
-        try:
-            for m in todo:
-                proc.stdin.write(json.dumps(m) + "\n")
-                proc.stdin.flush()
-        except (BrokenPipeError, OSError, ValueError):
-            pass
-
-    threading.Thread(target=feed, daemon=True).start()
+    threading.Thread(target=_feed, args=(proc, todo), daemon=True).start()
     wal = Path(bank) / f"{participant}.kuzu.wal"
     acked: dict[str, str] = {}
     t0 = time.perf_counter()
@@ -83,14 +85,6 @@ def kill_in_checkpoint(bank: Path, participant: str, todo: list[dict], *options:
     proc = writer(bank, participant, *options)
     acked: dict[str, str] = {}
 
-    def feed() -> None:
-        try:
-            for m in todo:
-                proc.stdin.write(json.dumps(m) + "\n")
-                proc.stdin.flush()
-        except (BrokenPipeError, OSError, ValueError):
-            pass
-
     def read() -> None:
         for line in proc.stdout:
             got = json.loads(line)
@@ -103,7 +97,7 @@ def kill_in_checkpoint(bank: Path, participant: str, todo: list[dict], *options:
             return 0
 
     reader = threading.Thread(target=read, daemon=True)
-    threading.Thread(target=feed, daemon=True).start()
+    threading.Thread(target=_feed, args=(proc, todo), daemon=True).start()
     reader.start()
     shadow, wal = (Path(bank) / f"{participant}.kuzu{s}" for s in (".shadow", ".wal"))
     t_end, log_at_shadow, during = time.monotonic() + timeout_s, None, False
