@@ -29,19 +29,28 @@ _WORKER: dict = {}
 
 @contextmanager
 def interrupts_to_this_process() -> Iterator[None]:
-    """Start worker processes inside this block: they ignore SIGINT for life. A Ctrl-C goes to the
+    """Start worker processes inside this block: they never see SIGINT. A Ctrl-C goes to the
     whole process group, and a worker still importing its modules would print a traceback of its
     own; only this process acts on it (it kills the workers, leaves the bank resumable and says so
-    in one line). SIGINT ignored at exec stays ignored: Python installs its KeyboardInterrupt
-    handler only over the default one. A no-op off the main thread (signals are the main thread's)."""
+    in one line). SIGINT is blocked in this thread, and a blocked signal stays blocked across fork
+    and exec, so each worker starts with it blocked for life. One that arrives meanwhile (through
+    another thread of this process: polars and torch keep their own) is noted, not raised in the
+    middle of starting a worker, and raised as KeyboardInterrupt when the block ends; ignoring it,
+    as this block once did, dropped a Ctrl-C that landed while a worker started. A no-op off the
+    main thread (signals are the main thread's)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    held: list[int] = []
+    old_handler = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)  # one held for this thread is noted here
+        signal.signal(signal.SIGINT, old_handler)
+    if held and callable(old_handler):
+        old_handler(signal.SIGINT, None)  # Python's own raises KeyboardInterrupt
 
 
 def _worker_init(embed_model: str | None, events, solo: bool = False) -> None:

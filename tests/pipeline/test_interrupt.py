@@ -15,6 +15,7 @@ import pytest
 
 from memora_graph.form.staging import Staging
 from memora_graph.integrity.verify import verify_bank
+from memora_graph.pipeline.workers import interrupts_to_this_process
 
 MEMORA = [sys.executable, "-m", "memora_graph.cli"]
 
@@ -61,6 +62,32 @@ def test_ctrl_c_while_the_worker_starts_prints_one_line_and_the_bank_resumes(tmp
     line = _one_line(r)
     assert "resumes it" in line or line.startswith("memora")
     _resumes(bank)
+
+
+def _own_blocked_signals() -> int:
+    line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("SigBlk:"))
+    return int(line.split()[1], 16)
+
+
+def test_a_ctrl_c_while_workers_start_is_held_for_the_build_not_lost():
+    """CI caught it: while workers were being started SIGINT was ignored, so a Ctrl-C landing then
+    was dropped and the build ran to its end. It is held and raised when the workers are up, and a
+    worker started in the block never sees it."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with interrupts_to_this_process():
+                worker = pool.submit(_own_blocked_signals)
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)  # not raised while workers start
+            time.sleep(0.05)
+        assert worker.result(timeout=120) & (1 << (signal.SIGINT - 1)), "the worker can be interrupted"
+        assert not _own_blocked_signals() & (1 << (signal.SIGINT - 1)), "this process is left blocking Ctrl-C"
+    finally:
+        pool.shutdown()
 
 
 @pytest.mark.slow
