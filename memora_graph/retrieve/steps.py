@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import bisect
 import json
+import weakref
 from collections.abc import Iterable
 
 import numpy as np
@@ -55,6 +56,7 @@ class StepRows:
         self.videos, self.segments, self.words = videos, segments, words
         self.video, self.t, self.segment, self.word = video, t, segment, word
         self.lineage = object()  # shared by the rows `added` grows from these (their first segments are these)
+        self.grown: tuple | None = None  # set by `added`: (the rows these grew from, weakly; where the steps went)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -171,4 +173,7 @@ class StepRows:
                        np.insert(self.word, at, [r[4] for r in rows]).astype(np.int32))
         out._word_index = word_ix
         out.lineage = self.lineage
+        # what a log over these rows needs to derive its runs from the log over `self` (agent/
+        # query/steplog.py) instead of from every step: where the new steps went, and from what
+        out.grown = (weakref.ref(self), np.asarray(at, dtype=np.int64))
         return out

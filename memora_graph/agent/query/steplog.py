@@ -45,6 +45,16 @@ def first_order_counts(keys: np.ndarray) -> list[tuple[int, int]]:
     return [(int(uniq[k]), int(counts[k])) for k in np.argsort(first, kind="stable")]
 
 
+def _pair_key(c: Classes) -> tuple:
+    """A wording's action: (verb, first object or "")."""
+    return c[0], c[1][0] if c[1] else ""
+
+
+def _run_key(c: Classes) -> tuple:
+    """A wording's action as a run reads it: (verb, first object)."""
+    return c[0], c[1][:1]
+
+
 class Steps(Sequence):
     """Some steps of a log (positions into it), in the order an answer reads them (log order but
     for a scope ordered by closeness to a moment), read as `LogStep`s on demand."""
@@ -197,6 +207,39 @@ class StepLog(Sequence):
         old = grown_from.protos if grown_from is not None else []
         self.protos = old + [LogStep("", 0.0, "", *c, w[3]) for c, w in
                              zip(classes[len(old):], rows.words[len(old):])]
+        if grown_from is not None:
+            self._grow(grown_from)
+
+    def _grow(self, old: StepLog) -> None:
+        """Derive what `old` (the log these rows grew from by `StepRows.added`) has derived: per
+        wording extended by the new wordings, the runs of the whole log mended where steps went in,
+        so a remember costs the next `ask` its own steps, not a pass over the whole log."""
+        n = len(old.classes)
+        if "_nouns" in old.__dict__:  # every wording of the rows is used by a step, and steps are only added
+            new = self.classes[n:]
+            self._nouns = old._nouns | {x for c in new for x in c[2]}
+            self._verbs = old._verbs | {c[0] for c in new if c[0]}
+        for cache, key in (("_pair_of_word", _pair_key), ("_action_of_word", _run_key)):
+            got = old.__dict__.get(cache)
+            if got is not None:
+                ids = dict(got[0])
+                tail = [ids.setdefault(key(c), len(ids)) for c in self.classes[n:]]
+                self.__dict__[cache] = (ids, np.concatenate([got[1], np.asarray(tail, dtype=np.int64)]))
+        parent, at = self.rows.grown or (None, None)
+        runs = old._all.__dict__.get("_run_starts") if "_all" in old.__dict__ else None
+        if runs is None or parent is None or parent() is not old.rows or "_action_of_word" not in self.__dict__:
+            return
+        new_at = at + np.arange(len(at))  # where `StepRows.added` put each new step
+        size = len(self.rows)
+        starts = np.zeros(size, dtype=bool)
+        starts[runs + np.searchsorted(at, runs, "right")] = True  # old steps move up by the new ones before them
+        near = np.unique(np.r_[new_at, new_at + 1])  # the only steps whose predecessor changed
+        near = near[near < size]
+        prev = np.maximum(near - 1, 0)
+        act, video, word = self.run_keys(), self.rows.video, self.rows.word
+        starts[near] = (near == 0) | (video[near] != video[prev]) | (act[word[near]] != act[word[prev]])
+        self._all = Steps(self, np.arange(size))
+        self._all._run_starts = np.flatnonzero(starts)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -247,8 +290,7 @@ class StepLog(Sequence):
     def nouns(self) -> set[str]:
         got = self.__dict__.get("_nouns")
         if got is None:
-            used = np.zeros(len(self.classes), dtype=bool)
-            used[np.unique(self.rows.word)] = True
+            used = np.bincount(self.rows.word, minlength=len(self.classes)) > 0
             got = self._nouns = {n for w in np.flatnonzero(used) for n in self.classes[w][2]}
             self._verbs = {self.classes[w][0] for w in np.flatnonzero(used) if self.classes[w][0]}
         return got
@@ -264,10 +306,12 @@ class StepLog(Sequence):
         got = self.__dict__.get("_pair_of_word")
         if got is None:
             ids: dict = {}
-            of = np.asarray([ids.setdefault((c[0], c[1][0] if c[1] else ""), len(ids)) for c in self.classes],
-                            dtype=np.int64)
-            got = self._pair_of_word = (list(ids), of)
-        return got
+            of = np.asarray([ids.setdefault(_pair_key(c), len(ids)) for c in self.classes], dtype=np.int64)
+            got = self._pair_of_word = (ids, of)
+        names = self.__dict__.get("_pair_names")
+        if names is None or len(names) != len(got[0]):
+            names = self._pair_names = list(got[0])
+        return names, got[1]
 
     def pair_ids(self, at: np.ndarray) -> np.ndarray:
         """The action (index into `pairs()[0]`) of the steps at positions `at`."""
@@ -286,9 +330,9 @@ class StepLog(Sequence):
         got = self.__dict__.get("_action_of_word")
         if got is None:
             ids: dict = {}
-            got = self._action_of_word = np.asarray(
-                [ids.setdefault((c[0], c[1][:1]), len(ids)) for c in self.classes], dtype=np.int64)
-        return got
+            got = self._action_of_word = (ids, np.asarray([ids.setdefault(_run_key(c), len(ids)) for c in self.classes],
+                                                          dtype=np.int64))
+        return got[1]
 
     # -- runs of the whole log (tests/retrieve/test_steps.py) ---------------------------------
     @property
