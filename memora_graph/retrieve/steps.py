@@ -163,8 +163,9 @@ class StepRows:
                 rows.append((v, t, len(rows), si, wi))
         rows.sort(key=lambda r: (r[0], r[1], r[2]))
         at = []
-        for v, t, *_ in rows:  # after every old step of a smaller or equal (video, time)
-            lo, hi = int(np.searchsorted(video, v, "left")), int(np.searchsorted(video, v, "right"))
+        ranks = np.asarray([r[0] for r in rows], dtype=video.dtype)  # of the column's type: no copy of it per search
+        los, his = np.searchsorted(video, ranks, "left"), np.searchsorted(video, ranks, "right")
+        for (_, t, *_), lo, hi in zip(rows, los.tolist(), his.tolist()):  # after every old step of a smaller or equal (video, time)
             at.append(lo + int(np.searchsorted(self.t[lo:hi], t, "right")))
         out = StepRows(videos, segments, words,
                        np.insert(video, at, [r[0] for r in rows]).astype(np.int32),

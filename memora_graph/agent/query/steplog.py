@@ -59,8 +59,9 @@ class Steps(Sequence):
     """Some steps of a log (positions into it), in the order an answer reads them (log order but
     for a scope ordered by closeness to a moment), read as `LogStep`s on demand."""
 
-    def __init__(self, log: StepLog, at: np.ndarray):
-        self.log, self.at = log, np.asarray(at, dtype=np.int64)
+    def __init__(self, log: StepLog, at: np.ndarray, whole: bool = False):
+        """`whole`: `at` is every position of the log in order (its columns are the log's own)."""
+        self.log, self.at, self.whole = log, np.asarray(at, dtype=np.int64), whole
 
     def __len__(self) -> int:
         return len(self.at)
@@ -80,15 +81,15 @@ class Steps(Sequence):
     # -- columns of these steps --------------------------------------------------------------
     @property
     def t(self) -> np.ndarray:
-        return self.log.rows.t[self.at]
+        return self.log.rows.t if self.whole else self.log.rows.t[self.at]
 
     @property
     def video_ix(self) -> np.ndarray:
-        return self.log.rows.video[self.at]
+        return self.log.rows.video if self.whole else self.log.rows.video[self.at]
 
     @property
     def word(self) -> np.ndarray:
-        return self.log.rows.word[self.at]
+        return self.log.rows.word if self.whole else self.log.rows.word[self.at]
 
     def mask(self, pred: Pred) -> np.ndarray:
         """`pred` of each of these steps (evaluated once per wording)."""
@@ -153,7 +154,7 @@ class Steps(Sequence):
 
     def run_firsts(self) -> np.ndarray:
         """The log position of each run's first step."""
-        return self.at[self.run_starts()]
+        return self.run_starts() if self.whole else self.at[self.run_starts()]
 
     def runs_where(self, pred: Pred) -> np.ndarray:
         """Indexes (into `run_starts`) of the runs whose first step `pred` holds for."""
@@ -161,11 +162,14 @@ class Steps(Sequence):
 
     def run_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """(first step of a run, first step of the next run) as log positions, for each two runs
-        that follow each other in one video, in order."""
-        firsts = self.run_firsts()
-        a, b = firsts[:-1], firsts[1:]
-        same = self.log.rows.video[a] == self.log.rows.video[b]
-        return a[same], b[same]
+        that follow each other in one video, in order (found once per `Steps`)."""
+        got = self.__dict__.get("_run_pairs")
+        if got is None:
+            firsts = self.run_firsts()
+            a, b = firsts[:-1], firsts[1:]
+            same = self.log.rows.video[a] == self.log.rows.video[b]
+            got = self._run_pairs = (a[same], b[same])
+        return got
 
     def runs_followed(self, pred: Pred) -> np.ndarray:
         """The first step (log position) of each run that follows, in the same video, a run whose
@@ -238,7 +242,7 @@ class StepLog(Sequence):
         prev = np.maximum(near - 1, 0)
         act, video, word = self.run_keys(), self.rows.video, self.rows.word
         starts[near] = (near == 0) | (video[near] != video[prev]) | (act[word[near]] != act[word[prev]])
-        self._all = Steps(self, np.arange(size))
+        self._all = Steps(self, np.arange(size), whole=True)
         self._all._run_starts = np.flatnonzero(starts)
 
     def __len__(self) -> int:
@@ -267,7 +271,7 @@ class StepLog(Sequence):
         """Every step, as `Steps` (its runs found once per log)."""
         got = self.__dict__.get("_all")
         if got is None:
-            got = self._all = Steps(self, np.arange(len(self)))
+            got = self._all = Steps(self, np.arange(len(self)), whole=True)
         return got
 
     # -- what the reader asks ------------------------------------------------------------------
