@@ -4,8 +4,8 @@ table as JSON. Run as `python -m memora_graph.integrity.probe DB PARTICIPANT [PA
 crash here (SIGSEGV on a damaged file or a foreign write-ahead log) only ends this process.
 
 The buffer pool is capped (a damaged file cannot take the machine's memory), but never below what
-replaying the write-ahead log needs: the cap is sized from the log (`store.replay_pool_bytes`) and
-doubled, up to Kùzu's default (most of the memory), while Kùzu says the pool is full. The JSON
+replaying the write-ahead log needs: the cap is sized from the log (`store.replay_pool_bytes`; with
+`--write`, at least the database's size, which the checkpoint on close needs) and doubled, up to Kùzu's default (most of the memory), while Kùzu says the pool is full. The JSON
 also says what the replay took: the log's size, the pool it opened with, the memory it held
 after replaying (`memory_bytes`: what the replayed changes occupy until a checkpoint) and the
 seconds."""
@@ -42,6 +42,10 @@ def open_sized(db: str, log_bytes: int, read_only: bool = True):
     from memora_graph.store import ReplayError, Store, replay_pool_bytes
 
     pool, ceiling = replay_pool_bytes(log_bytes), machine_pool()
+    if not read_only:  # the replayed log is checkpointed on close, which needs pool by the database's size:
+        # a 2 GB database (1,000 h) replayed its 0.6 MB log in 256 MB and failed the checkpoint, after
+        # Kùzu had already removed the log (1 GB checkpointed it)
+        pool = max(pool, os.path.getsize(db) if os.path.exists(db) else 0)
     while True:
         if pool >= ceiling:
             pool = 0  # the last try: Kùzu's own default
