@@ -15,7 +15,8 @@ evaluation with `bench/run.py` (`run_bench`, resumable item by item), and reads 
 
 Rate 0 is one shared clean cell (`clean-0`) for every error type. The noisy annotations of every
 cell are written first (seconds); then the cells run side by side in `jobs` long-lived worker
-processes (default one per core), each building a cell's three banks and reading them in-process
+processes (default one per core), each building a cell's three banks (with the persisted tool
+stores that `memora build` writes, for the two banks MEMORA reads) and reading them in-process
 with one reader, so the embedding model, the reader and the tool stores load once per worker, not
 once per bank and run process. Cells run coarse to fine (`coarse_first`): a sweep stopped early
 has a coarse curve in every panel. Each build and each run starts from an empty embedding cache
@@ -59,6 +60,7 @@ MEMORA, EPISODIC, PARAMETRIC = "memora_full", "memora_episodic", "no_memory"
 BASELINES = ("flat_1d_raw", "flat_1d_edited", "graph_2d_raw", "graph_2d_edited")
 SWEEP_ERRORS = (MIXED, *ERROR_TYPES)
 BANKS = {"edited": dict(mode="edited"), "raw": dict(mode="raw"), "episodic": dict(mode="edited", episodic=True)}
+TOOL_BANKS = ("edited", "episodic")  # the banks MEMORA's tools read (the raw bank: the raw baselines only)
 
 
 @dataclass
@@ -181,6 +183,7 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
     resume) its evaluation and write its repair table, all in this process unless `workers` > 1
     (the embedding cache emptied before each build and the run: the records of fresh processes)."""
     from memora_graph.pipeline import build_bank
+    from memora_graph.retrieve.view import persist_bank
 
     t0, c0 = time.perf_counter(), _cpu_seconds()
     cell = Path(cell)
@@ -195,6 +198,13 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
         with _repairs_switch(repairs):
             build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
         (bank / ".complete").write_text("")
+    for kind in TOOL_BANKS:
+        # the tool stores `memora build` writes after its build (nothing to do when they are
+        # fresh). Without them the run's first open of a bank writes them but returns a view on
+        # Kùzu, which the run keeps: every segment a tool returns was then one Kùzu lookup
+        # (`MemoryView.by_id`, ~88k a P01 cell pair, a third of its CPU), where a view on the
+        # stores reads the rows kept with them. The records are the same either way.
+        persist_bank(cell / "banks" / kind, participants)
     if on_step:
         on_step(f"{name}: running the evaluation")
     run = dict(participants=participants, tasks=tasks, raw_bank=cell / "banks" / "raw",

@@ -170,3 +170,37 @@ def test_the_calibration_sweep_names_a_break_even_rate_per_error_type(tmp_path):
     assert set(report["break_even"]) == {"mixed", "drop", "swap", "alias"}
     curves = pl.read_parquet(out / "curves.parquet")
     assert curves.filter(pl.col("condition") == "memora_full").height == 4 * 5
+
+
+def test_the_run_reads_memoras_banks_through_the_tool_stores_a_build_writes(tiny_tasks, tmp_path, monkeypatch):
+    """A cell's MEMORA and MEMORA-Episodic banks hold their persisted tool stores, fresh, when its
+    run starts (as `memora build` leaves a bank), so the run's views read the segment rows kept
+    with them: no segment is looked up in Kùzu one by one (`MemoryView.by_id`)."""
+    from memora_graph.bench import noise
+    from memora_graph.retrieve.persist import PersistedStores
+    from memora_graph.store import Store
+
+    held, lookups = {}, []
+    real_run, real_fetch = noise.run_bench, Store.fetch
+
+    def run_checked(bank, out, **kw):
+        for kind, path in (("edited", bank), ("episodic", kw["episodic_bank"])):
+            b = Bank(path)  # StaleStores (the test fails) when missing or not of this database
+            held[kind] = PersistedStores.open(path, "P37", b.checked_sha256("P37"), b.manifest().get("embed_model"))
+        return real_run(bank, out, **kw)
+
+    def fetch_counted(self, name, **params):
+        if name == "_tool_segment":
+            lookups.append(params)
+        return real_fetch(self, name, **params)
+
+    monkeypatch.setattr(noise, "run_bench", run_checked)
+    monkeypatch.setattr(Store, "fetch", fetch_counted)
+    run_noise(tmp_path / "s", ["P37"], [0.0], ["mixed"], tasks=tiny_tasks, seed=2, jobs=1,
+              conditions=["memora_full", "memora_episodic"])
+    assert set(held) == {"edited", "episodic"}
+    records = [json.loads(line) for f in (tmp_path / "s" / "cells" / "clean-0" / "run" / "records").rglob("*.jsonl")
+               for line in f.read_text().splitlines()]
+    calls = [c for r in records for c in r.get("tool_calls") or () if c.get("name") in ("search", "search_activities")]
+    assert calls  # the tools that read segments by id ran
+    assert lookups == []
