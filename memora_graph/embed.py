@@ -111,9 +111,19 @@ class CachedEmbedder:
                 todo[k] = t
         if todo:
             t0 = time.perf_counter()
-            vecs = self.inner.encode(list(todo.values()), kind=kind)
+            batch = list(todo.values())
+            memo = None if _BATCHES is None else (self.name, kind, len(batch), hashlib.blake2b(
+                "\x00".join(batch).encode(), digest_size=16).digest())
+            vecs = None if memo is None else _BATCHES.get(memo)
+            if vecs is None:
+                vecs = self.inner.encode(batch, kind=kind)
+                self.encoded += len(todo)
+                if memo is not None:
+                    _BATCHES[memo] = vecs
+                    _BATCHES["embedded"] += len(batch)
+            else:
+                _BATCHES["spared"] += len(batch)
             self.seconds += time.perf_counter() - t0
-            self.encoded += len(todo)
             for k, v in zip(todo, vecs):
                 self._cache[k] = v
         if not texts:
@@ -333,6 +343,27 @@ def uses_torch(embedder, kind: str) -> bool:
 
 
 _DEFAULT: dict[tuple[str, str], CachedEmbedder] = {}
+_BATCHES: dict | None = None  # while `same_batches()` holds: each list of texts the model was given, its vectors
+
+
+@contextmanager
+def same_batches() -> Iterator[dict]:
+    """Inside the block, a list of texts the model has embedded before (the same texts in the
+    same order, of the same kind) gets the vectors it got then, without the model. A vector's bits
+    depend only on its batch, so these are the vectors the model would give again: work that
+    repeats a fresh process's calls (a noise sweep builds three banks of one cell, whose segments
+    are the same texts; bench/noise.py) is spared the repeats and changes no record. Yields the
+    counts of texts the model embedded and of texts it was spared in the block."""
+    global _BATCHES
+    outer, _BATCHES = _BATCHES, {"embedded": 0, "spared": 0}
+    try:
+        yield _BATCHES
+    finally:
+        if outer is not None:  # an enclosing block keeps what was embedded in this one
+            outer.update({k: v for k, v in _BATCHES.items() if not isinstance(k, str)})
+            outer["embedded"] += _BATCHES["embedded"]
+            outer["spared"] += _BATCHES["spared"]
+        _BATCHES = outer
 
 
 def clear_embedding_caches() -> None:

@@ -48,7 +48,7 @@ from memora_graph.bench.aggregate import eam_scores, planning_panel
 from memora_graph.bench.conditions import resolve_conditions
 from memora_graph.bench.items import KINDS
 from memora_graph.bench.run import load_run, resolve_workers, run_bench, split_conditions
-from memora_graph.embed import clear_embedding_caches
+from memora_graph.embed import clear_embedding_caches, same_batches
 from memora_graph.errors import MemoraError
 from memora_graph.form.repair import REPAIRS_ENV
 from memora_graph.perceive.annotations import load_annotations, load_class_tables, load_video_info, noun_phrase
@@ -182,6 +182,15 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
     """Build a cell's three banks (skipping complete ones) from its noisy annotations, run (or
     resume) its evaluation and write its repair table, all in this process unless `workers` > 1
     (the embedding cache emptied before each build and the run: the records of fresh processes)."""
+    with same_batches() as texts:  # a list of texts embedded again (another bank's same segments) is not embedded twice
+        return _run_cell_once(cell, name, error, rate, participants=participants, conditions=conditions,
+                              kinds=kinds, limit=limit, tasks=tasks, repairs=repairs, workers=workers,
+                              on_step=on_step, texts=texts)
+
+
+def _run_cell_once(cell: str, name: str, error: str, rate: float, *, participants: list[str], conditions, kinds,
+                   limit, tasks, repairs: bool, workers: int | None, on_step: Callable[[str], None] | None,
+                   texts: dict) -> dict:
     from memora_graph.pipeline import build_bank
     from memora_graph.retrieve.view import persist_bank
 
@@ -223,6 +232,7 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
     (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
     done = {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
             "cpu_seconds": round(_cpu_seconds() - c0, 1), "pid": os.getpid(),
+            "texts_embedded": texts["embedded"], "texts_spared": texts["spared"],  # in this process (`same_batches`)
             "load_at_end": [round(x, 2) for x in os.getloadavg()]}
     with open(cell / "timing.jsonl", "a") as fh:  # one line per session that worked on the cell
         fh.write(json.dumps(done) + "\n")

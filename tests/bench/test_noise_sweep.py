@@ -34,6 +34,9 @@ def test_a_small_sweep_runs_every_condition_at_every_rate_and_reports(sweep):
     assert "Break-even rate" in report and "repair table" in report
     assert (out / "figures" / "accuracy.png").stat().st_size > 0 and (out / "figures" / "rgp.png").exists()
     assert "mixed" in json.loads((out / "report.json").read_text())["break_even"]
+    # a cell's three banks share their segments' texts: the model embeds each list once per cell
+    timing = [json.loads(x) for x in (out / "cells" / "clean-0" / "timing.jsonl").read_text().splitlines()]
+    assert timing[-1]["texts_spared"] > 0 and timing[-1]["texts_embedded"] > 0
 
 
 def test_the_clean_cell_is_the_bank_a_plain_build_makes_and_noise_changes_it(sweep, small_bank):
