@@ -112,7 +112,7 @@ class CachedEmbedder:
         if todo:
             t0 = time.perf_counter()
             batch = list(todo.values())
-            memo = None if _BATCHES is None else (self.name, kind, len(batch), hashlib.blake2b(
+            memo = None if _BATCHES is None else (id(self.inner), kind, len(batch), hashlib.blake2b(
                 "\x00".join(batch).encode(), digest_size=16).digest())
             vecs = None if memo is None else _BATCHES.get(memo)
             if vecs is None:
