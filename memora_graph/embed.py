@@ -17,6 +17,7 @@ import resource
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -114,15 +115,15 @@ class CachedEmbedder:
             batch = list(todo.values())
             memo = None if _BATCHES is None else (id(self.inner), kind, len(batch), hashlib.blake2b(
                 "\x00".join(batch).encode(), digest_size=16).digest())
-            vecs = None if memo is None else _BATCHES.get(memo)
+            vecs = None if memo is None else _BATCHES.vectors.get(memo)
             if vecs is None:
                 vecs = self.inner.encode(batch, kind=kind)
                 self.encoded += len(todo)
                 if memo is not None:
-                    _BATCHES[memo] = vecs
-                    _BATCHES["embedded"] += len(batch)
+                    _BATCHES.vectors[memo] = vecs
+                    _BATCHES.embedded += len(batch)
             else:
-                _BATCHES["spared"] += len(batch)
+                _BATCHES.spared += len(batch)
             self.seconds += time.perf_counter() - t0
             for k, v in zip(todo, vecs):
                 self._cache[k] = v
@@ -343,27 +344,36 @@ def uses_torch(embedder, kind: str) -> bool:
 
 
 _DEFAULT: dict[tuple[str, str], CachedEmbedder] = {}
-_BATCHES: dict | None = None  # while `same_batches()` holds: each list of texts the model was given, its vectors
+@dataclass
+class Batches:
+    """What `same_batches` holds: each list of texts the model was given (by key), its vectors; how
+    many texts the model embedded, and how many it was spared."""
+
+    vectors: dict = field(default_factory=dict)
+    embedded: int = 0
+    spared: int = 0
+
+
+_BATCHES: Batches | None = None  # while `same_batches()` holds
 
 
 @contextmanager
-def same_batches() -> Iterator[dict]:
+def same_batches() -> Iterator[Batches]:
     """Inside the block, a list of texts the model has embedded before (the same texts in the
     same order, of the same kind) gets the vectors it got then, without the model. A vector's bits
     depend only on its batch, so these are the vectors the model would give again: work that
     repeats a fresh process's calls (a noise sweep builds three banks of one cell, whose segments
-    are the same texts; bench/noise.py) is spared the repeats and changes no record. Yields the
-    counts of texts the model embedded and of texts it was spared in the block."""
+    are the same texts; bench/noise.py) is spared the repeats and changes no record. Yields what it
+    holds, with the counts of texts embedded and spared; a block inside another is the outer one."""
     global _BATCHES
-    outer, _BATCHES = _BATCHES, {"embedded": 0, "spared": 0}
+    if _BATCHES is not None:
+        yield _BATCHES
+        return
+    _BATCHES = Batches()
     try:
         yield _BATCHES
     finally:
-        if outer is not None:  # an enclosing block keeps what was embedded in this one
-            outer.update({k: v for k, v in _BATCHES.items() if not isinstance(k, str)})
-            outer["embedded"] += _BATCHES["embedded"]
-            outer["spared"] += _BATCHES["spared"]
-        _BATCHES = outer
+        _BATCHES = None
 
 
 def clear_embedding_caches() -> None:

@@ -22,7 +22,9 @@ once per bank and run process. Cells run coarse to fine (`coarse_first`): a swee
 has a coarse curve in every panel. Each build and each run starts from an empty embedding cache
 (`clear_embedding_caches`): a vector's last bits depend on the other texts of its batch, and
 vectors kept from another bank or cell changed a few tool results' last digit, so a cell's
-records are those of its banks built by `memora build` and read by `bench run`, one by one. A cell
+records are those of its banks built by `memora build` and read by `bench run`, one by one (within
+a cell, a list of texts the model embedded before is not embedded again: `embed.same_batches`,
+the same vectors bit for bit; the three banks share their segments' texts). A cell
 whose banks and run are complete is skipped; an interrupted one resumes (its build and its run
 both resume). Each cell appends its wall and CPU-seconds to its `timing.jsonl`.
 """
@@ -182,63 +184,55 @@ def _run_cell(cell: str, name: str, error: str, rate: float, *, participants: li
     """Build a cell's three banks (skipping complete ones) from its noisy annotations, run (or
     resume) its evaluation and write its repair table, all in this process unless `workers` > 1
     (the embedding cache emptied before each build and the run: the records of fresh processes)."""
-    with same_batches() as texts:  # a list of texts embedded again (another bank's same segments) is not embedded twice
-        return _run_cell_once(cell, name, error, rate, participants=participants, conditions=conditions,
-                              kinds=kinds, limit=limit, tasks=tasks, repairs=repairs, workers=workers,
-                              on_step=on_step, texts=texts)
-
-
-def _run_cell_once(cell: str, name: str, error: str, rate: float, *, participants: list[str], conditions, kinds,
-                   limit, tasks, repairs: bool, workers: int | None, on_step: Callable[[str], None] | None,
-                   texts: dict) -> dict:
     from memora_graph.pipeline import build_bank
     from memora_graph.retrieve.view import persist_bank
 
-    t0, c0 = time.perf_counter(), _cpu_seconds()
-    cell = Path(cell)
-    folder = cell / "annotations"
-    for kind, opts in BANKS.items():
-        bank = cell / "banks" / kind
-        if (bank / ".complete").exists():
-            continue
+    with same_batches() as texts:  # a list of texts embedded again (another bank's same segments) is not embedded twice
+        t0, c0 = time.perf_counter(), _cpu_seconds()
+        cell = Path(cell)
+        folder = cell / "annotations"
+        for kind, opts in BANKS.items():
+            bank = cell / "banks" / kind
+            if (bank / ".complete").exists():
+                continue
+            if on_step:
+                on_step(f"{name}: building the {kind} bank")
+            clear_embedding_caches()  # each bank as a fresh `memora build` makes it, vector for vector
+            with _repairs_switch(repairs):
+                build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
+            (bank / ".complete").write_text("")
+        for kind in TOOL_BANKS:
+            # the tool stores `memora build` writes after its build (nothing to do when they are
+            # fresh). Without them the run's first open of a bank writes them but returns a view on
+            # Kùzu, which the run keeps: every segment a tool returns was then one Kùzu lookup
+            # (`MemoryView.by_id`, ~88k a P01 cell pair, a third of its CPU), where a view on the
+            # stores reads the rows kept with them. The records are the same either way.
+            persist_bank(cell / "banks" / kind, participants)
         if on_step:
-            on_step(f"{name}: building the {kind} bank")
-        clear_embedding_caches()  # each bank as a fresh `memora build` makes it, vector for vector
-        with _repairs_switch(repairs):
-            build_bank(bank, participants, annotations=folder / "annotations.csv", jobs=1, **opts)
-        (bank / ".complete").write_text("")
-    for kind in TOOL_BANKS:
-        # the tool stores `memora build` writes after its build (nothing to do when they are
-        # fresh). Without them the run's first open of a bank writes them but returns a view on
-        # Kùzu, which the run keeps: every segment a tool returns was then one Kùzu lookup
-        # (`MemoryView.by_id`, ~88k a P01 cell pair, a third of its CPU), where a view on the
-        # stores reads the rows kept with them. The records are the same either way.
-        persist_bank(cell / "banks" / kind, participants)
-    if on_step:
-        on_step(f"{name}: running the evaluation")
-    run = dict(participants=participants, tasks=tasks, raw_bank=cell / "banks" / "raw",
-               episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit)
-    if workers is not None and workers > 1:
-        run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, workers=workers, **run)
-    else:
-        # `bench run`'s own worker processes take the conditions in groups (`split_conditions`),
-        # each group's embeddings made in a fresh process: here each group runs in turn from an
-        # empty embedding cache, so its vectors and records are those groups' (tests check it)
-        conds = resolve_conditions(conditions)
-        for group in split_conditions(conds, resolve_workers(None, "offline", len(conds))):
-            clear_embedding_caches()
-            run_bench(cell / "banks" / "edited", cell / "run", conditions=[c.name for c in group], workers=1, **run)
-    repair = repair_table(cell, participants)
-    (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
-    done = {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
-            "cpu_seconds": round(_cpu_seconds() - c0, 1), "pid": os.getpid(),
-            "texts_embedded": texts["embedded"], "texts_spared": texts["spared"],  # in this process (`same_batches`)
-            "load_at_end": [round(x, 2) for x in os.getloadavg()]}
-    with open(cell / "timing.jsonl", "a") as fh:  # one line per session that worked on the cell
-        fh.write(json.dumps(done) + "\n")
-    if on_step:
-        on_step(f"{name}: done in {done['seconds']:.0f} s, {done['cpu_seconds']:.0f} CPU-s")
-    return done
+            on_step(f"{name}: running the evaluation")
+        run = dict(participants=participants, tasks=tasks, raw_bank=cell / "banks" / "raw",
+                   episodic_bank=cell / "banks" / "episodic", kinds=kinds, limit=limit)
+        if workers is not None and workers > 1:
+            run_bench(cell / "banks" / "edited", cell / "run", conditions=conditions, workers=workers, **run)
+        else:
+            # `bench run`'s own worker processes take the conditions in groups (`split_conditions`),
+            # each group's embeddings made in a fresh process: here each group runs in turn from an
+            # empty embedding cache, so its vectors and records are those groups' (tests check it)
+            conds = resolve_conditions(conditions)
+            for group in split_conditions(conds, resolve_workers(None, "offline", len(conds))):
+                clear_embedding_caches()
+                run_bench(cell / "banks" / "edited", cell / "run", conditions=[c.name for c in group], workers=1, **run)
+        repair = repair_table(cell, participants)
+        (cell / "repair.json").write_text(json.dumps(repair, indent=1) + "\n")
+        done = {"cell": name, "error": error, "rate": rate, "seconds": round(time.perf_counter() - t0, 1),
+                "cpu_seconds": round(_cpu_seconds() - c0, 1), "pid": os.getpid(),
+                "texts_embedded": texts.embedded, "texts_spared": texts.spared,  # in this process (`same_batches`)
+                "load_at_end": [round(x, 2) for x in os.getloadavg()]}
+        with open(cell / "timing.jsonl", "a") as fh:  # one line per session that worked on the cell
+            fh.write(json.dumps(done) + "\n")
+        if on_step:
+            on_step(f"{name}: done in {done['seconds']:.0f} s, {done['cpu_seconds']:.0f} CPU-s")
+        return done
 
 
 def _say(text: str) -> None:

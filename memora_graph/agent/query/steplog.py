@@ -231,7 +231,7 @@ class StepLog(Sequence):
                 self.__dict__[cache] = (ids, np.concatenate([got[1], np.asarray(tail, dtype=np.int64)]))
         parent, at = self.rows.grown or (None, None)
         runs = old._all.__dict__.get("_run_starts") if "_all" in old.__dict__ else None
-        if runs is None or parent is None or parent() is not old.rows or "_action_of_word" not in self.__dict__:
+        if runs is None or parent is None or parent() is not old.rows:  # (runs found: `run_keys` was extended above)
             return
         new_at = at + np.arange(len(at))  # where `StepRows.added` put each new step
         size = len(self.rows)
@@ -242,8 +242,7 @@ class StepLog(Sequence):
         prev = np.maximum(near - 1, 0)
         act, video, word = self.run_keys(), self.rows.video, self.rows.word
         starts[near] = (near == 0) | (video[near] != video[prev]) | (act[word[near]] != act[word[prev]])
-        self._all = Steps(self, np.arange(size), whole=True)
-        self._all._run_starts = np.flatnonzero(starts)
+        self.all._run_starts = np.flatnonzero(starts)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -313,7 +312,7 @@ class StepLog(Sequence):
             of = np.asarray([ids.setdefault(_pair_key(c), len(ids)) for c in self.classes], dtype=np.int64)
             got = self._pair_of_word = (ids, of)
         names = self.__dict__.get("_pair_names")
-        if names is None or len(names) != len(got[0]):
+        if names is None:
             names = self._pair_names = list(got[0])
         return names, got[1]
 
