@@ -312,6 +312,9 @@ class MemoryService:
         self._named_lock = threading.Lock()  # the named queries' own connection (a writable server's)
         self._named_reader = None
         self._pending: collections.deque = collections.deque()  # committed, not yet in the readers' caches
+        # set below; the writer's open may already commit moments it re-applies (`_absorb`)
+        self._guards: dict[str, _Guard] = {}
+        self._views: dict[str, MemoryView] = {}
         if writable:
             if participant is None:
                 raise BankError("a writable server serves one participant's memory: name it (--participant P01)")
@@ -350,7 +353,6 @@ class MemoryService:
         # one lock per participant (a writable server's one participant: the writer's lock)
         self._guards = {p: _Guard(self._lock if self.writer is not None else threading.Lock())
                         for p in ([participant] if participant is not None else self.participants)}
-        self._views: dict[str, MemoryView] = {}
         self._endpoints = {e.name: e for e in self._build_endpoints()}
         if self.writer is not None and consolidate_every is not None:
             from memora_graph.consolidate.live import BackgroundConsolidation
@@ -610,7 +612,7 @@ class MemoryService:
         one), so the queue stays bounded without a remember waiting on a reader."""
         self._pending.append(("moment", delta))
         if len(self._pending) >= PENDING_MAX:
-            guard = self._guards.get(self.writer.participant) if hasattr(self, "_guards") else None
+            guard = self._guards.get(self.writer.participant)
             view = self._views.get(self.writer.participant)
             if guard is not None and view is not None and guard.lock.acquire(blocking=False):
                 try:
