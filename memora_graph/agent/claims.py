@@ -19,6 +19,7 @@ import os
 import re
 from dataclasses import dataclass
 
+from memora_graph.consolidate import vocab
 from memora_graph.consolidate.task_records import PREFERENCE_FAMILIES
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve.results import PreferenceRecord, RoutineRecord
@@ -95,11 +96,25 @@ def _about(claim: Claim, subject: set[str]) -> bool:
         bool({n.split(":")[0] for n in subject} & {n.split(":")[0] for n in claim.nouns})
 
 
-def _verb_at(clauses, verb: str | None, lex: Lexicon) -> int | None:
+def _verb_at(clauses, verb: str | None, lex: Lexicon, exact: bool = False) -> int | None:
+    """The first clause doing `verb` (its class; or any verb of its category unless `exact`)."""
     for i, c in enumerate(clauses):
-        if c.verb and verb and (c.verb == verb or lex.same_category(c.verb, verb)):
+        if c.verb and verb and (c.verb == verb or (not exact and lex.same_category(c.verb, verb))):
             return i
     return None
+
+
+BOOKKEEPING = vocab.TAKING | vocab.RELEASING | {"hold", "move"}  # verbs that frame every task: they say nothing of its method
+
+
+def _on_claim(option: str, claim: Claim, lex: Lexicon) -> bool:
+    """The option is about the record's objects: it names one of them (at class or head level), or
+    names no object at all ("sets it aside": the question's subject)."""
+    named = {n for c in lex.parse(option) if not c.negated for n in c.objects()}
+    if not named:
+        return True
+    return bool(named & set(claim.nouns)) or \
+        bool({n.split(":")[0] for n in named} & {n.split(":")[0] for n in claim.nouns})
 
 
 def _ordered(option: str, lex: Lexicon):
@@ -113,6 +128,8 @@ def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
     f = claim.family
     if "more" in cue:  # "adds some, then returns for more": a portion at a time, not a set laid out first
         cue = (cue - {"batch"}) | {"one", "repeat"}
+    if f in ("batch", "staging", "carrier") and not _on_claim(option, claim, lex):
+        return 0.0  # an option about other objects ("collects all the waste") is not spoken to
     if f == "batch":  # about fetching and carrying: it speaks to an option that takes, puts or moves things
         if "more" not in cue and not any(lex.verb_category.get(c.verb) in CARRYING for c in _ordered(option, lex)):
             return 0.0
@@ -128,21 +145,24 @@ def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
     if f == "staging":  # only the person's usual way speaks: staged in most of the tasks with the object
         return 1.0 if "staging" in cue and claim.share >= USUAL else 0.0
     if f == "order" and len(claim.verbs) == 2:
-        clauses = _ordered(option, lex)
-        i, j = _verb_at(clauses, claim.verbs[0], lex), _verb_at(clauses, claim.verbs[1], lex)
+        clauses = _ordered(option, lex)  # the record's two actions themselves, not any of their kind
+        i, j = _verb_at(clauses, claim.verbs[0], lex, exact=True), _verb_at(clauses, claim.verbs[1], lex, exact=True)
         if i is None or j is None or i == j:
             return 0.0
         return 1.0 if i < j else -1.0
     if f == "setup":  # the option's first action is one the record sets up first, on the same object
         clauses = _ordered(option, lex)
         if "first" in cue and clauses and set(clauses[0].nouns) & set(claim.nouns) and \
-                any(_verb_at(clauses[:1], v, lex) is not None for v in claim.verbs):
+                any(_verb_at(clauses[:1], v, lex, exact=True) is not None for v in claim.verbs if v not in BOOKKEEPING):
             return 1.0
         return 0.0
     if f == "carrier":  # the option names the tool that carried it ("directly" records say too little)
         if claim.way == "directly" or len(claim.nouns) < 2:
             return 0.0
-        opt_nouns = {n for c in lex.parse(option) for n in c.nouns}
+        clauses = _ordered(option, lex)  # the same transfer (its action), carried by the tool it names
+        if not any(_verb_at(clauses, v, lex) is not None for v in claim.verbs):
+            return 0.0
+        opt_nouns = {n for c in clauses for n in c.nouns}
         return 1.0 if opt_nouns & set(claim.nouns[1:]) else 0.0
     return 0.0
 

@@ -126,7 +126,7 @@ def parse_question(question: str, lex: Lexicon) -> Intent:
     asked = set(lex.question_words(text))
     words = set(lex.lemmas(text))
     nouns = list(dict.fromkeys(n for c in clauses for n in c.nouns))
-    nouns += [n for n in lex.noun_classes(" ".join(lex.question_words(text))) if n not in nouns]
+    nouns += [n for n in lex.question_nouns(text) if n not in nouns]
     verbs = list(dict.fromkeys(c.verb for c in clauses if c.verb))
     place = next((c.place for c in clauses if c.place), None)
     starts_after = text.lower().startswith(("after", "once"))

@@ -68,6 +68,7 @@ _ASPECT = frozenset({"finish", "stop", "end", "complete", "start", "begin", "con
 _PARTICLES = ("down", "up", "aside", "away", "back", "on", "off", "out", "in", "over", "around", "into", "onto")
 # verbs that say an action happened without saying which ("handled the purse"): read, no class
 _GENERIC_VERBS = frozenset({"handle", "deal", "work", "interact", "manage", "do", "perform", "approach", "treat"})
+_DETERMINERS = frozenset({"the", "a", "an", "its", "their", "his", "her", "this", "that", "each", "one", "every"})
 _NEGATION = frozenset({"without", "not", "never", "no", "avoid", "avoids", "avoiding", "instead", "rather", "skip",
                        "skips", "untouched", "except"})
 PLACE_CATEGORIES = frozenset({"appliances", "furniture", "storage"})
@@ -279,6 +280,20 @@ class Lexicon:
     def question_words(self, text: str) -> list[str]:
         """The lemmas of the question's wh-clauses ("what do they usually do next")."""
         return [w for _, words in self._segments(text) if words and words[0] in _WH for w in words]
+
+    def question_nouns(self, text: str) -> list[str]:
+        """The object classes the question's wh-clauses name. A generic verb is an object only after
+        a determiner ("the handle of the pan"); as a verb ("how does P01 handle the bowl", "a
+        handling pattern") it names no object."""
+        kept, prev = [], ""
+        for _, words in self._segments(text):
+            if not words or words[0] not in _WH:
+                continue
+            for w in words:
+                if not (w in _GENERIC_VERBS and prev not in _DETERMINERS):
+                    kept.append(w)
+                prev = w
+        return self.noun_classes(" ".join(kept))
 
     def _clause(self, words: list[str]) -> Clause:
         i = 0
