@@ -104,13 +104,15 @@ def _verb_at(clauses, verb: str | None, lex: Lexicon, exact: bool = False) -> in
     return None
 
 
+GENERAL = frozenset({"utensil", "container", "cutlery", "food", "vegetable", "fruit", "drink"})  # name a kind, not a thing
 BOOKKEEPING = vocab.TAKING | vocab.RELEASING | {"hold", "move"}  # verbs that frame every task: they say nothing of its method
 
 
 def _on_claim(option: str, claim: Claim, lex: Lexicon) -> bool:
     """The option is about the record's objects: it names one of them (at class or head level), or
-    names no object at all ("sets it aside": the question's subject)."""
-    named = {n for c in lex.parse(option) if not c.negated for n in c.objects()}
+    names no particular object ("sets it aside": the question's subject; "a utensil", "the food": a
+    word for a whole category)."""
+    named = {n for c in lex.parse(option) if not c.negated for n in c.objects() if n not in GENERAL}
     if not named:
         return True
     return bool(named & set(claim.nouns)) or \

@@ -89,17 +89,18 @@ def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
 def test_a_portion_at_a_time_is_one_at_a_time_and_repeated_passes(lex):
     """"Adds some, then returns for more" claims what a one-at-a-time batch record and a
     repetition record hold, and contradicts a record that the person lays out a set first."""
-    opts = ["Adds some cereal, then returns to the bag for more.",
-            "Scrubs one fork, then reaches for another to continue the sequence.",
-            "Adds meat in portions, returning to the pan between additions.",
-            "Works slice by slice, breaking each piece into the bowl before taking another."]
-    one = _claim("batch", "one_at_a_time", ["take"], ["cereal"])
-    lot = _claim("batch", "batch", ["take"], ["cereal"])
-    rep = _claim("repetition", "repeat", ["pour"], ["cereal"])
-    for o in opts:
+    opts = {"Adds some cereal, then returns to the bag for more.": ["cereal", "bag"],
+            "Scrubs one fork, then reaches for another to continue the sequence.": ["fork"],
+            "Adds meat in portions, returning to the pan between additions.": ["meat", "pan"],
+            "Works slice by slice, breaking each piece into the bowl before taking another.": ["bowl"]}
+    for o, nouns in opts.items():
+        one = _claim("batch", "one_at_a_time", ["take"], nouns)
+        lot = _claim("batch", "batch", ["take"], nouns)
+        rep = _claim("repetition", "repeat", ["pour"], nouns)
         cue = cues(o)
         assert "more" in cue, o
         assert verdict(one, o, cue, lex) == 1.0 and verdict(lot, o, cue, lex) == -1.0 and verdict(rep, o, cue, lex) > 0
+    rep = _claim("repetition", "repeat", ["pour"], ["cereal"])
     single = "Pours one measured serving from the bag and stops there."
     assert "more" not in cues(single) and verdict(rep, single, cues(single), lex) == 0.0
     assert "batch" in cues("Sets forks aside to soak before washing them all later.")
@@ -153,3 +154,38 @@ def test_a_batch_record_speaks_only_to_taking_putting_or_moving(lex):
     carry = "Gathers all the potatoes together, then puts them on the board."
     assert "batch" in cues(stir) and verdict(lot, stir, cues(stir), lex) == 0.0
     assert verdict(lot, carry, cues(carry), lex) == 1.0
+
+
+def test_a_record_speaks_only_to_options_about_its_objects(lex):
+    """A batch record about taking bowls one at a time says nothing of how cereal is portioned; one
+    about how the food is fetched says nothing of the waste; an option that names no particular
+    object ("sets it aside", "a utensil") is about the question's subject."""
+    bowls = _claim("batch", "one_at_a_time", ["take"], ["bowl"])
+    cereal = "Adds some cereal, then returns to the bag for more."
+    assert verdict(bowls, cereal, cues(cereal), lex) == 0.0
+    food = _claim("batch", "batch", ["take"], ["food"])
+    waste = "Collects all waste on the counter and clears it only after every food item is finished."
+    assert verdict(food, waste, cues(waste), lex) == 0.0
+    assert verdict(food, "Gathers it all together, then puts it down.", cues("Gathers it all together"), lex) == 1.0
+    spoons = _claim("batch", "one_at_a_time", ["take"], ["spoon"])
+    one = "Retrieves one needed utensil from storage as the task requires."
+    assert verdict(spoons, one, cues(one), lex) == 1.0
+
+
+def test_order_setup_and_carrier_records_speak_of_their_own_actions(lex):
+    """An order record holds for its two actions, not for any of their kind; a setup record's
+    taking and putting down frame every task and set nothing up; a carrier record speaks to the
+    same transfer, not to any option that names its tool."""
+    order = _claim("order", "", ["squeeze", "wash"], ["sponge"])
+    rinse = "Rinses the sponge under the tap before using it for washing."
+    assert verdict(order, rinse, cues(rinse), lex) == 0.0
+    assert verdict(order, "Squeezes the sponge, then washes it.", cues("x"), lex) == 1.0
+    setup = _claim("setup", "mix meat", ["hold", "put", "take"], ["pan", "lid"])
+    aside = "Sets the pan aside to soak before adding detergent."
+    assert verdict(setup, aside, cues(aside), lex) == 0.0
+    opens = _claim("setup", "store food", ["open", "take"], ["container"])
+    first = "Opens the containers first, then puts the food into them."
+    assert verdict(opens, first, cues(first), lex) == 1.0
+    jar = _claim("carrier", "with", ["pour"], ["spice", "jar"])
+    assert verdict(jar, "Leaves the jar open.", cues("Leaves the jar open."), lex) == 0.0
+    assert verdict(jar, "Pours the spice from the jar.", cues("x"), lex) == 1.0
