@@ -71,21 +71,23 @@ def budgeted_events(results: list[ToolResult], lex: Lexicon, budget: int | None 
 
 def _actions(text: str, lex: Lexicon) -> list[tuple[str | None, tuple[str, ...]]]:
     """A summary line ("take plate; wash plate; put plate on rack") as its actions, in order."""
-    out = []
-    for part in re.split(r"[;.]\s*|\s->\s", text):
-        part = part.strip()
-        if not part:
-            continue
-        for c in lex.parse(part):
-            if c.verb or c.nouns:
-                out.append((c.verb, tuple(dict.fromkeys(c.nouns))))
-    return out
+    return [(c.verb, tuple(dict.fromkeys(c.nouns))) for part in _parts(text) for c in lex.parse(part) if c.verb or c.nouns]
+
+
+def _parts(text: str) -> list[str]:
+    return [p.strip() for p in re.split(r"[;.]\s*|\s->\s", text) if p.strip()]
 
 
 def _line_events(video: str, t0: float, text: str, ids: tuple[str, ...], lex: Lexicon, spacing: float = 1.0,
                  weight: float = 1.0, origin: str = "log") -> list[Event]:
-    return [Event(video, t0 + i * spacing, v, ns, ids, weight, origin, text=text)
-            for i, (v, ns) in enumerate(_actions(text, lex))]
+    """A log line's actions as events (`_actions`), each with its narrated verb word."""
+    out = []
+    for part in _parts(text):
+        for c, word in zip(lex.parse(part), lex.verb_words(part)):
+            if c.verb or c.nouns:
+                out.append(Event(video, t0 + len(out) * spacing, c.verb, tuple(dict.fromkeys(c.nouns)), ids, weight,
+                                 origin, text=text, word=word or ""))
+    return out
 
 
 def _weight(count: int | None) -> float:
@@ -172,7 +174,8 @@ def _activity_events(rec: ActivityRecord, lex: Lexicon) -> list[Event]:
         if s.narration:
             nouns += [n for c in lex.parse(s.narration) for n in c.nouns if n not in nouns]
         verb = lex.verb(s.action) or next((c.verb for c in lex.parse(s.narration) if c.verb), None)
-        out.append(Event(video, t, verb, tuple(dict.fromkeys(nouns)), (rec.segment_id,), text=s.narration))
+        word = next((w for w in lex.verb_words(s.narration or "") if w), "") if verb else ""
+        out.append(Event(video, t, verb, tuple(dict.fromkeys(nouns)), (rec.segment_id,), text=s.narration, word=word))
     if not out and rec.summary:
         out = _line_events(video, t0, rec.summary, (rec.segment_id,), lex)
     turn = rec.turn_id

@@ -31,6 +31,7 @@ import re
 from bisect import bisect_left, bisect_right
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
+from itertools import repeat
 
 from memora_graph.agent.claims import adjust
 from memora_graph.agent.claims import enabled as claims_enabled
@@ -87,6 +88,7 @@ class Event:
     follows: tuple[tuple[str | None, tuple[str, ...]], ...] = ()  # a habit: the actions that follow it
     text: str = ""  # the record's own words (a narration, a statement), for the semantic check
     claim: object = None  # a task-pattern record as a `claims.Claim` (how a task is done), checked against options
+    word: str = ""  # the narrated verb word below its class ("lather" for *wash*), when one action was narrated
 
 
 @dataclass
@@ -155,7 +157,12 @@ def parse_question(question: str, lex: Lexicon) -> Intent:
 
 # -- options --------------------------------------------------------------------------------------
 
-Item = tuple[str, str]  # ("v", verb class) | ("n", noun class)
+Item = tuple[str, str]  # ("v", verb class) | ("n", noun class) | ("w", a narrated verb word)
+# An option's own verb word counts beside its class in a routine or method question, at this weight
+# of a class item: "lathers the pan" and "rinses the pan" are both *wash*, and memory's narration
+# says which. Chosen on P01-P03 (0.3 over 0.5 and 1: a paraphrase the narration never uses,
+# "places" for "put", loses little).
+VERB_WORD = 0.3
 
 
 def option_items(option: str, intent: Intent, lex: Lexicon) -> tuple[list[list[Item]], set[Item]]:
@@ -163,8 +170,11 @@ def option_items(option: str, intent: Intent, lex: Lexicon) -> tuple[list[list[I
     option negates. The subject's own objects stay: weighted by how many options name them
     (`_weights`), they count only where they tell options apart ("on the bowl" vs "on the counter")."""
     clauses, negated = [], set()
-    for c in lex.parse(option):
+    fine = intent.kind in ("routine", "preference")
+    for c, word in zip(lex.parse(option), lex.verb_words(option) if fine else repeat(None)):
         items = ([("v", c.verb)] if c.verb else []) + [("n", n) for n in dict.fromkeys(c.nouns)]
+        if word and not c.negated:  # a routine or method question: its own verb word too, below its class
+            items.append(("w", word))
         if c.negated:
             negated.update(items)
         elif items:
@@ -178,13 +188,17 @@ def _weights(per_option: list[list[list[Item]]]) -> dict[Item, float]:
     for clauses in per_option:
         for x in {x for c in clauses for x in c}:
             df[x] += 1
-    return {x: 1.0 / n for x, n in df.items()}
+    return {x: (VERB_WORD if x[0] == "w" else 1.0) / n for x, n in df.items()}
 
 
 # -- evidence -------------------------------------------------------------------------------------
 
 def _items_of(e: Event) -> set[Item]:
-    return ({("v", e.verb)} if e.verb else set()) | {("n", n) for n in e.nouns}
+    """An action's items: its verb class, its objects' classes and the narrated verb word."""
+    out = ({("v", e.verb)} if e.verb else set()) | {("n", n) for n in e.nouns}
+    if e.word:
+        out.add(("w", e.word))
+    return out
 
 
 def _hit(x: Item, have: set[Item], verbs: set[str], lex: Lexicon) -> float:

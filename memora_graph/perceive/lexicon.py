@@ -277,6 +277,22 @@ class Lexicon:
                 segments[-1][1].append(t)
         return segments
 
+    def verb_words(self, text: str) -> list[str | None]:
+        """Per clause of `parse(text)`, the word (lemma) that names its verb: "lather" for the *wash*
+        of "lathers the pan", "pick" for the *take* of "picks it up"; None where no word does."""
+        toks = self.lemmas(text.replace("-", " ").replace("'s", ""))
+        used: set[int] = set()
+        out: list[str | None] = []
+        for c in self.parse(text):
+            at = None
+            if c.verb:
+                at = next((j for j in range(len(toks)) if j not in used and toks[j].isalpha()
+                           and self.verb_class(" ".join(toks[j:j + 3])) == c.verb), None)
+            if at is not None:
+                used.add(at)
+            out.append(toks[at] if at is not None else None)
+        return out
+
     def question_words(self, text: str) -> list[str]:
         """The lemmas of the question's wh-clauses ("what do they usually do next")."""
         return [w for _, words in self._segments(text) if words and words[0] in _WH for w in words]

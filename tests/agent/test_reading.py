@@ -64,6 +64,32 @@ def test_a_generic_verb_names_no_object_unless_a_determiner_makes_it_one(lex):
     assert "handle" in parse_question("What does P01 do with the handle of the pan?", lex).subject_nouns
 
 
+def test_a_method_option_is_read_by_its_own_verb_below_its_class(lex):
+    """"Lathers" and "rinses" are both EPIC's *wash*; the narration says which the person did, so a
+    routine question's option with the narrated verb is supported more than one with another verb
+    of the same class. Recall and habit questions read classes only."""
+    from memora_graph.agent.reading import Event, option_items, score
+
+    events = []
+    for v, video in enumerate(("P01_101", "P01_102", "P01_103")):
+        for k, text in enumerate(("pick up saucepan", "lather saucepan", "put down saucepan", "turn on tap")):
+            verb = lex.verb_class(text)
+            nouns = tuple(n for c in lex.parse(text) for n in c.nouns)
+            events.append(Event(video, 10.0 * v + k, verb, nouns, (f"{video}#t{k}",), text=text,
+                                word=lex.verb_words(text)[0]))
+    question = "How does P01 start handling the saucepan during cleanup?"
+    choices = ["Picks up the pan and lathers it directly.", "Picks up the pan and rinses it directly.",
+               "Wipes the pan with a cloth first.", "Leaves the pan to soak."]
+    intent = parse_question(question, lex)
+    assert ("w", "lather") in option_items(choices[0], intent, lex)[0][1]
+    assert lex.verb_words("Picks up the pan and lathers it directly.") == ["pick", "lather"]
+    assert lex.verb_words("Washes the saucepan after emptying it.") == ["empty", "wash"]  # in the order done
+    d = score(question, choices, events, lex)
+    assert d.scores[0] > d.scores[1] > 0
+    recall = parse_question("In video P01_101, what did P01 do with the saucepan?", lex)
+    assert not any(x[0] == "w" for c in option_items(choices[0], recall, lex)[0] for x in c)
+
+
 def test_lookups_use_whatever_tools_a_condition_has(lex):
     intent = parse_question("After P37 takes the chicken, what do they usually do next?", lex)
     memora = plan(intent, ["search", "search_objects", "search_activities", "get_preferences", "get_routine_skill"])
