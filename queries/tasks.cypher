@@ -3,9 +3,6 @@
 // bound: limit 1000
 MATCH (t:Task)
 WHERE t.participant = $participant
-WITH t
-ORDER BY t.video, t.t_start, t.id
-LIMIT 1000
 RETURN t.id AS id, t.video AS video, t.goal AS goal, t.family AS family, t.main_object AS main_object,
        t.t_start AS t_start, t.t_end AS t_end, t.objects AS objects, t.tools AS tools, t.places AS places,
        t.segments AS segments, t.stages AS stages, t.steps AS steps
