@@ -4,6 +4,7 @@
 // bound: limit 100
 MATCH (s:Segment)-[r:IN_PLACE]->(p:Place)
 WHERE p.participant = $participant AND r.is_primary
-RETURN p.location_id AS place, p.name AS name, count(s) AS turns, p.zones AS zones
+WITH p, count(s) AS turns
+RETURN p.location_id AS place, p.name AS name, turns, p.zones AS zones
 ORDER BY turns DESC, place
 LIMIT 100

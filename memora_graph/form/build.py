@@ -54,6 +54,29 @@ class Timings:
         return self.perception + self.editor + self.embedding + self.graph
 
 
+def load_entities(store: Store, participant: str) -> list[EntityState]:
+    """Every entity of `participant` as the editor holds it, in id order: read as columns, the
+    embeddings as one float32 array (each entity's `emb` a row of it; None where the row has
+    none), a column left empty (NULL) read as "" as before. Whole nodes row by row cost ~1.4 CPU-s
+    at 1,000 h (23,289 entities), the columns ~0.3."""
+    frame = store.fetch_frame("_registry_entities", participant=participant)
+    names = schema.columns("Entity", emb=False)
+    if frame.columns != [*names, "emb"]:
+        raise RuntimeError(f"_registry_entities returns {frame.columns}, not the Entity columns {[*names, 'emb']}")
+    if not frame.height:
+        return []
+    frame = frame.sort("id")
+    has = frame["emb"].is_not_null().to_numpy()
+    rows = iter(frame["emb"].filter(frame["emb"].is_not_null()).to_numpy().astype(np.float32, copy=False)
+                if has.any() else ())
+    out = []
+    for values, have in zip(frame.select(names).iter_rows(), has):
+        e = EntityState(**{k: (v if v is not None else "") for k, v in zip(names, values)})
+        e.emb = next(rows) if have else None
+        out.append(e)
+    return out
+
+
 @dataclass
 class ParticipantBuild:
     participant: str
@@ -117,8 +140,7 @@ class ParticipantBuilder:
                 # left a file that holds nothing yet: the write applies the schema and loads all
                 if not (self._resuming and "Video" not in store.tables()):
                     self.in_db = set(store.run("_videos_all", participant=participant)["video"].to_list())
-                    entities = [self._entity_from_row(r["entity"])
-                                for r in store.fetch("_registry_entities", participant=participant)]
+                    entities = load_entities(store, participant)
                     places = [PlaceState(**_pick(r["place"], schema.columns("Place", emb=False)))
                               for r in store.fetch("_registry_places", participant=participant)]
                     next_ord = int(store.run("_max_state_ord", participant=participant)["max_ord"][0] or 0)
@@ -134,12 +156,6 @@ class ParticipantBuilder:
         self.rebuilt: list[tuple[Path, str]] = []  # staged videos that failed their check
         self._restore_staged()
         self.done = self.in_db | {st.video for st in self.staged}
-
-    @staticmethod
-    def _entity_from_row(r: dict) -> EntityState:
-        e = EntityState(**{k: (r[k] if r[k] is not None else "") for k in schema.columns("Entity", emb=False)})
-        e.emb = np.asarray(r["emb"], dtype=np.float32) if r.get("emb") is not None else None
-        return e
 
     def _embed_one(self, text: str) -> np.ndarray:
         return self.embedder.encode([text])[0]

@@ -351,10 +351,10 @@ class LiveWriter:
 
     def _load(self) -> None:
         """The editor's registry, the places and each video's end, from the database."""
-        from memora_graph.form.build import ParticipantBuilder
+        from memora_graph.form.build import load_entities
 
         p, s = self.participant, self.store
-        entities = [ParticipantBuilder._entity_from_row(r["entity"]) for r in s.fetch("_registry_entities", participant=p)]
+        entities = load_entities(s, p)
         places = [PlaceState(**{k: r["place"][k] for k in schema.columns("Place", emb=False)})
                   for r in s.fetch("_registry_places", participant=p)]
         next_ord = int(s.run("_max_state_ord", participant=p)["max_ord"][0] or 0)

@@ -155,12 +155,14 @@ class PersistedStores:
                                   "up to date with it") from None
         stores._opened_ns = time.time_ns()  # before any hashing: what a stamp recorded later may vouch for
         stamps = {} if not trust_stamps else stores._stamps()
+        hashed = False
         for name in record["files"]:
             if name in stamps and stamps[name] == _stat_stamp(root / name):
                 stores._checked.add(name)  # unchanged since a process hashed it
             else:
                 stores._path(name)
-        if trust_stamps and len(stamps) < len(record["files"]):
+                hashed = True
+        if trust_stamps and hashed:  # (a stamp whose file changed since, e.g. a copied bank, is replaced too)
             stores._record_stamps()
         return stores
 

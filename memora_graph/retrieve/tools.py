@@ -383,7 +383,7 @@ def _link_kinds(view: MemoryView) -> dict[str, frozenset[str]]:
 
 
 def _routine_record(view: MemoryView, r: dict, c: Candidate | None) -> RoutineRecord:
-    steps = r["detail"].get("steps")
+    steps = view.routine_detail(r["id"]).get("steps")
     if not (isinstance(steps, list) and all(isinstance(x, dict) and isinstance(x.get("verb"), str) for x in steps)):
         steps = None  # a processor that recorded no structured steps (or something else under that key)
     rec = {

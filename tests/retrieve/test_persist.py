@@ -228,6 +228,29 @@ def test_the_writer_stamps_its_files_so_a_first_open_hashes_none_and_a_later_cha
     assert any("bm25-segment-tfs.npy" in r.getMessage() and "damaged" in r.getMessage() for r in caplog.records)
 
 
+def test_a_copied_bank_is_hashed_once_then_read_by_its_new_stamps(bank, embedder, monkeypatch, tmp_path):
+    """A copy of a bank (`cp -r`, a restore) gives every store file a new inode, so no stamp
+    vouches for it: the first open hashes them all, records their stat again, and the next open
+    hashes none (before, the stale stamps were kept and every open hashed every file: 0.84 s at
+    1,000 h)."""
+    from memora_graph.retrieve import persist
+
+    monkeypatch.setattr(persist, "STAMP_WAIT_BYTES", 0)
+    persist_bank(bank, [P])
+    copy = tmp_path / "copy"
+    shutil.copytree(bank, copy)
+    monkeypatch.setattr(persist, "RACY_S", 0.0)  # the copy's files are as young as the test
+    hashed = _count_hashes(monkeypatch)
+    with MemoryView.open(copy, P, embedder) as view:
+        assert view._persisted is not None
+    files = set(json.loads((store_dir(copy, P) / "meta.json").read_text())["files"])
+    assert set(hashed) == files, "a copied file's old stamp was trusted"
+    hashed.clear()
+    with MemoryView.open(copy, P, embedder) as view:
+        assert view._persisted is not None
+    assert hashed == [], "the second open of the copy hashed its files again"
+
+
 def test_a_writer_stamps_no_file_younger_than_racy_s(bank, monkeypatch):
     """Files written less than RACY_S ago, too small to wait for, are left to the first open to hash."""
     from memora_graph.retrieve import persist
