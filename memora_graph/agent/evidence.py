@@ -118,7 +118,7 @@ def _step_action(a: Action, lex: Lexicon) -> tuple[str | None, tuple[str, ...]]:
 
 
 def _record_events(kind: str, rec, lex: Lexicon) -> list[Event]:
-    if is_task_record(rec) and not claims_enabled():  # the task memory speaks to the reader only when asked
+    if is_task_record(rec) and not claims_enabled():  # MEMORA_TASK_CLAIMS=off: the reader of before the task memory
         return []
     if isinstance(rec, ActivityRecord):
         return _activity_events(rec, lex)

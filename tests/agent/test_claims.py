@@ -56,10 +56,9 @@ def test_records_reorder_the_options_but_keep_the_evidence_levels():
     assert _reordered(scores, support, [0.0] * 4, [[]] * 4) == (scores, support)
 
 
-def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
-    """The claims re-rank the offline reader's options only with MEMORA_TASK_CLAIMS=on: on the
-    calibration cohort they lifted the development participants and lowered the held-out one, so
-    the default reader reads the task records as it reads any other record."""
+def test_the_reader_reranks_with_claims_unless_turned_off(monkeypatch, lex):
+    """The claims re-rank the offline reader's options by default; MEMORA_TASK_CLAIMS=off reads
+    the task records as any other record (the reader of before them)."""
     from memora_graph.agent import reading
 
     calls = []
@@ -78,10 +77,10 @@ def test_the_reader_reranks_with_claims_only_when_asked(monkeypatch, lex):
     question = "What is P03's approach to handling the saucepan during cleanup?"
     choices = ["Empties it out before washing the saucepan.", "Washes the saucepan before emptying it.",
                "Leaves the saucepan to soak overnight.", "Puts the saucepan straight in the cupboard."]
-    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
+    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "off")
     reading.score(question, choices, events, lex)
     assert not calls
-    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
     reading.score(question, choices, events, lex)
     assert calls
 
@@ -127,9 +126,9 @@ def test_whether_to_answer_is_read_before_the_records_rerank(monkeypatch, lex):
     question = "What is P03's approach to handling the saucepan during cleanup?"
     choices = ["Empties it out before washing the saucepan.", "Washes the saucepan and wipes the counter.",
                "Leaves the saucepan to soak overnight.", "Puts the saucepan away in the cupboard."]
-    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
+    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "off")
     off = reading.score(question, choices, events, lex)
-    monkeypatch.setenv("MEMORA_TASK_CLAIMS", "on")
+    monkeypatch.delenv("MEMORA_TASK_CLAIMS", raising=False)
     best = max(range(4), key=lambda i: (off.scores[i], -i))
     worst = min(range(4), key=lambda i: (off.scores[i], -i))
     monkeypatch.setattr(reading, "task_claims",
