@@ -14,15 +14,15 @@ Answers name classes in the person's most used word for them (`name`).
 from __future__ import annotations
 
 import difflib
-import re
 from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from memora_graph.agent.query import wordings
+from memora_graph.agent.query.wordings import WORD
 from memora_graph.perceive.lexicon import Lexicon
 
-_WORD = re.compile(r"[a-z][a-z0-9]*")
 FUZZY_CUTOFF = 0.8
 
 
@@ -46,7 +46,6 @@ class Vocabulary:
         """The vocabulary of the person `view` holds, cached on the view. A live view's log grows
         by the segments remembered since (retrieve/steps.py, `StepRows.added`: they come after
         the segments read); only their steps are added, not the whole log read again."""
-        from memora_graph.agent.query import wordings
         from memora_graph.agent.query.log import action_log
 
         log = action_log(view, lex) if log is None else log
@@ -88,7 +87,7 @@ class Vocabulary:
             text = rows.words[w][3].lower()
             parsed = seen.get(text)
             if parsed is None:
-                parsed = seen[text] = _phrases(lex, _WORD.findall(text))
+                parsed = seen[text] = _phrases(lex, WORD.findall(text))
             parsed_of[w] = parsed
             nouns, n = classes[w][2], int(counts[w])
             for w_, c in parsed:

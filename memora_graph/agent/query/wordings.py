@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import sys
 from pathlib import Path
 
-from memora_graph.agent.query.vocabulary import _WORD
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve import derived
 
+WORD = re.compile(r"[a-z][a-z0-9]*")  # the words of a step's text (vocabulary.py)
 NAME = "query_wordings"
 SAVE_SHARE = 0.01  # save again once this share of the wordings read is missing from the file
 # the modules whose code reads a wording (any change to them makes a saved file stale)
@@ -66,7 +67,7 @@ def seed(view, lex: Lexicon) -> None:
     try:
         words = {(n, o, a): (v, tuple(objs), tuple(nouns), place) for n, o, a, v, objs, nouns, place in data["log"]}
         # a text's words, then the names of classes in it (saved: only the names; `_phrases`)
-        texts = {t: [(w, None) for w in _WORD.findall(t)] + [(w, c) for w, c in names] for t, names in data["text"]}
+        texts = {t: [(w, None) for w in WORD.findall(t)] + [(w, c) for w, c in names] for t, names in data["text"]}
     except (KeyError, TypeError, ValueError):
         derived.log.warning(f"{derived.DIRNAME.format(participant=view.participant)}/{NAME}.json: damaged "
                             "(not the tables it should hold); not used, computed again")
