@@ -10,6 +10,7 @@ it (`StepLog`, query/steplog.py: filters once per wording, runs by array compari
 
 from __future__ import annotations
 
+from memora_graph.agent.query import wordings
 from memora_graph.agent.query.lexical import fix_keys, noun_classes
 from memora_graph.agent.query.steplog import LogStep, StepLog, Steps
 from memora_graph.perceive.lexicon import Lexicon
@@ -59,12 +60,14 @@ def action_log(view, lex: Lexicon) -> StepLog:
     (query/steplog.py): the steps are the columns kept with the tool stores (`view.steps`,
     retrieve/steps.py, with the segments remembered since in their place); each distinct step
     wording's classes are computed once per view (a person's narrations repeat: 1,151,204 steps
-    in 31,977 wordings at 1,000 h)."""
+    in 31,977 wordings at 1,000 h), or read from those saved with the persisted stores
+    (query/wordings.py)."""
     rows = view.steps
     cached = view.__dict__.get("_open_action_log")
     if cached is not None and cached.rows is rows:
         return cached
-    log = step_log(rows, lex, view.__dict__.setdefault("_open_log_words", {}), cached)
+    wordings.seed(view, lex)  # the wordings' classes a process before saved (query/wordings.py)
+    log = step_log(rows, lex, view.__dict__.setdefault(wordings.LOG_WORDS, {}), cached)
     view.__dict__["_open_action_log"] = log
     return log
 

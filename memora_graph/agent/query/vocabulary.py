@@ -14,15 +14,15 @@ Answers name classes in the person's most used word for them (`name`).
 from __future__ import annotations
 
 import difflib
-import re
 from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from memora_graph.agent.query import wordings
+from memora_graph.agent.query.wordings import WORD
 from memora_graph.perceive.lexicon import Lexicon
 
-_WORD = re.compile(r"[a-z][a-z0-9]*")
 FUZZY_CUTOFF = 0.8
 
 
@@ -53,38 +53,61 @@ class Vocabulary:
         known = view.__dict__
         cached = known.get("_query_vocabulary")
         read = known.get("_query_vocab_read")  # (the rows' lineage, segments read)
-        seen = known.setdefault("_query_vocab_text", {})
+        wordings.seed(view, lex)
+        seen = known.setdefault(wordings.TEXT_WORDS, {})
         if cached is not None and read is not None and read[0] is rows.lineage and len(rows.segments) >= read[1]:
             if len(rows.segments) > read[1]:  # the same log, grown by remembered segments: only theirs are read
                 new = np.flatnonzero(rows.segment >= read[1])
                 cached._add(log, new[np.argsort(rows.segment[new], kind="stable")], lex, seen)
                 known["_query_vocab_read"] = (rows.lineage, len(rows.segments))
+                wordings.keep(view, lex)
             return cached
         vocab = cls(Counter(), {}, {})
         vocab._add(log, np.arange(len(rows)), lex, seen)
         known["_query_vocabulary"] = vocab
         known["_query_vocab_read"] = (rows.lineage, len(rows.segments))
+        wordings.keep(view, lex)  # saved for the next process (query/wordings.py)
         return vocab
 
     def _add(self, log, at: np.ndarray, lex: Lexicon, seen: dict) -> None:
         """Count the words and names of the narrated steps at positions `at` of `log` (a
-        `StepLog`; `seen` keeps each wording's reading)."""
+        `StepLog`; `seen` keeps each wording's reading), as a walk of the steps in that order
+        would: the counts per wording (taken in the order of their first step, so that every
+        word and name is first met where that walk meets it), the segments (first 20 a word)
+        by a walk of only the steps whose wording has a word still short of them."""
         rows, classes = log.rows, log.classes
-        for w, sg in zip(rows.word[at].tolist(), rows.segment[at].tolist()):
+        at = np.asarray(at, dtype=np.int64)
+        if not len(at):
+            return
+        word = rows.word[at]
+        present, first = np.unique(word, return_index=True)
+        counts = np.bincount(word, minlength=len(rows.words))
+        parsed_of: dict[int, list] = {}
+        for w in present[np.argsort(first, kind="stable")].tolist():
             text = rows.words[w][3].lower()
-            nouns = classes[w][2]
-            segment = rows.segments[sg]
             parsed = seen.get(text)
             if parsed is None:
-                parsed = seen[text] = _phrases(lex, _WORD.findall(text))
+                parsed = seen[text] = _phrases(lex, WORD.findall(text))
+            parsed_of[w] = parsed
+            nouns, n = classes[w][2], int(counts[w])
             for w_, c in parsed:
                 if c is None or " " in w_:
-                    self.words[w_] += 1
-                segs = self.segments.setdefault(w_, [])
+                    self.words[w_] += n
+                self.segments.setdefault(w_, [])
+                if c is not None and c in nouns:
+                    self.names.setdefault(c, Counter())[w_] += n
+        full = {w: False for w in parsed_of}
+        segments, ids = self.segments, rows.segments
+        for w, sg in zip(word.tolist(), rows.segment[at].tolist()):
+            if full[w]:
+                continue
+            segment, done = ids[sg], True
+            for w_, _ in parsed_of[w]:
+                segs = segments[w_]
                 if len(segs) < 20 and (not segs or segs[-1] != segment):
                     segs.append(segment)
-                if c is not None and c in nouns:
-                    self.names.setdefault(c, Counter())[w_] += 1
+                done = done and len(segs) >= 20
+            full[w] = done
 
     def says(self, word: str) -> int:
         return self.words.get(word.lower(), 0)
