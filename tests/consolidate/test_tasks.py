@@ -11,7 +11,8 @@ from memora_graph.consolidate import finish_participant, load_memory
 from memora_graph.consolidate.memory import MemoryStep, Obj, ParticipantMemory
 from memora_graph.consolidate.patterns import batch, canonical, carrier, detect_all, order, repetition, setup, staging
 from memora_graph.consolidate.records import StepAction
-from memora_graph.consolidate.run import task_rows
+from memora_graph.consolidate import task_rows as task_rows_module
+from memora_graph.consolidate.task_rows import task_rows
 from memora_graph.consolidate.task_records import CompactTask, Task
 from memora_graph.consolidate.tasks import PAUSE, cut, segment_tasks, video_tasks
 from memora_graph.store import Store
@@ -188,7 +189,8 @@ def test_staging_setup_carrier_and_canonical_stages():
     assert can.detail["stages"]["main"][0] == "cut onion" and can.count == 2
 
 
-def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder):
+def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder,
+                                                                                 monkeypatch):
     src, _ = small_bank
     shutil.copytree(src, tmp_path / "bank", ignore=shutil.ignore_patterns(".staging"))
     bank = Bank(tmp_path / "bank")
@@ -207,6 +209,8 @@ def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_sta
     assert {x.family for x in k.patterns} <= {"canonical", "order", "staging", "batch", "repetition", "setup", "carrier"}
     assert any(r.get("subtype") in {"order", "staging", "batch", "repetition", "setup", "carrier"} for r in prefs) or not \
         [x for x in k.patterns if x.family != "canonical"]
+    monkeypatch.setattr(task_rows_module, "CHUNK_TASKS", 3)  # the rows copied a few tasks at a time
+    assert len(first) > 3
     finish_participant(bank, p, embedder)  # a rebuild: the same tasks, the same ids
     with Store(bank.db_path(p)) as s:
         assert s.rows("tasks", participant=p) == first
