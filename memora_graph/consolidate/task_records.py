@@ -102,6 +102,17 @@ class CompactTask:
     def stage(self, name: str) -> list[CompactStep]:
         return [s for s in self.steps if s.stage == name]
 
+    @classmethod
+    def of(cls, t: Task, share: dict | None = None) -> CompactTask:
+        """A `Task` record as a compact task (`share`: as in `consolidate.tasks.make_task`)."""
+        share = {} if share is None else share
+        steps = []
+        for s in t.steps:
+            a = CompactAction(**s.action.model_dump())
+            steps.append(CompactStep(share.setdefault(a, a), s.stage, s.t, s.segment, share.setdefault(s.text, s.text)))
+        return cls(t.id, t.video, t.goal, t.family, t.main_object, t.t_start, t.t_end, steps, list(t.objects),
+                   list(t.tools), list(t.places), list(t.segments), list(t.entities))
+
     def record(self) -> Task:
         return Task(id=self.id, video=self.video, goal=self.goal, family=self.family, main_object=self.main_object,
                     t_start=self.t_start, t_end=self.t_end,

@@ -248,6 +248,7 @@ def test_compact_tasks_write_and_find_what_their_task_records_do(small_bank):
     compact = segment_tasks(memory)
     assert compact and all(isinstance(t, CompactTask) for t in compact)
     records = [t.record() for t in compact]
+    assert [CompactTask.of(r) for r in records] == compact  # live memory's folds read them back compact
     assert [Task.model_validate(r.model_dump()) for r in records] == records
     ids = memory.segment_ids
     rows = task_rows(p, compact, ids)
