@@ -58,7 +58,7 @@ class Task(_Record):
 
 class CompactAction(NamedTuple):
     """`StepAction` as a tuple: a batch run makes one per distinct step and shares it between the
-    steps (a million pydantic steps were most of the task memory's ~2.5 GB at 1,000 h)."""
+    steps (a pydantic step per step was most of what task memory held: docs/build-memory.md)."""
 
     verb: str
     noun: str = ""

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Iterator
 from memora_graph import schema
 from memora_graph.store import Store
 
-CHUNK_TASKS = 2_000  # tasks per COPY (~9 MB of rows at 100 h)
+CHUNK_TASKS = 2_000  # tasks per COPY
 STAGES = ("setup", "main", "finish", "cleanup")
 
 
