@@ -48,8 +48,8 @@ from memora_graph.consolidate.records import Enrichment, VideoConsolidation
 from memora_graph.consolidate.rules import EpisodeSummary, FoldIndex, RuleConsolidator, RuleEnricher, ToolUse
 from memora_graph.consolidate.patterns import detect_all
 from memora_graph.consolidate.run import InferredKnowledge, collect, write_inferred
-from memora_graph.consolidate.task_records import Task
-from memora_graph.consolidate.tasks import video_tasks
+from memora_graph.consolidate.task_records import CompactTask, Task
+from memora_graph.consolidate.tasks import compact_video_tasks
 from memora_graph.errors import BankError
 
 log = logging.getLogger("memora_graph.consolidate")
@@ -72,7 +72,7 @@ class _VideoFold:
     def __init__(self, mark, raw, segments, ngrams, episodes, tool_uses, tasks=None):
         self.mark, self.raw, self.segments, self.ngrams = mark, raw, segments, ngrams
         self.episodes, self.tool_uses = episodes, tool_uses
-        self.tasks = tasks or []  # the video's tasks (consolidate.tasks): a video's own steps decide them
+        self.tasks = tasks or []  # the video's tasks (consolidate.tasks), compact: a video's own steps decide them
 
     def to_json(self, tables: dict) -> dict:
         """The fold as JSON; its n-grams and canonical steps as ids into `tables` (added to:
@@ -89,7 +89,7 @@ class _VideoFold:
                              for e in self.episodes],
                 "tool_uses": [[u.verb, u.target, u.tool, u.video, u.segment, u.narration,
                                [[o.kind, o.entity, o.category, o.is_fixture] for o in u.objects]] for u in self.tool_uses],
-                "tasks": [t.model_dump() for t in self.tasks]}
+                "tasks": [t.record().model_dump() for t in self.tasks]}
 
     @classmethod
     def from_json(cls, d: dict, tables: dict) -> _VideoFold:
@@ -101,7 +101,7 @@ class _VideoFold:
         tool_uses = [ToolUse(verb, target, tool, video, segment, narration, [Obj(*o) for o in objects])
                      for verb, target, tool, video, segment, narration, objects in d["tool_uses"]]
         return cls(tuple(d["mark"]), set(d["raw"]), set(d["segments"]), {ngrams[i] for i in d["ngrams"]},
-                   episodes, tool_uses, [Task.model_validate(t) for t in d.get("tasks", [])])
+                   episodes, tool_uses, [CompactTask.of(Task.model_validate(t)) for t in d.get("tasks", [])])
 
 
 class _Recurring:
@@ -278,7 +278,7 @@ class IncrementalConsolidation:
             touched_goals.update(e.goal for e in episodes)
             self.folds[video] = _VideoFold(marks[video], reader.raw.get(video, set()), {s.segment for s in steps},
                                            ngrams, episodes, enricher.tool_uses(steps),
-                                           video_tasks(participant, steps) if steps else [])
+                                           compact_video_tasks(participant, steps) if steps else [])
             self.segment_ids |= self.folds[video].segments
             self.index.put(records, video)
         # an n-gram that started or stopped recurring changes the action sequences of the unchanged

@@ -28,6 +28,7 @@ from memora_graph.consolidate.processors import Processors, StepReport, get_proc
 from memora_graph.consolidate.records import Consolidation, Enrichment
 from memora_graph.consolidate.rules import RuleConsolidator, RuleEnricher, stable_id
 from memora_graph.consolidate.task_records import Task, TaskPattern
+from memora_graph.consolidate.task_rows import TaskRows, copy_task_rows
 from memora_graph.errors import ConsolidationError
 from memora_graph.llm.backends import CallRecord
 from memora_graph.embed import encode_passages
@@ -53,7 +54,7 @@ class InferredKnowledge:
     steps: list[StepReport] = field(default_factory=list)  # model steps and whether they produced records
     seconds: dict = field(default_factory=dict)
     tasks: list[Task] = field(default_factory=list)  # task-level memory (consolidate.tasks)
-    task_rows: list[dict] = field(default_factory=list)  # the tasks as Task rows (evidence that exists)
+    task_rows: TaskRows | list[dict] = field(default_factory=list)  # the tasks as Task rows (evidence that exists)
     patterns: list[TaskPattern] = field(default_factory=list)  # how tasks are done (consolidate.patterns)
 
     @property
@@ -215,22 +216,6 @@ def task_memory(memory: ParticipantMemory) -> tuple[list[Task], list[TaskPattern
     return tasks, detect_all(tasks)
 
 
-def task_rows(participant: str, tasks: list[Task], segment_ids) -> list[dict]:
-    """Task rows (schema/005_tasks.cypher), citing only segments that exist."""
-    out = []
-    for t in tasks:
-        segs = [x for x in t.segments if x in segment_ids]
-        if not segs:
-            continue
-        out.append({"id": t.id, "participant": participant, "video": t.video, "goal": t.goal, "family": t.family,
-                    "main_object": t.main_object, "t_start": float(t.t_start), "t_end": float(t.t_end),
-                    "objects": t.objects, "tools": t.tools, "places": t.places, "segments": segs,
-                    "stages": json.dumps({st: [s.text for s in t.stage(st)] for st in ("setup", "main", "finish", "cleanup")}),
-                    "steps": json.dumps([{**s.action.model_dump(), "stage": s.stage, "t": s.t, "segment": s.segment}
-                                         for s in t.steps])})
-    return out
-
-
 def _collect_tasks(c: "_Collector", patterns: list[TaskPattern]) -> None:
     """A recurring task's canonical stages as a Routine row (source "task_routine"); every other
     pattern as a Preference row (source "tasks") whose subtype is its family."""
@@ -260,7 +245,7 @@ def collect(participant: str, segment_ids, entity_ids: set[str], consolidation: 
     c = _Collector(participant, segment_ids, entity_ids, processor)
     c.out.consolidation, c.out.enrichment = consolidation, enrichment
     c.out.tasks, c.out.patterns = list(tasks or []), list(patterns or [])
-    c.out.task_rows = task_rows(participant, c.out.tasks, segment_ids)
+    c.out.task_rows = TaskRows(participant, c.out.tasks, segment_ids)  # made when written
     for s in consolidation.storage_preferences:
         c.preference("pref", ("storage", s.object, s.context), subtype="storage", statement=s.statement,
                      keywords=[s.object_name, s.preferred_location, s.context.replace("_", " "), "store", "keep", "put"],
@@ -376,7 +361,7 @@ def _write_tasks(store: Store, participant: str, knowledge: InferredKnowledge) -
         return
     store.run("_task_clear", participant=participant)
     if knowledge.task_rows:
-        store.copy("Task", schema.frame("Task", knowledge.task_rows))
+        copy_task_rows(store, knowledge.task_rows)  # through a file: a COPY of one frame held several times it
 
 
 def consolidate_participant(store: Store, participant: str, embedder, processors: str | Processors = "deterministic") -> InferredKnowledge:

@@ -10,7 +10,8 @@ any processor (rule or model) gets them: they are computed from the typed stores
 
 from __future__ import annotations
 
-from typing import Literal
+from dataclasses import dataclass
+from typing import Literal, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -53,6 +54,72 @@ class Task(_Record):
 
     def stage(self, name: str) -> list[TaskStep]:
         return [s for s in self.steps if s.stage == name]
+
+
+class CompactAction(NamedTuple):
+    """`StepAction` as a tuple: a batch run makes one per distinct step and shares it between the
+    steps (a pydantic step per step was most of what task memory held: docs/build-memory.md)."""
+
+    verb: str
+    noun: str = ""
+    place: str = ""
+    instrument: str = ""
+
+    def model_dump(self) -> dict:
+        return self._asdict()  # StepAction.model_dump(): the same keys in the same order
+
+
+class CompactStep(NamedTuple):
+    """`TaskStep` as a tuple (the same fields, read the same way by the detectors)."""
+
+    action: CompactAction
+    stage: str
+    t: float
+    segment: str
+    text: str
+
+
+@dataclass(slots=True)
+class CompactTask:
+    """`Task` with its steps as tuples: what a batch consolidation holds for every task of a
+    participant until the detectors and the writer have read them. The same fields as `Task`;
+    `record()` is the `Task`."""
+
+    id: str
+    video: str
+    goal: str
+    family: str
+    main_object: str
+    t_start: float
+    t_end: float
+    steps: list[CompactStep]
+    objects: list[str]
+    tools: list[str]
+    places: list[str]
+    segments: list[str]
+    entities: list[str]
+
+    def stage(self, name: str) -> list[CompactStep]:
+        return [s for s in self.steps if s.stage == name]
+
+    @classmethod
+    def of(cls, t: Task, share: dict | None = None) -> CompactTask:
+        """A `Task` record as a compact task (`share`: as in `consolidate.tasks.make_task`)."""
+        share = {} if share is None else share
+        steps = []
+        for s in t.steps:
+            a = CompactAction(**s.action.model_dump())
+            steps.append(CompactStep(share.setdefault(a, a), s.stage, s.t, s.segment, share.setdefault(s.text, s.text)))
+        return cls(t.id, t.video, t.goal, t.family, t.main_object, t.t_start, t.t_end, steps, list(t.objects),
+                   list(t.tools), list(t.places), list(t.segments), list(t.entities))
+
+    def record(self) -> Task:
+        return Task(id=self.id, video=self.video, goal=self.goal, family=self.family, main_object=self.main_object,
+                    t_start=self.t_start, t_end=self.t_end,
+                    steps=[TaskStep(action=StepAction(**s.action._asdict()), stage=s.stage, t=s.t, segment=s.segment,
+                                    text=s.text) for s in self.steps],
+                    objects=list(self.objects), tools=list(self.tools), places=list(self.places),
+                    segments=list(self.segments), entities=list(self.entities))
 
 
 class TaskPattern(_Record):

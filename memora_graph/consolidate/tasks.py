@@ -37,7 +37,7 @@ from collections import Counter
 
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.memory import MemoryStep, ParticipantMemory, display
-from memora_graph.consolidate.task_records import Task, TaskStep
+from memora_graph.consolidate.task_records import CompactAction, CompactStep, CompactTask, Task
 
 PAUSE = 40.0  # seconds without a step: a new task
 AHEAD, BEHIND = 4, 8  # steps compared for object-set continuity
@@ -225,8 +225,12 @@ def _goal(steps: list[MemoryStep], family: str, main: str) -> str:
     return f"{verb} {display(main)}".strip()
 
 
-def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
+def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: dict | None = None) -> CompactTask:
+    """The task of `steps` (compact: its steps as tuples; `.record()` is the `Task`). `share`, if
+    given, makes equal actions and texts one object each across the calls that pass it."""
     from memora_graph.consolidate.rules import stable_id
+
+    share = {} if share is None else share
 
     family = _family(steps)
     work = [s for s in steps if (_category(s) or "store") == family] or steps
@@ -242,12 +246,12 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
     tools = list(dict.fromkeys(o.kind for s in steps for o in s.objects if _is_tool(o.category)))
     out_steps = []
     for s, st in zip(steps, stages):
-        a = s.action()
         inst = next((o.kind for o in s.objects[1:] if _is_tool(o.category)), "")
-        if inst:
-            a = a.model_copy(update={"instrument": inst})
-        out_steps.append(TaskStep(action=a, stage=st, t=round(s.t, 2), segment=s.segment, text=s.text()))
-    return Task(
+        a = CompactAction(s.verb, s.main.kind, s.where()[0], inst)  # MemoryStep.action(), with its instrument
+        a = share.setdefault(a, a)
+        text = s.text()
+        out_steps.append(CompactStep(a, st, round(s.t, 2), s.segment, share.setdefault(text, text)))
+    return CompactTask(
         id=stable_id(participant, "task", steps[0].video, steps[0].segment, *([nth] if nth else [])),
         video=steps[0].video, goal=f"clean {display(surface)}" if surface else _goal(steps, family, main), family=family, main_object=main,
         t_start=round(steps[0].t, 2), t_end=round(steps[-1].t, 2), steps=out_steps,
@@ -258,21 +262,29 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0) -> Task:
     )
 
 
-def video_tasks(participant: str, steps: list[MemoryStep]) -> list[Task]:
+def compact_video_tasks(participant: str, steps: list[MemoryStep], share: dict | None = None) -> list[CompactTask]:
+    """A video's tasks, compact (see `make_task`)."""
     steps = sorted(steps, key=lambda s: s.t)
     out, seen = [], Counter()
     for p in cut(steps):
-        out.append(make_task(participant, p, seen[p[0].segment]))  # a second task starting in one segment: its ordinal
+        out.append(make_task(participant, p, seen[p[0].segment], share))  # a second task starting in one segment: its ordinal
         seen[p[0].segment] += 1
     return out
 
 
-def segment_tasks(memory: ParticipantMemory) -> list[Task]:
-    """Every video's tasks, videos in order."""
+def video_tasks(participant: str, steps: list[MemoryStep]) -> list[Task]:
+    """A video's tasks as `Task` records."""
+    return [t.record() for t in compact_video_tasks(participant, steps)]
+
+
+def segment_tasks(memory: ParticipantMemory) -> list[CompactTask]:
+    """Every video's tasks, videos in order, compact: a batch run holds every task of the
+    participant at once (read like `Task`s by the detectors and the writer)."""
     by_video = memory.steps_by_video()
-    out: list[Task] = []
+    out: list[CompactTask] = []
+    share: dict = {}
     for v in memory.videos:
         steps = list(by_video.get(v) or [])  # one read: a step table makes a video's steps per read
         if steps:
-            out += video_tasks(memory.participant, steps)
+            out += compact_video_tasks(memory.participant, steps, share)
     return out

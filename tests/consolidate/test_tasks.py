@@ -10,6 +10,10 @@ from memora_graph.bank import Bank
 from memora_graph.consolidate import finish_participant, load_memory
 from memora_graph.consolidate.memory import MemoryStep, Obj, ParticipantMemory
 from memora_graph.consolidate.patterns import batch, canonical, carrier, detect_all, order, repetition, setup, staging
+from memora_graph.consolidate.records import StepAction
+from memora_graph.consolidate import task_rows as task_rows_module
+from memora_graph.consolidate.task_rows import task_rows
+from memora_graph.consolidate.task_records import CompactTask, Task
 from memora_graph.consolidate.tasks import PAUSE, cut, segment_tasks, video_tasks
 from memora_graph.store import Store
 
@@ -185,7 +189,8 @@ def test_staging_setup_carrier_and_canonical_stages():
     assert can.detail["stages"]["main"][0] == "cut onion" and can.count == 2
 
 
-def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder):
+def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder,
+                                                                                 monkeypatch):
     src, _ = small_bank
     shutil.copytree(src, tmp_path / "bank", ignore=shutil.ignore_patterns(".staging"))
     bank = Bank(tmp_path / "bank")
@@ -204,6 +209,8 @@ def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_sta
     assert {x.family for x in k.patterns} <= {"canonical", "order", "staging", "batch", "repetition", "setup", "carrier"}
     assert any(r.get("subtype") in {"order", "staging", "batch", "repetition", "setup", "carrier"} for r in prefs) or not \
         [x for x in k.patterns if x.family != "canonical"]
+    monkeypatch.setattr(task_rows_module, "CHUNK_TASKS", 3)  # the rows copied a few tasks at a time
+    assert len(first) > 3
     finish_participant(bank, p, embedder)  # a rebuild: the same tasks, the same ids
     with Store(bank.db_path(p)) as s:
         assert s.rows("tasks", participant=p) == first
@@ -228,3 +235,30 @@ def test_incremental_consolidation_writes_the_tasks_and_patterns_a_full_run_writ
         assert s.rows("tasks", participant=p) == tasks_full
         kinds = {(r["source"], r["subtype"]) for r in s.rows("_tool_preferences", participant=p) if r["source"] == "tasks"}
     assert kinds == {("tasks", x.family) for x in full.patterns if x.family != "canonical"}
+
+
+def test_compact_tasks_write_and_find_what_their_task_records_do(small_bank):
+    """A batch run holds its tasks compact (steps as tuples); the Task rows and every detector's
+    records are those of the same tasks as pydantic `Task`s, and each written step is a valid
+    StepAction plus its stage, time and segment (a field added, dropped or retyped fails here)."""
+    src, _ = small_bank
+    p = "P37"
+    with Store(Bank(src).db_path(p), read_only=True) as s:
+        memory = load_memory(s, p)
+    compact = segment_tasks(memory)
+    assert compact and all(isinstance(t, CompactTask) for t in compact)
+    records = [t.record() for t in compact]
+    assert [CompactTask.of(r) for r in records] == compact  # live memory's folds read them back compact
+    assert [Task.model_validate(r.model_dump()) for r in records] == records
+    ids = memory.segment_ids
+    rows = task_rows(p, compact, ids)
+    assert rows == task_rows(p, records, ids) and len(rows) == len(compact)
+    for row in rows:
+        for step in json.loads(row["steps"]):
+            assert list(step) == [*StepAction.model_fields, "stage", "t", "segment"]
+            StepAction.model_validate({k: step[k] for k in StepAction.model_fields})
+            assert isinstance(step["t"], float) and step["segment"] in row["segments"]
+    assert detect_all(compact) == detect_all(records)
+    # the video path (live memory) makes the same tasks as records
+    by_video = memory.steps_by_video()
+    assert [t for v in memory.videos for t in video_tasks(p, list(by_video.get(v) or []))] == records

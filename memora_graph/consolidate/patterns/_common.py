@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.memory import display
@@ -26,6 +26,11 @@ def recurring(tasks: list[Task]) -> dict[str, list[Task]]:
     for t in tasks:
         by[t.goal].append(t)
     return {g: ts for g, ts in by.items() if len(ts) >= MIN_TASKS}
+
+
+def with_object(tasks: list[Task]) -> Counter:
+    """object kind -> the tasks handling it (`noun in t.objects`), counted once for every record."""
+    return Counter(k for t in tasks for k in set(t.objects))
 
 
 def videos_of(tasks: list[Task]) -> dict[str, int]:

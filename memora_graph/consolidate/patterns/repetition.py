@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of
+from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of, with_object
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
@@ -69,11 +69,12 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
                 if c >= PASSES:
                     rep[(noun, v)].append((t, c, segs))
     out = []
+    handling = with_object(tasks)
     for (noun, a, b), occ in alt.items():
         n, cycles = len({t.id for t, _, _ in occ}), sum(c for _, c, _ in occ)
         if n < MIN_TASKS and cycles < 2 * CYCLES:
             continue
-        with_obj = len([t for t in tasks if noun in t.objects])
+        with_obj = handling[noun]
         out.append(TaskPattern(
             family="repetition", key=("alternate", noun, a, b),
             statement=f"Alternates {vocab.gerund(a)} and {vocab.gerund(b)} the {obj(noun)} in repeated passes "
@@ -85,7 +86,7 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
         n, passes = len({t.id for t, _, _ in occ}), sum(c for _, c, _ in occ)
         if n < MIN_TASKS:
             continue
-        with_obj = len([t for t in tasks if noun in t.objects])
+        with_obj = handling[noun]
         out.append(TaskPattern(
             family="repetition", key=("repeat", noun, v),
             statement=f"{vocab.third_person(vocab.phrase(v)).capitalize()} the {obj(noun)} in several passes, coming back "

@@ -9,7 +9,7 @@ before the main step in `MIN_SHARE` of the tasks that use it, over `MIN_TASKS` t
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, recurring, top, videos_of
@@ -67,15 +67,16 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
             if v in PREPARING and v not in vocab.TAKING and v != "put":
                 ready[(v, o)].append((t, seg))
     handled = {t.id: {s.action.noun for s in t.steps} for t in tasks}
+    using_n = Counter(o for t in tasks for o in handled[t.id])  # o -> tasks handling it, counted once
     for (v, o), occ in ready.items():
-        using = [t for t in tasks if o in handled[t.id]]
+        using = using_n[o]
         n = len({t.id for t, _ in occ})
-        if n < MIN_TASKS or n / max(1, len(using)) < MIN_SHARE:
+        if n < MIN_TASKS or n / max(1, using) < MIN_SHARE:
             continue
         out.append(TaskPattern(
             family="setup", key=("object", v, o),
             statement=f"{vocab.third_person(vocab.phrase(v)).capitalize()} the {obj(o)} before starting the main step "
-                      f"of the task ({n} of {len(using)} tasks with it)",
-            objects=[o], actions=[StepAction(verb=v, noun=o)], count=n, total=max(n, len(using)),
+                      f"of the task ({n} of {using} tasks with it)",
+            objects=[o], actions=[StepAction(verb=v, noun=o)], count=n, total=max(n, using),
             evidence=[s for _, s in occ][:20], tasks=sorted({t.id for t, _ in occ}), videos=videos_of([t for t, _ in occ])))
     return top(out)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections import defaultdict
 
 from memora_graph.consolidate import vocab
-from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of
+from memora_graph.consolidate.patterns._common import MIN_TASKS, obj, top, videos_of, with_object
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
@@ -38,11 +38,12 @@ def detect(tasks: list[Task]) -> list[TaskPattern]:
             by_obj[(noun, place)].append((t, seg))
             by_place[place].append((t, noun, seg))
     out = []
+    with_obj = with_object(tasks)
     for (noun, place), occ in by_obj.items():
         n = len({t.id for t, _ in occ})
         if n < MIN_TASKS:
             continue
-        handled = len([t for t in tasks if noun in t.objects])
+        handled = with_obj[noun]
         out.append(TaskPattern(
             family="staging", key=(noun, place),
             statement=f"Puts the {obj(noun)} down on the {place} and picks it up again later in the same task "
