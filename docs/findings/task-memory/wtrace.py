@@ -1,9 +1,11 @@
 """RSS (sampled every 20 ms) through `finish_participant` (as `memora consolidate`) on a COPY of a
 bank, with the writer's steps marked (each COPY, the commit): which step raises the peak.
-usage: wtrace.py BANK-COPY PARTICIPANT; PYTHONPATH at the checkout measured."""
+With --empty, the participant's Task rows are deleted and committed first, so the traced run
+writes into an empty Task table, as a build's first consolidation does.
+usage: wtrace.py BANK-COPY PARTICIPANT [--empty]; PYTHONPATH at the checkout measured."""
 import sys, threading, time, resource
 from pathlib import Path
-bank_dir, participant = sys.argv[1], sys.argv[2]
+bank_dir, participant, empty = sys.argv[1], sys.argv[2], "--empty" in sys.argv[3:]
 def rss():
     for line in open("/proc/self/status"):
         if line.startswith("VmRSS:"):
@@ -46,6 +48,11 @@ Store.transaction = transaction
 from memora_graph.bank import Bank
 from memora_graph.embed import get_embedder
 emb = get_embedder()
+if empty:
+    _st = Bank(Path(bank_dir)).open(participant, read_only=False)
+    with _tr(_st):
+        _st.run("_task_clear", participant=participant)
+    _st.close()
 mark("start")
 k = R.finish_participant(Bank(Path(bank_dir)), participant, emb)
 mark("end")
