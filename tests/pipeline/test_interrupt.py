@@ -27,11 +27,26 @@ def _children(pid: int) -> list[int]:
         return []
 
 
+def _as_from_a_terminal() -> None:
+    """A command typed at a terminal gets Ctrl-C's default disposition; one started in the
+    background of a shell without job control (`cmd &` in a script, as a suite may be run)
+    inherits SIGINT ignored, and a Ctrl-C could never reach it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture
+def ctrl_c_handled():
+    """This process reads Ctrl-C as Python does when started from a terminal, whatever it inherited."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
 def _interrupt_when(tmp_path, ready) -> tuple[subprocess.CompletedProcess, Path]:
     bank = tmp_path / "bank"
     proc = subprocess.Popen([*MEMORA, "build", str(bank), "--participants", "P37", "--quiet"], start_new_session=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=_as_from_a_terminal)
     deadline = time.time() + 300
     while not ready(proc, bank) and proc.poll() is None and time.time() < deadline:
         time.sleep(0.02)
@@ -69,7 +84,7 @@ def _own_blocked_signals() -> int:
     return int(line.split()[1], 16)
 
 
-def test_a_ctrl_c_while_workers_start_is_held_for_the_build_not_lost():
+def test_a_ctrl_c_while_workers_start_is_held_for_the_build_not_lost(ctrl_c_handled):
     """CI caught it: while workers were being started SIGINT was ignored, so a Ctrl-C landing then
     was dropped and the build ran to its end. It is held and raised when the workers are up, and a
     worker started in the block never sees it."""
