@@ -216,6 +216,27 @@ def test_vocabulary_takes_remembered_steps_in_as_a_fresh_read_would(small_bank, 
 
 
 
+def test_a_class_is_named_in_the_persons_own_words(small_bank, lex):
+    """Each class the narrations name is named by the person's most used word for it ("drying rack",
+    "chopping board": a compound stays one name; the verb of "open drawer" is no part of it).
+    Before, no name was ever recorded, so answers never used the person's words."""
+    from memora_graph.agent.query.vocabulary import Vocabulary, _phrases
+
+    def named(text):
+        return [x for x in _phrases(lex, text.split()) if x[1]]
+
+    assert named("put plate on drying rack") == [("plate", "plate"), ("drying rack", "rack:drying")]
+    assert named("open drawer") == [("drawer", "drawer")]
+    assert named("rinse chopping board") == [("chopping board", "board:chopping")]
+    with MemoryView.open(small_bank[0], "P37") as view:
+        vocab = Vocabulary.of(view, lex)
+        assert len(vocab.names) >= 10
+        for c in vocab.names:
+            word = vocab.name(c)
+            assert vocab.says(word) > 0, (c, word)  # a word the person said
+            assert c in lex.noun_classes(word), (c, word)  # a word for that class
+
+
 def test_every_operation_reads_a_grown_log_as_a_fresh_read(small_bank, lex):
     """The typed query reads the log as columns (query/steplog.py): the operations that scan it
     (relations, first / last / nth step, duration, scopes by video, window, moment and event)

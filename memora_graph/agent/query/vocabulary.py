@@ -152,12 +152,13 @@ def _phrases(lex: Lexicon, toks: list[str]) -> list[tuple[str, str | None]]:
     while i < len(toks):
         for n in (3, 2, 1):
             c = lex.noun_phrases.get(tuple(lem[i:i + n])) if i + n <= len(toks) else None
-            if c is not None and n > 1 and lex.verb_class(toks[i]) and \
-                    lex.noun_phrases.get(tuple(lem[i + 1:i + n])) == c:
-                c = None  # "open drawer" is opening the drawer: the name is "drawer"
-                out.append((" ".join(toks[i:i + n]), c))
-                i += n
-                break
+            if c is None:
+                continue
+            if n > 1 and i == 0 and lex.verb_class(toks[i]) and lex.noun_phrases.get(tuple(lem[i + 1:i + n])) == c:
+                continue  # "open drawer" is opening the drawer: the name is "drawer" ("drying rack" stays one)
+            out.append((" ".join(toks[i:i + n]), c))
+            i += n
+            break
         else:
             i += 1
     return out
