@@ -28,8 +28,10 @@ from memora_graph.text import KITCHEN_NOUNS, tokenize
 
 MAX_STEPS = compose.MAX_STEPS
 MAX_PLAN_STEPS = 15  # what a plan answer is read to (bench.answers.extract_plan)
-# Plans start from the person's task only when asked (`memora plan --from-task`): on P01-P03 task-first
-# lowered Replay RGP .576 -> .541 and Generalize .523 -> .466 (docs/planning.md, "Plans from tasks").
+# The benchmark's offline policy composes (its goals are replays of one video's moments and transfers
+# to new objects: on P01-P03 task-first lowered Replay RGP .576 -> .517 and Generalize .523 -> .478,
+# docs/planning.md, "Plans from tasks"). A person's own goal (`memora plan`, the server's plan tool)
+# starts from their task that does it, when one does (`plan(..., from_task=True)`, the default).
 TASK_FIRST = False
 MAX_TASK_PLAN_STEPS = 20  # a plan from one of the person's tasks (`memora plan`): the whole task, focused
 MAX_PREFERENCES = 6  # retrieved preferences considered for one plan
@@ -306,10 +308,12 @@ class PlanResult:
         return {"goal": self.goal, "participant": self.participant, "steps": steps, "calls": self.calls}
 
 
-def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", from_task: bool | None = None
+def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", from_task: bool = True
          ) -> PlanResult:
     """A plan for `goal` from `participant`'s memory in `bank` (the offline planner's lookups and
-    composition, without the agent loop). `memory` picks the representation the tools read."""
+    composition, without the agent loop). `memory` picks the representation the tools read.
+    `from_task`: start from the person's own task that does the goal, when one does; compose only
+    when none fits (False: always compose, as the benchmark's offline policy does)."""
     from memora_graph.limits import check_text
     from memora_graph.retrieve.registry import get_family
 
@@ -323,7 +327,7 @@ def plan(bank: str | Path, participant: str, goal: str, memory: str = "memora", 
             closer()
 
 
-def plan_memory(store, participant: str, goal: str, memory: str = "memora", from_task: bool | None = None
+def plan_memory(store, participant: str, goal: str, memory: str = "memora", from_task: bool = True
                 ) -> PlanResult:
     """`plan` over a memory already open (a server plans many goals from one open bank)."""
     from memora_graph.limits import check_text
@@ -342,7 +346,6 @@ def plan_memory(store, participant: str, goal: str, memory: str = "memora", from
         tools.prefetch(round_)
         for name, args in round_:
             calls.append({"name": name, "arguments": args, "result": tools.call(name, args)})
-    from_task = TASK_FIRST if from_task is None else from_task
     tasks = task_match.read_tasks(store) if from_task else []
     steps = compose_structured(goal, calls, lex, from_task=from_task, tasks=tasks)
     return PlanResult(goal, participant, steps, [{"tool": c["name"], "arguments": c["arguments"]} for c in calls])

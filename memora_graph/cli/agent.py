@@ -98,10 +98,10 @@ def ask_cmd(bank, question, participant, choices, family, explain, fmt):
               help="The memory the lookups read: memora, or a baseline's representation (flat1d, graph2d).")
 @click.option("--json", "as_json", is_flag=True, help="The structured steps (verb, object, place, preconditions, "
                                                       "evidence ids, notes) and the lookups made, as JSON.")
-@click.option("--from-task", is_flag=True, default=None,
-              help="Start from the person's own task that does the goal (its steps on the goal's objects, in their "
-                   "order, each once), when one does; else plan as usual. Off by default: on the benchmark's "
-                   "object-level goals it lowers RGP (docs/planning.md).")
+@click.option("--from-task/--compose", default=True, show_default=True,
+              help="--from-task: start from the person's own task that does the goal (its steps on the goal's "
+                   "objects, in their order, each once) when one does, else compose. --compose: always compose "
+                   "from routines and episodes, as the benchmark's offline policy does (docs/planning.md).")
 def plan_cmd(bank, goal, participant, family, as_json, from_task):
     """Plan a goal from one person's memory, with the offline planner (deterministic, no model).
 
@@ -110,14 +110,14 @@ def plan_cmd(bank, goal, participant, family, as_json, from_task):
     to the goal's object, procedures chained for a goal of several actions, the person's objects
     and places, their preferences inserted at the steps they govern. Each step lists the evidence
     ids it came from; an object memory has no record of is said to be "not in memory". No step
-    carries a place ("put down the fridge"). With --from-task, a goal one of the person's tasks
-    does ("make a cup of tea", "put away the groceries") is planned from that task.
+    carries a place ("put down the fridge"). A goal one of the person's tasks does ("make a cup of
+    tea", "put away the groceries") is planned from that task; --compose always composes.
 
     \b
     Examples:
+      memora plan banks/epic "make a cup of tea" --participant P30
       memora plan banks/epic "cut the cucumber" --participant P01
-      memora plan banks/epic "wash, cut and stir-fry the bok choy" --participant P01 --json
-      memora plan banks/epic "make a cup of tea" --participant P30 --from-task
+      memora plan banks/epic "wash, cut and stir-fry the bok choy" --participant P01 --json --compose
     """
     from memora_graph.agent.planner import plan
 

@@ -98,3 +98,22 @@ def test_how_one_usually_does_a_task_is_answered_with_its_stages(tea_bank):
     result = ask(tea_bank, "P01", "how do I usually make tea?")
     assert "task 'make tea'" in result.answer and "main:" in result.answer
     assert "kettle" in result.answer
+
+
+def test_memora_plan_starts_from_the_persons_task_unless_told_to_compose(tea_bank):
+    """A person's own goal is planned from their task that does it by default (`memora plan`, the
+    server's plan tool); --compose gives the composed plan the benchmark's offline policy makes."""
+    from click.testing import CliRunner
+
+    from memora_graph.cli import main
+
+    run = CliRunner().invoke
+    default = run(main, ["plan", str(tea_bank), "make a cup of tea", "--participant", "P01", "--json"])
+    composed = run(main, ["plan", str(tea_bank), "make a cup of tea", "--participant", "P01", "--json", "--compose"])
+    assert default.exit_code == 0 and composed.exit_code == 0, default.output + composed.output
+    import json
+
+    steps, csteps = json.loads(default.output)["steps"], json.loads(composed.output)["steps"]
+    assert any(s.get("source") == "task" for s in steps)
+    assert not any(s.get("source") == "task" for s in csteps)
+    assert [s["text"] for s in steps] == [s["text"] for s in plan(tea_bank, "P01", "make a cup of tea").steps]
