@@ -299,7 +299,7 @@ class Lexicon:
 
     def question_nouns(self, text: str) -> list[str]:
         """The object classes the question's wh-clauses name. A generic verb is an object only after
-        a determiner ("the handle of the pan"); as a verb ("how does P01 handle the bowl", "a
+        a determiner ("the handle of the pan"); as a verb ("how does P01 handle the bowl", "what
         handling pattern") it names no object."""
         kept, prev = [], ""
         for _, words in self._segments(text):
