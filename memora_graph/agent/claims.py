@@ -40,8 +40,9 @@ def enabled() -> bool:
 def is_task_record(rec) -> bool:
     """A record of the task memory (consolidate/tasks.py, consolidate/patterns/): a recurring task's
     stages (a routine of kind "task_routine") or how tasks are done (a preference whose subtype is a
-    pattern family). The offline reader reads them as claims (`enabled()`, on by default); the
-    planner only when asked (`plan --from-task`)."""
+    pattern family). The offline reader reads them as claims (`enabled()`, on by default); a
+    person's own goal is planned from their tasks (`planner.plan`), the benchmark's policy composes
+    (`planner.TASK_FIRST`)."""
     return ((isinstance(rec, RoutineRecord) and rec.kind == "task_routine")
             or (isinstance(rec, PreferenceRecord) and rec.subtype in PREFERENCE_FAMILIES))
 
@@ -113,10 +114,7 @@ def _on_claim(option: str, claim: Claim, lex: Lexicon) -> bool:
     names no particular object ("sets it aside": the question's subject; "a utensil", "the food": a
     word for a whole category)."""
     named = {n for c in lex.parse(option) if not c.negated for n in c.objects() if n not in GENERAL}
-    if not named:
-        return True
-    return bool(named & set(claim.nouns)) or \
-        bool({n.split(":")[0] for n in named} & {n.split(":")[0] for n in claim.nouns})
+    return not named or _about(claim, named)
 
 
 def _ordered(option: str, lex: Lexicon):

@@ -88,8 +88,6 @@ def keep(view, lex: Lexicon) -> bool:
         return False
     payload = {"log": [[*k, v, list(objs), list(nouns), place] for k, (v, objs, nouns, place) in words.items()],
                "text": [[t, [[w, c] for w, c in p if c is not None or " " in w]] for t, p in texts.items()]}
-    if derived.save(view, NAME, key(lex), payload):
-        known[_SAVED] = (len(words), len(texts))
-        return True
-    known[_SAVED] = (len(words), len(texts))  # not writable: not tried again for these
-    return False
+    saved = derived.save(view, NAME, key(lex), payload)
+    known[_SAVED] = (len(words), len(texts))  # saved, or not writable: not tried again for these
+    return saved
