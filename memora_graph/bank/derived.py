@@ -31,6 +31,14 @@ def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def recorded(record: dict | None, of: str, files: dict[str, bytes]) -> bool:
+    """Whether `record` (from `DerivedFiles.get`) was derived from `of` and holds the sha256 of
+    each of `files` (name -> bytes, as read): whether those bytes may be trusted."""
+    if not isinstance(record, dict) or record.get("of") != of or not isinstance(record.get("files"), dict):
+        return False
+    return all(record["files"].get(n) == sha256_bytes(b) for n, b in files.items())
+
+
 class DerivedFiles:
     """The derived-file records of the bank whose manifest is `manifest`."""
 

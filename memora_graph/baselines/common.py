@@ -23,7 +23,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from memora_graph.bank import MANIFEST, Bank
-from memora_graph.bank.derived import sha256_bytes, sha256_file
+from memora_graph.bank.derived import recorded, sha256_bytes, sha256_file
 from memora_graph.errors import BankError
 from memora_graph.embed import get_embedder, single_thread_blas, torch_threads
 
@@ -79,7 +79,7 @@ def cache_or_build(bank_path: str | Path, participant: str, name: str, version: 
     if path.exists() and npy.exists():
         try:
             raw, npy_raw = path.read_bytes(), npy.read_bytes()
-            if _recorded(bank.derived.get(participant, record_name), key, {path.name: raw, npy.name: npy_raw}):
+            if recorded(bank.derived.get(participant, record_name), key, {path.name: raw, npy.name: npy_raw}):
                 return read(mode, json.loads(raw), np.load(io.BytesIO(npy_raw), allow_pickle=False))
             log.warning(f"{base}.json/.npy: not as recorded in {MANIFEST} (edited, damaged, or written before "
                         "caches were recorded there); built again from the bank")
@@ -100,13 +100,6 @@ def cache_or_build(bank_path: str | Path, participant: str, name: str, version: 
     except (OSError, BankError) as exc:
         log.warning(f"{bank.path}: could not record {base.name} in {MANIFEST} ({exc}); it is built again next time")
     return make(mode, built, vectors)
-
-
-def _recorded(record: dict | None, key: str, files: dict[str, bytes]) -> bool:
-    """Whether the bytes of `files` (name -> bytes) are those the manifest's `record` holds for `key`."""
-    if not isinstance(record, dict) or record.get("of") != key or not isinstance(record.get("files"), dict):
-        return False
-    return all(record["files"].get(n) == sha256_bytes(b) for n, b in files.items())
 
 
 # whole-participant reads: the public queries of these give a video at a time (issue 36)
@@ -134,7 +127,7 @@ class EmbeddingStore:
         if self.path.exists():
             try:
                 raw = self.path.read_bytes()
-                if not _recorded(bank.derived.get(None, self.path.name), self.path.name, {self.path.name: raw}):
+                if not recorded(bank.derived.get(None, self.path.name), self.path.name, {self.path.name: raw}):
                     raise ValueError(f"not as recorded in {MANIFEST}")
                 with np.load(io.BytesIO(raw)) as data:
                     keys, mat = data["keys"], data["vectors"]

@@ -4,7 +4,6 @@ as a reading from scratch does, and never trusts a stale or damaged file."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 from collections import Counter
@@ -17,6 +16,9 @@ from memora_graph.agent.query import log as query_log
 from memora_graph.agent.query import vocabulary as query_vocabulary
 from memora_graph.agent.query.log import action_log
 from memora_graph.agent.query.vocabulary import Vocabulary
+from memora_graph.bank import Bank
+from memora_graph.bank.derived import sha256_bytes
+from memora_graph.integrity.verify import verify_bank
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve import MemoryView
 from memora_graph.retrieve.view import persist_bank
@@ -32,13 +34,14 @@ def lex():
 @pytest.fixture()
 def bank(small_bank, tmp_path):
     path = tmp_path / "bank"
-    shutil.copytree(small_bank[0], path, ignore=shutil.ignore_patterns("tools-*", "derived-*"))
+    shutil.copytree(small_bank[0], path, ignore=shutil.ignore_patterns("tools-*", "derived-*", "manifest.json"))
+    shutil.copy(small_bank[0] / "manifest.json", path)  # (copied: the fixture bank may hold records of derived files)
     persist_bank(path, [P])
     return path
 
 
 def _file(bank):
-    return bank / ".cache" / f"derived-{P}" / f"{wordings.NAME}.json"
+    return bank / ".cache" / f"derived-{wordings.NAME}-{P}.json"
 
 
 def _answers(bank, lex) -> list:
@@ -60,10 +63,17 @@ def _answers(bank, lex) -> list:
         return out
 
 
-def _write(path, header: dict, data) -> None:
-    """A file as `derived.save` writes one: its header (with the payload's sha256), then the payload."""
+def _record(bank) -> dict:
+    return Bank(bank).derived.get(P, f"derived-{wordings.NAME}")
+
+
+def _write(bank, data, key: str | None = None) -> None:
+    """A file as `derived.save` writes one, recorded in the manifest (under `key`, default the
+    recorded one): a consistent file and record."""
     body = json.dumps(data).encode()
-    path.write_bytes(json.dumps({**header, "sha256": hashlib.sha256(body).hexdigest()}).encode() + b"\n" + body)
+    _file(bank).write_bytes(body)
+    Bank(bank).derived.put(P, f"derived-{wordings.NAME}", {"of": key or _record(bank)["of"],
+                                                           "files": {_file(bank).name: sha256_bytes(body)}})
 
 
 def _no_parsing(monkeypatch) -> None:
@@ -95,27 +105,26 @@ def test_a_new_process_reads_the_saved_wordings_and_answers_the_same(bank, lex, 
         assert _answers(bank, lex) == first  # nothing parsed: every wording came from the file
 
 
-@pytest.mark.parametrize("spoil", ["payload", "truncated", "header", "key", "shape"])
+@pytest.mark.parametrize("spoil", ["payload", "truncated", "unrecorded", "key", "shape"])
 def test_a_stale_or_damaged_file_is_not_trusted_and_is_written_again(bank, lex, monkeypatch, spoil):
     first = _answers(bank, lex)
     saved = _file(bank)
-    raw = saved.read_bytes()
-    head, _, body = raw.partition(b"\n")
-    header = json.loads(head)
-    if spoil == "payload":  # a changed class, hash left as it was
-        data = json.loads(body)
+    assert _record(bank)["files"] == {saved.name: sha256_bytes(saved.read_bytes())}  # recorded as saved
+    data = json.loads(saved.read_bytes())
+    if spoil == "payload":  # a changed class, its record left as it was
         data["log"][0][4] = ["wrong:class"]
-        saved.write_bytes(head + b"\n" + json.dumps(data).encode())
+        saved.write_bytes(json.dumps(data).encode())
+        row = next(r for r in verify_bank(bank, [P]).rows if r["participant"] == P)
+        assert any(saved.name in p and "not as recorded" in p for p in row["problems"])  # `memora verify` names it
     elif spoil == "truncated":
-        saved.write_bytes(raw[: len(raw) // 2])
-    elif spoil == "header":
-        saved.write_bytes(b"not json\n" + body)
+        saved.write_bytes(saved.read_bytes()[:-100])
+    elif spoil == "unrecorded":  # a file the manifest has no record of
+        Bank(bank).derived.drop(P, f"derived-{wordings.NAME}")
     elif spoil == "key":  # saved under another lexicon or code: wrong classes, hash and all consistent
-        data = json.loads(body)
         data["log"] = [[*r[:4], ["wrong:class"], ["wrong:class"], None] for r in data["log"]]
-        _write(saved, {**header, "key": "0" * 64}, data)
+        _write(bank, data, key="0" * 64)
     else:  # a consistent file whose tables are not what the reader saves
-        _write(saved, header, {"log": [[1, 2]], "text": 3})
+        _write(bank, {"log": [[1, 2]], "text": 3})
     calls = _counting(monkeypatch)
     assert _answers(bank, lex) == first
     assert calls, "the wordings were read again"
@@ -127,13 +136,11 @@ def test_a_stale_or_damaged_file_is_not_trusted_and_is_written_again(bank, lex, 
 
 def test_new_wordings_are_added_to_the_file_old_ones_reused(bank, lex, monkeypatch):
     first = _answers(bank, lex)
-    saved = _file(bank)
-    head, _, body = saved.read_bytes().partition(b"\n")
-    data = json.loads(body)
+    data = json.loads(_file(bank).read_bytes())
     kept = len(data["log"]) // 2  # as if saved before the other half of the wordings were remembered
     dropped = {tuple(r[:3]) for r in data["log"][kept:]}
     data["log"] = data["log"][:kept]
-    _write(saved, json.loads(head), data)
+    _write(bank, data)
     calls = _counting(monkeypatch)
     assert _answers(bank, lex) == first
     assert len(calls) == len(dropped) and set(calls) == {d[0] for d in dropped}  # only the new ones read

@@ -69,7 +69,7 @@ def seed(view, lex: Lexicon) -> None:
         # a text's words, then the names of classes in it (saved: only the names; `_phrases`)
         texts = {t: [(w, None) for w in WORD.findall(t)] + [(w, c) for w, c in names] for t, names in data["text"]}
     except (KeyError, TypeError, ValueError):
-        derived.log.warning(f"{derived.DIRNAME.format(participant=view.participant)}/{NAME}.json: damaged "
+        derived.log.warning(f"{derived.FILENAME.format(name=NAME, participant=view.participant)}: damaged "
                             "(not the tables it should hold); not used, computed again")
         return
     for name, table in ((LOG_WORDS, words), (TEXT_WORDS, texts)):
