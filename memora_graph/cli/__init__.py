@@ -121,7 +121,7 @@ def main():
     Quick start:
       memora build banks/epic                 # all 18 participants from the bundled annotations
       memora stats banks/epic
-      memora run banks/epic object_history -p participant P01 -p object plate
+      memora run banks/epic object_history -p participant P01 -p object plate -p video P01_109
       memora query banks/epic "MATCH (e:Entity) WHERE e.participant = 'P01' RETURN e.name LIMIT 5"
     """
     from memora_graph.cli.integrity import show_bank_notices
@@ -467,7 +467,7 @@ def run(bank, name, params, fmt):
 
     \b
     Examples:
-      memora run banks/epic object_history -p participant P01 -p object plate
+      memora run banks/epic object_history -p participant P01 -p object plate -p video P01_109
       memora run banks/epic places_most_used --json
     """
     from memora_graph.bank import Bank

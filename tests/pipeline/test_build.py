@@ -27,11 +27,17 @@ def test_small_bank_counts_and_history(small_bank):
         assert c["state_events"] >= c["entities"]
         assert sum(r.decisions.values()) >= c["state_events"]
     with bank.open("P37") as s:
-        hist = s.run("object_history", participant="P37", object="knife")
-        assert hist.height > 1
+        # an object's history, a video at a time: the pages are the whole history, each in time order
+        pages = [s.run("object_history", participant="P37", object="knife", video=v)
+                 for v in s.run("videos", participant="P37")["video"]]
+        assert all(p["video"].unique().to_list() == [v] for p, v in zip(pages, s.run("videos", participant="P37")["video"])
+                   if p.height)
+        assert all(p["t"].to_list() == sorted(p["t"]) for p in pages)
+        hist = pl.concat([p for p in pages if p.height])
+        whole = s.query("MATCH (e:Entity)-[:HAS_STATE]->(x:StateEvent) WHERE e.participant = $p AND e.object_id = 'knife' "
+                        "RETURN count(x) AS n", {"p": "P37"})["n"][0]
+        assert hist.height == whole > 1
         assert hist["op"][0] == "ADD"
-        keys = list(zip(hist["video"], hist["t"]))
-        assert keys == sorted(keys)
         assert s.run("places_most_used", participant="P37")["turns"].sum() == s.run("store_counts", participant="P37")["segments"][0]
 
 

@@ -102,7 +102,8 @@ def test_stdio_lists_and_calls_every_tool(small_bank):
             # what the results hold
             res = await client.call_tool("get_object_history", {"participant": "P37", "object_query": "carrot"})
             assert res.structured_content["found"] and res.structured_content["entity_id"] == "P37:carrot"
-            res = await client.call_tool("query_object_history", {"participant": "P37", "object": "carrot"})
+            res = await client.call_tool("query_object_history", {"participant": "P37", "object": "carrot",
+                                                                     "video": "P37_102"})
             rows = res.structured_content["rows"]
             assert rows and {r["entity"] for r in rows} == {"P37:carrot"}
             res = await client.call_tool("cypher", {"participant": "P37", **CALLS["cypher"]})
@@ -185,7 +186,7 @@ def test_http_bound_to_one_participant_shows_nothing_of_another(small_bank):
                 assert res.structured_content["found"] is False
                 res = await client.call_tool("get_video_activities", {"video": "P37_101"})
                 assert res.is_error and "P37_101" in res.content[0].text
-                res = await client.call_tool("query_object_history", {"object": "P37:carrot"})
+                res = await client.call_tool("query_object_history", {"object": "P37:carrot", "video": "P37_102"})
                 assert res.structured_content["rows"] == []
                 res = await client.call_tool("query_segments", {"video": "P37_101"})
                 assert res.structured_content["rows"] == []

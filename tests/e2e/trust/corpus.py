@@ -211,7 +211,7 @@ def bad_cli_inputs(bank: str, scratch: str) -> list[tuple[str, list[str]]]:
         cases.append((f"query -p {name} {value[:20]}", ["query", bank, "RETURN $x AS x", "-p", name, value,
                                                        "--participant", "P09"]))
         cases.append((f"run -p {name} {value[:20]}", ["run", bank, "object_history", "-p", name, value,
-                                                     "-p", "object", "plate"]))
+                                                     "-p", "object", "plate", "-p", "video", "P09_01"]))
     bad_ids = ("", " ", "P9", "p09", "P099", "../P09", "P09;", "*", "\u0000", "P09,,x")
     for value in (*bad_ids, "P11", "all", "P09,P37"):  # the last three: no one id, or not in this bank
         cases.append((f"query --participant {value!r}", ["query", bank, q, "--participant", value]))

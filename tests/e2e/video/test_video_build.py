@@ -112,7 +112,7 @@ def test_scripted_build_writes_entities_state_changes_and_places(built):
         assert (entities["plate"]["state"], entities["plate"]["location"]) == ("drying", "sink_area")
         assert entities["knife"]["state"] == "placed" and entities["mug"]["location"] == "cabinet_area"
 
-        hist = s.run("object_history", participant="P01", object="plate")
+        hist = s.run("object_history", participant="P01", object="plate", video=result.videos[0]["video"])
         assert hist["state"].to_list() == ["dirty", "observed", "washed", "drying"]
         assert hist["location"].to_list() == ["counter_area", "counter_area", "sink_area", "sink_area"]
         assert hist["op"].to_list() == ["ADD", "NOOP", "UPDATE", "UPDATE"]
