@@ -38,6 +38,12 @@ def test_small_bank_counts_and_history(small_bank):
                         "RETURN count(x) AS n", {"p": "P37"})["n"][0]
         assert hist.height == whole > 1
         assert hist["op"][0] == "ADD"
+        # the editor's decisions about it, a video at a time too
+        ops = [s.run("edit_log", participant="P37", object="knife", video=v) for v in s.run("videos", participant="P37")["video"]]
+        assert all(p["t"].to_list() == sorted(p["t"]) for p in ops)
+        every = s.query("MATCH (o:EditOp)-[:EDITED]->(e:Entity) WHERE e.participant = $p AND e.object_id = 'knife' "
+                        "RETURN count(o) AS n", {"p": "P37"})["n"][0]
+        assert sum(p.height for p in ops) == every > 1
         assert s.run("places_most_used", participant="P37")["turns"].sum() == s.run("store_counts", participant="P37")["segments"][0]
 
 
