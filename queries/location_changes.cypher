@@ -1,10 +1,10 @@
-// description: The segments in which an object changed location, with where it came from and went.
-// params: participant, object
-// example: memora run BANK location_changes -p participant P01 -p object plate
-// bound: page object
-MATCH (e:Entity)-[:HAS_STATE]->(s:StateEvent)-[:OBSERVED_IN]->(g:Segment)
-WHERE e.participant = $participant AND (e.object_id = $object OR e.name = $object)
+// description: The segments of one video in which an object changed location, with where it came from and went: a video at a time (`videos` lists them).
+// params: participant, object, video
+// example: memora run BANK location_changes -p participant P01 -p object plate -p video P01_109
+// bound: page video
+MATCH (v:Video {id: $video})-[:HAS_SEGMENT]->(g:Segment)<-[:OBSERVED_IN]-(s:StateEvent)<-[:HAS_STATE]-(e:Entity)
+WHERE v.participant = $participant AND (e.object_id = $object OR e.name = $object)
   AND s.prev_location <> '' AND s.location <> s.prev_location
 RETURN g.id AS segment, g.video AS video, g.t_start AS t_start, s.prev_location AS moved_from,
        s.location AS moved_to, s.narration AS narration
-ORDER BY g.video, g.t_start
+ORDER BY t_start

@@ -117,7 +117,7 @@ def test_scripted_build_writes_entities_state_changes_and_places(built):
         assert hist["location"].to_list() == ["counter_area", "counter_area", "sink_area", "sink_area"]
         assert hist["op"].to_list() == ["ADD", "NOOP", "UPDATE", "UPDATE"]
         assert hist["t"].to_list() == pytest.approx([1.0, 10.5, 15.25, 21.0])  # trajectory spread over the clip
-        moves = s.run("location_changes", participant="P01", object="plate")
+        moves = s.run("location_changes", participant="P01", object="plate", video=result.videos[0]["video"])
         assert moves.select("moved_from", "moved_to").rows() == [("counter_area", "sink_area")]
 
         places = s.run("places_most_used", participant="P01")
