@@ -186,17 +186,18 @@ class Store:
         self._catalog: dict[str, str] | None = None
 
     # -- lifecycle ---------------------------------------------------------------------
-    def reader(self, counted: bool = True) -> Store:
+    def reader(self, counted: bool = True, threads: int = 0) -> Store:
         """A second connection on this open database, read-only by this class's checks, for
         another thread of the same process (live memory consolidates off the request path; a
         writable server's readers read through one): Kùzu serves it a committed snapshot while
         this connection writes. Closing it closes only the connection. `counted`: it may hold a
         long snapshot (a consolidation's), which the writer's checkpoints wait out (`readers`);
-        a reader of short queries only (the tools') is not counted."""
+        a reader of short queries only (the tools') is not counted. `threads`: the most threads
+        Kùzu runs one of its queries on (0: its default, every core)."""
         other = Store.__new__(Store)
         other.path, other.read_only, other.on_close, other.on_fail, other._broken = self.path, True, None, None, None
         other._db, other._shared, other._owner = self._db, True, self if counted else None
-        other._conn = kuzu.Connection(self._db)
+        other._conn = kuzu.Connection(self._db, threads)
         other._in_tx, other._prepared, other._catalog = False, {}, None
         other.replayed_bytes, other._readers = 0, 0
         if counted:

@@ -731,6 +731,15 @@ class MemoryView:
             cache.pop("preference", None)
         self._changed("routine", "preference", rows=("_tool_inferred_links",))
 
+    def freeze_loaded(self) -> None:
+        """After `warm`: what was loaded since (the structures a first `ask` or `plan` builds on
+        this view, in the layers above) joins the permanent generation too, as warm's loads did;
+        `close` gives it back with them. Nothing for a view never warmed. Garbage without a cycle
+        is still freed as ever: only the cyclic collector stops walking it."""
+        with _FROZEN_LOCK:
+            if self.__dict__.get("_frozen"):
+                gc.freeze()
+
     def warm(self) -> None:
         """Load everything the tools read once (what the first call would otherwise pay)."""
         for t in TABLES:

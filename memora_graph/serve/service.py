@@ -42,6 +42,11 @@ CYPHER_IN_FLIGHT = 2  # cypher calls running at once (each a child process of up
 CYPHER_QUEUE = 8  # cypher calls waiting beyond those; past it a call is refused as busy
 CYPHER_TIMEOUT = 30.0
 MAX_CYPHER_TIMEOUT = 300.0
+# A writable server's readers (the tools' view, the named queries) run each Kùzu query on one thread, so
+# that a remember committing meanwhile keeps a core: on 2 cores at 1,000 h, a remember's p95 while
+# tools were called back to back was 68-81 ms with Kùzu's default (every core), 42-51 ms with one
+# (docs/findings/live-remember-latency-1000h.md).
+READER_THREADS = 1
 QUERY_PREFIX = "query_"  # a named query `object_history` is served as the tool `query_object_history`
 PENDING_MAX = 256  # committed moments queued for the readers before the writer folds them in itself, if no reader is busy
 SEGMENT_BYTES = 200_000  # JSON of one `remember` segment record at most
@@ -400,7 +405,7 @@ class MemoryService:
             sha = self.writer.opened_sha256 if self.writer.commits == 0 else None
             # a connection of the view's own on the writer's database (the last committed snapshot):
             # a remember's commit runs beside the readers, who wait only while their caches take it in
-            reader = self.writer.store.reader(counted=False)
+            reader = self.writer.store.reader(counted=False, threads=READER_THREADS)
             try:
                 view = self._views[participant] = MemoryView.live(reader, self.bank.path, participant, sha,
                                                                   config=self.recipe, own=True)
@@ -540,7 +545,9 @@ class MemoryService:
         from memora_graph.agent.ask import ask_memory
 
         with self._guards[participant].lock, self._guards[participant].owned():
-            result = ask_memory(self._view(participant), participant, arguments["question"], arguments["choices"])
+            view = self._view(participant)
+            result = ask_memory(view, participant, arguments["question"], arguments["choices"])
+            self._built(view, "ask")
         return AskAnswer.model_validate(result.as_dict()).model_dump(mode="json")
 
     def _recall_endpoint(self) -> Endpoint:
@@ -564,15 +571,30 @@ class MemoryService:
         from memora_graph.agent.query import recall
 
         with self._guards[participant].lock, self._guards[participant].owned():
-            answer = recall(self._view(participant), participant, arguments)
+            view = self._view(participant)
+            answer = recall(view, participant, arguments)
+            self._built(view, "recall")
         return answer.model_dump(mode="json")
 
     def _plan(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         from memora_graph.agent.planner import plan_memory
 
         with self._guards[participant].lock, self._guards[participant].owned():
-            result = plan_memory(self._view(participant), participant, arguments["goal"])
+            view = self._view(participant)
+            result = plan_memory(view, participant, arguments["goal"])
+            self._built(view, "plan")
         return PlanAnswer.model_validate(result.as_dict()).model_dump(mode="json")
+
+    @staticmethod
+    def _built(view: MemoryView, kind: str) -> None:
+        """After a view's first ask, recall or plan: what it built for the next ones (the action log,
+        the vocabulary, the planner's tables) joins what `warm` kept from the cyclic collector
+        (`MemoryView.freeze_loaded`): walked by every full collection, it cost the call a full
+        collection fell in (at 1,000 h, plan's p95 351-376 ms before, 193-206 ms after)."""
+        done = view.__dict__.setdefault("_serve_built", set())
+        if kind not in done:
+            done.add(kind)
+            view.freeze_loaded()
 
     def _remember(self, participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
         seg, text = arguments.get("segment"), arguments.get("text")
@@ -642,7 +664,7 @@ class MemoryService:
                 raise QueryRefused(for_agents(str(exc))) from None
             with self._named_lock:  # the named queries' connection (the last committed snapshot)
                 if self._named_reader is None:
-                    self._named_reader = self.writer.store.reader(counted=False)
+                    self._named_reader = self.writer.store.reader(counted=False, threads=READER_THREADS)
                 store = self._named_reader
                 store.set_timeout(self._cypher_timeout(arguments["timeout"]))
                 try:
@@ -694,7 +716,7 @@ class MemoryService:
                 # readers' lock, so remembers and the other tools do not wait for it
                 with self._named_lock:
                     if self._named_reader is None:
-                        self._named_reader = self.writer.store.reader(counted=False)  # short queries only
+                        self._named_reader = self.writer.store.reader(counted=False, threads=READER_THREADS)  # short queries only
                     frame = self._named_reader.run(name, participant=participant, **arguments)
                 return _rows(frame, participant, self.max_rows)
             with self._guards[participant].lock, self._guards[participant].owned():

@@ -96,6 +96,44 @@ def test_named_queries_of_a_writable_server_read_a_snapshot_without_the_readers_
     assert verify_bank(tmp_path / "bank").ok
 
 
+def test_a_writable_servers_readers_leave_the_writer_a_core_and_freeze_what_a_first_ask_builds(tmp_path):
+    """A writable server's readers (the tools' view, the named queries) run each Kùzu query on one
+    thread, the writer on Kùzu's default, so that a remember committing while tools are called
+    keeps a core (issue 36: a remember's p95 while streaming). What the first ask and plan of the
+    view build joins what `warm` kept from the cyclic collector; closing gives it all back."""
+    import gc
+
+    threads = "CALL current_setting('threads') RETURN *"
+    service = MemoryService(tmp_path / "bank", "P01", writable=True)
+    try:
+        for i, text in enumerate(["put the kettle on the counter", "open the fridge", "take the milk from the fridge"]):
+            service.call("remember", {"text": text, "video": "kitchen-1", "start": 2.0 * i})
+        service.call("query_baseline_segments", {"video": "kitchen-1"})  # opens the named queries' connection
+        view = service._views["P01"]
+        assert view.store._conn.execute(threads).get_all() == [["1"]]
+        assert service._named_reader._conn.execute(threads).get_all() == [["1"]]
+        assert service.writer.store._conn.execute(threads).get_all() != [["1"]]
+        frozen = gc.get_freeze_count()
+        assert frozen > 0, "warm froze what it loaded"
+
+        def collectable(x) -> bool:  # in a generation the cyclic collector walks (not the frozen one)
+            return any(o is x for o in gc.get_objects())
+
+        kept = [[]]
+        kept[0].append(kept)  # alive after the call, in a cycle, as what an ask builds on the view
+        view.__dict__["_test_kept"] = kept
+        assert collectable(kept)
+        assert service.call("ask", {"question": "where is the milk?"})["answer"]
+        assert gc.get_freeze_count() > frozen and not collectable(kept), "what the first ask left alive is frozen"
+        assert service.call("plan", {"goal": "make tea"})
+        after = gc.get_freeze_count()
+        service.call("ask", {"question": "where is the kettle?"})
+        assert gc.get_freeze_count() == after, "only a view's first ask and plan freeze again"
+    finally:
+        service.close()
+    assert gc.get_freeze_count() == 0, "closing the last warm view gives every frozen object back"
+
+
 def test_tools_answer_while_a_remember_commits(tmp_path, monkeypatch):
     """A writable server's readers read through a connection of their own (the last committed
     snapshot): a tool call made while a remember's transaction is open (held for a second here)
