@@ -35,6 +35,7 @@ from memora_graph.retrieve.registry import MEMORA, ToolSpec, specs
 from memora_graph.retrieve.search import DEFAULT_RECIPE
 from memora_graph.retrieve.view import MemoryView
 from memora_graph.serve.budget import DEFAULT_CALL_TIMEOUT, MAX_CALL_TIMEOUT, MAX_CALLS, Call, CallTimeout, shield
+from memora_graph.store import Store
 
 MAX_ROWS = 1000  # rows a Cypher or named query returns at most (the rest is counted, not sent)
 CYPHER_BYTES = 4 * 2**20  # bytes of Arrow a cypher call's child hands back at most
@@ -663,9 +664,7 @@ class MemoryService:
             except QueryRefused as exc:
                 raise QueryRefused(for_agents(str(exc))) from None
             with self._named_lock:  # the named queries' connection (the last committed snapshot)
-                if self._named_reader is None:
-                    self._named_reader = self.writer.store.reader(counted=False, threads=READER_THREADS)
-                store = self._named_reader
+                store = self._named_store()
                 store.set_timeout(self._cypher_timeout(arguments["timeout"]))
                 try:
                     frame = store.query(statement.text, params)
@@ -708,6 +707,13 @@ class MemoryService:
                 n += 1
         return {"spins": n}
 
+    def _named_store(self) -> Store:
+        """A writable server's connection for named queries and Cypher (short queries only; opened
+        on first use, under `_named_lock`), on the writer's database like the view's."""
+        if self._named_reader is None:
+            self._named_reader = self.writer.store.reader(counted=False, threads=READER_THREADS)
+        return self._named_reader
+
     def _named(self, name: str) -> Callable[[str, dict[str, Any]], dict[str, Any]]:
         def run(participant: str, arguments: dict[str, Any]) -> dict[str, Any]:
             if self.writer is not None:
@@ -715,9 +721,7 @@ class MemoryService:
                 # snapshot): a named query that scans the memory for seconds does not hold the
                 # readers' lock, so remembers and the other tools do not wait for it
                 with self._named_lock:
-                    if self._named_reader is None:
-                        self._named_reader = self.writer.store.reader(counted=False, threads=READER_THREADS)  # short queries only
-                    frame = self._named_reader.run(name, participant=participant, **arguments)
+                    frame = self._named_store().run(name, participant=participant, **arguments)
                 return _rows(frame, participant, self.max_rows)
             with self._guards[participant].lock, self._guards[participant].owned():
                 frame = self._view(participant).store.run(name, participant=participant, **arguments)
