@@ -361,7 +361,7 @@ def _write_tasks(store: Store, participant: str, knowledge: InferredKnowledge) -
         return
     store.run("_task_clear", participant=participant)
     if knowledge.task_rows:
-        copy_task_rows(store, knowledge.task_rows)  # through a file: a COPY of one frame held several times it
+        copy_task_rows(store, knowledge.task_rows)  # a chunk of tasks per COPY: one frame of them all was held several times
 
 
 def consolidate_participant(store: Store, participant: str, embedder, processors: str | Processors = "deterministic") -> InferredKnowledge:

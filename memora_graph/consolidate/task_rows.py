@@ -31,13 +31,9 @@ def task_row(participant: str, t, segment_ids) -> dict | None:
                                  for s in t.steps])}
 
 
-def task_rows(participant: str, tasks, segment_ids) -> list[dict]:
-    """Task rows of `tasks`, citing only segments that exist (a task citing none has no row)."""
-    return [r for t in tasks if (r := task_row(participant, t, segment_ids)) is not None]
-
-
 class TaskRows:
-    """`task_rows` made when iterated: a run's rows are read once, by the writer, a chunk at a time."""
+    """The Task rows of `tasks` (`task_row`: a task citing no segment that exists has none), made
+    when iterated: a run's rows are read once, by the writer, a chunk at a time."""
 
     def __init__(self, participant: str, tasks: list, segment_ids):
         self.participant, self.tasks, self.segment_ids = participant, tasks, segment_ids

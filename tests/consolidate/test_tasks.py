@@ -12,7 +12,7 @@ from memora_graph.consolidate.memory import MemoryStep, Obj, ParticipantMemory
 from memora_graph.consolidate.patterns import batch, canonical, carrier, detect_all, order, repetition, setup, staging
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate import task_rows as task_rows_module
-from memora_graph.consolidate.task_rows import task_rows
+from memora_graph.consolidate.task_rows import TaskRows
 from memora_graph.consolidate.task_records import CompactTask, Task
 from memora_graph.consolidate.tasks import PAUSE, cut, segment_tasks, video_tasks
 from memora_graph.store import Store
@@ -251,8 +251,8 @@ def test_compact_tasks_write_and_find_what_their_task_records_do(small_bank):
     assert [CompactTask.of(r) for r in records] == compact  # live memory's folds read them back compact
     assert [Task.model_validate(r.model_dump()) for r in records] == records
     ids = memory.segment_ids
-    rows = task_rows(p, compact, ids)
-    assert rows == task_rows(p, records, ids) and len(rows) == len(compact)
+    rows = list(TaskRows(p, compact, ids))
+    assert rows == list(TaskRows(p, records, ids)) and len(rows) == len(TaskRows(p, compact, ids)) == len(compact)
     for row in rows:
         for step in json.loads(row["steps"]):
             assert list(step) == [*StepAction.model_fields, "stage", "t", "segment"]
