@@ -24,6 +24,7 @@ from memora_graph.agent import compose, task_match, task_plan
 from memora_graph.consolidate.vocab import past_tense
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve.results import PreferenceRecord
+from memora_graph.retrieve.tasks import TaskIndex
 from memora_graph.text import KITCHEN_NOUNS, tokenize
 
 MAX_STEPS = compose.MAX_STEPS
@@ -108,7 +109,7 @@ def plan_lookups(goal: str, tools: list[str], calls: list[dict[str, Any]], lex: 
 # -- the plan --------------------------------------------------------------------------------------
 
 def compose_structured(task_query: str, calls: list[dict[str, Any]], lex: Lexicon,
-                       from_task: bool = False, tasks: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+                       from_task: bool = False, tasks: TaskIndex | list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """Structured steps for a goal from the calls' results (see the module docstring); the plan from
     the request alone (`generic_plan`) when memory returned no procedure for it.
 
@@ -120,7 +121,7 @@ def compose_structured(task_query: str, calls: list[dict[str, Any]], lex: Lexico
     draft = None
     limit = MAX_PLAN_STEPS
     if from_task:
-        hit = task_match.best(goal, tasks or [], lex)
+        hit = task_match.best(goal, tasks if tasks is not None else [], lex)
         if hit is not None:
             draft, limit = task_match.draft(*hit, lex), MAX_TASK_PLAN_STEPS
         elif (task := task_plan.matching(goal, calls, lex)) is not None:

@@ -20,7 +20,6 @@ times in memory ("take, scrub, wash, rack" per knife) is planned once. A step ne
 
 from __future__ import annotations
 
-import json
 import re
 from collections import Counter
 from typing import Any
@@ -30,6 +29,7 @@ from memora_graph.agent.task_plan import FIXTURES, acts_on_place
 from memora_graph.consolidate import vocab
 from memora_graph.consolidate.tasks import FALLBACK_PRODUCT, FOOD, PRODUCTS
 from memora_graph.perceive.lexicon import Lexicon
+from memora_graph.retrieve.tasks import TaskIndex, step_kinds
 
 INSPECTING = frozenset({"smell", "look", "check", "search", "inspect", "taste"})  # change nothing: no plan step
 INTO = frozenset({"insert", "pour", "empty", "fill", "scoop", "add", "drop", "throw"})  # said "into" the place
@@ -38,17 +38,16 @@ CLOSURE_ROUNDS = 2  # rounds of taking up the objects kept steps work with
 _PRODUCT_WORDS = {k: g for k, g in PRODUCTS.items() if ":" not in k}
 
 
-def read_tasks(memory: Any) -> list[dict[str, Any]]:
-    """The person's Task rows (steps parsed) from an open memory; [] for one without tasks."""
-    fetch, store = getattr(memory, "fetch", None), getattr(memory, "store", None)
-    if fetch is None or store is None or "Task" not in store.tables():
-        return []
-    out = []
-    for t in fetch("tasks"):
-        t = dict(t)
-        t["steps"] = json.loads(t.get("steps") or "[]")
-        out.append(t)
-    return out
+def read_tasks(memory: Any) -> TaskIndex:
+    """Every one of the person's Task rows from an open memory, indexed by the object kinds they name
+    (`retrieve.tasks`; a view keeps its index between plans); empty for a memory without tasks."""
+    kept = getattr(memory, "tasks", None)
+    if isinstance(kept, TaskIndex):
+        return kept
+    store, participant = getattr(memory, "store", None), getattr(memory, "participant", None)
+    if store is None or participant is None:
+        return TaskIndex.empty()
+    return TaskIndex.read(store, participant)
 
 
 def _kind(noun_class: str) -> str:
@@ -86,54 +85,61 @@ def _covers(kind: str, have: set[str], lex: Lexicon) -> set[str]:
     return {kind} & have
 
 
-def _kinds_of(step: dict[str, Any]) -> set[str]:
-    """The object kinds a task step names: what it acts on, with, and where it puts it."""
-    place = (step.get("place") or "").replace(" ", "_")
-    return {k for k in (step.get("noun"), step.get("instrument"), place) if k}
-
-
 def _verb_fits(verb: str, step_verb: str, lex: Lexicon) -> bool:
     return step_verb == verb or lex.same_category(verb, step_verb) or (verb == "put" and step_verb in vocab.RELEASING)
 
 
-def best(goal: str, tasks: list[dict[str, Any]], lex: Lexicon) -> tuple[dict[str, Any], set[str]] | None:
-    """The task that does the goal and the goal's key objects in it (see the module); None when none fits."""
+def best(goal: str, tasks: TaskIndex | list[dict[str, Any]], lex: Lexicon) -> tuple[dict[str, Any], set[str]] | None:
+    """The task that does the goal and the goal's key objects in it (see the module); None when none fits.
+    Only the tasks that name a kind each goal object stands for (or the product's) can fit, so only
+    those are read from the index, in their order (the first of equally good ones wins, as over all)."""
     kinds, product, verb = goal_objects(goal, lex)
     product_kinds = {k for k, g in PRODUCTS.items() if g == product} if product else set()
     if any(_cat(k, lex) == "drinks" for k in product_kinds) and product != FALLBACK_PRODUCT:
         product_kinds |= {k for k, g in PRODUCTS.items() if g == FALLBACK_PRODUCT}   # a drink boils water
     if not kinds and not product_kinds:
         return None
-    scored = []
-    for t in tasks:
-        if product and t.get("family") in ("cleanup", "store"):
+    index = tasks if isinstance(tasks, TaskIndex) else TaskIndex.of(tasks)
+    covers = {k: _covers(k, index.kinds(), lex) for k in kinds}  # a task's key objects: these & what it names
+    fitting = {v for v in index.verbs() if _verb_fits(verb, v, lex)} if verb else None
+    on = set().union(*covers.values()) | product_kinds
+    named_by: dict[str, bool] = {}  # task goals repeat ("wash up cup"): each read once
+    top = None
+    for i, goal_said, family, on_key, made, verb_said, n_steps in index.step_counts(
+            _candidates(index, kinds, product_kinds, covers), on, product_kinds, fitting):
+        if product and family in ("cleanup", "store"):
             continue  # a wash-up or a put-away makes nothing (consolidate.tasks names them so too)
-        have = set(t.get("objects") or []) | {k for s in t["steps"] for k in _kinds_of(s)}
-        key: set[str] = set()
-        fits = True
-        for k in kinds:
-            got = _covers(k, have, lex)
-            if not got and not (product_kinds & have and k not in product_kinds and product):
-                fits = False
-                break
-            key |= got
-        key |= product_kinds & have
-        if not fits or not key:
+        if not verb_said:
             continue
-        on_key = [s for s in t["steps"] if _kinds_of(s) & key]
-        if verb and not any(_verb_fits(verb, s["verb"], lex) for s in on_key):
-            continue
-        named = _named(t["goal"], kinds, product, verb, lex)
-        made = sum(1 for s in on_key if _kinds_of(s) & product_kinds)
-        scored.append(((named, made, len(on_key), -len(t["steps"])), t, key))
-    if not scored:
+        if goal_said not in named_by:
+            named_by[goal_said] = _named(goal_said, kinds, product, verb, lex)
+        score = (named_by[goal_said], made, on_key, -n_steps)
+        if top is None or score > top[0]:  # the first of equally good ones
+            top = (score, i)
+    if top is None:
         return None
-    (named, *_), t, key = max(scored, key=lambda x: x[0])
+    (named, *_), i = top
+    t, have = index.task(i), index.task_kinds(i)
+    key = set().union(*(covers[k] & have for k in kinds)) | (product_kinds & have)
     if named:  # the task is the goal: its main object and what its work is done with too
         main = t.get("main_object") or ""
         side = product and (main in product_kinds or _cat(main, lex) in FOOD)  # milk poured beside the toast
         key = _closure(t, key | ({main} if main and not side else set()))
     return t, key
+
+
+def _candidates(index: TaskIndex, kinds: set[str], product_kinds: set[str], covers: dict[str, set[str]]) -> set[int]:
+    """The tasks that fit the goal's objects (`best`): for each goal object, those naming a kind it
+    stands for (`covers`) or, for a goal object other than the product, the product; with no goal
+    object, those naming the product. (A task's steps on them are counted after.)"""
+    with_product = index.having(product_kinds)
+    out: set[int] | None = None
+    for k in kinds:
+        fit = index.having(covers[k])
+        if k not in product_kinds:
+            fit |= with_product
+        out = fit if out is None else out & fit
+    return with_product if out is None else out
 
 
 def _named(task_goal: str, kinds: set[str], product: str | None, verb: str | None, lex: Lexicon) -> bool:
@@ -151,7 +157,7 @@ def _closure(task: dict[str, Any], key: set[str]) -> set[str]:
     for _ in range(CLOSURE_ROUNDS):
         more = set()
         for s in task["steps"]:
-            kinds = _kinds_of(s)
+            kinds = step_kinds(s)
             if kinds & key and (s["verb"] not in vocab.FILLER or s.get("place") in key):
                 more |= {k for k in kinds if k not in vocab.STORAGE_KINDS and not k.endswith("_area")}
         key |= more
@@ -163,7 +169,7 @@ def focus(task: dict[str, Any], key: set[str], lex: Lexicon) -> list[dict[str, A
     or moving a thing aside (taken and put straight back down, nothing done to it), each (action,
     object, where it is put) once, no place moved."""
     steps = [s for s in task["steps"] if s["verb"] not in INSPECTING]
-    on_key = [bool(_kinds_of(s) & key) for s in steps]
+    on_key = [bool(step_kinds(s) & key) for s in steps]
     keep = list(on_key)
     for i in range(len(steps) - 1):  # a fixture worked just before a step on a key object opens the way to it
         if not keep[i] and on_key[i + 1] and _fixture(steps[i]["noun"], lex):
@@ -211,7 +217,7 @@ def draft(task: dict[str, Any], key: set[str], lex: Lexicon) -> list[dict[str, A
     return out
 
 
-def summary(goal: str, tasks: list[dict[str, Any]], lex: Lexicon) -> dict[str, Any] | None:
+def summary(goal: str, tasks: TaskIndex | list[dict[str, Any]], lex: Lexicon) -> dict[str, Any] | None:
     """Which task a plan for the goal starts from and how much of it is kept (for reports, tests)."""
     hit = best(goal, tasks, lex)
     if hit is None:

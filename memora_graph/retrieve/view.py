@@ -33,6 +33,7 @@ from memora_graph.retrieve.history import HistoryIndex, HistoryParts, appended_p
 from memora_graph.retrieve.search import DEFAULT_RECIPE, HNSW_MIN_SEGMENTS, RECIPES, TABLES, Bm25, SearchConfig, \
     VectorTable
 from memora_graph.retrieve.steps import StepRows
+from memora_graph.retrieve.tasks import TaskIndex
 
 if TYPE_CHECKING:
     from memora_graph.retrieve.persist import PersistedStores
@@ -415,6 +416,12 @@ class MemoryView:
         return got[1]
 
     @cached_property
+    def tasks(self) -> TaskIndex:
+        """The participant's tasks, indexed by the object kinds they name (retrieve/tasks.py): read
+        whole once, for every plan the view makes; a consolidation (`reload_inferred`) drops them."""
+        return TaskIndex.read(self.store, self.participant)
+
+    @cached_property
     def preferences(self) -> dict[str, dict]:
         return {r["id"]: {**r, "detail": json.loads(r["detail"] or "{}")} for r in self.fetch("_tool_preferences")}
 
@@ -724,7 +731,7 @@ class MemoryView:
         """Forget the inferred knowledge loaded (routines, preferences, their vectors, keywords and
         links), after a consolidation replaced it: the next call reads the new records."""
         loaded = self.__dict__
-        for name in ("routines", "_routine_details", "preferences", "_links", "_link_kinds"):
+        for name in ("routines", "_routine_details", "preferences", "tasks", "_links", "_link_kinds"):
             loaded.pop(name, None)
         for cache in (loaded.get("_vector_cache", {}), loaded.get("_bm25_cache", {})):
             cache.pop("routine", None)

@@ -73,11 +73,14 @@ def test_tasks_are_read_and_a_goal_no_task_does_is_composed(tea_bank):
     view = get_family("memora").open(tea_bank, "P01")
     try:
         tasks = task_match.read_tasks(view)
+        assert task_match.read_tasks(view) is tasks  # the view keeps them for its next plans
+        assert {t["goal"] for t in tasks} >= {"make tea"}
+        assert task_match.best("make a cup of tea", tasks, lex)[0]["goal"] == "make tea"
+        assert task_match.best("fry the egg", tasks, lex) is None  # no task does it: plan as usual
+        assert task_match.best("make a cup of tea", list(tasks), lex)[0]["id"] == \
+            task_match.best("make a cup of tea", tasks, lex)[0]["id"]  # rows read whole match as the index does
     finally:
         view.close()
-    assert {t["goal"] for t in tasks} >= {"make tea"}
-    assert task_match.best("make a cup of tea", tasks, lex)[0]["goal"] == "make tea"
-    assert task_match.best("fry the egg", tasks, lex) is None  # no task does it: plan as usual
     composed = plan(tea_bank, "P01", "fry the egg", from_task=True)
     assert not any(s.get("source") == "task" for s in composed.steps)
 
@@ -117,3 +120,60 @@ def test_memora_plan_starts_from_the_persons_task_unless_told_to_compose(tea_ban
     assert any(s.get("source") == "task" for s in steps)
     assert not any(s.get("source") == "task" for s in csteps)
     assert [s["text"] for s in steps] == [s["text"] for s in plan(tea_bank, "P01", "make a cup of tea").steps]
+
+
+def test_a_plan_reads_every_task_however_many_come_before_the_one_that_does_the_goal(tea_bank, tmp_path):
+    """A person has tens of thousands of tasks at 1,000 h (39,787); the servers' `tasks` query stops at
+    1,000 rows. A plan reads every task (retrieve/tasks.py): 1,100 knife wash-ups recorded in an
+    earlier video than the tea do not hide it."""
+    import shutil
+
+    from memora_graph import schema
+    from memora_graph.bank import Bank
+    from memora_graph.retrieve.registry import get_family
+
+    bank = tmp_path / "bank"
+    shutil.copytree(tea_bank, bank)
+    b = Bank(bank)
+    store = b.open("P01", read_only=False)
+    try:
+        rows = store.fetch("_tasks_all", participant="P01")
+        knife = next(r for r in rows if r["goal"] == "wash up knife")
+        filler = [{**knife, "id": f"P01:task:filler{n:04d}", "participant": "P01", "video": "P01_00", "t_start": float(n)}
+                  for n in range(1100)]
+        store.copy("Task", schema.frame("Task", filler))
+    finally:
+        store.close()
+    b.record_integrity("P01")
+    view = get_family("memora").open(bank, "P01")
+    try:
+        assert len(task_match.read_tasks(view)) == len(rows) + 1100
+        assert len(view.fetch("tasks")) == 1000  # what a plan read before
+    finally:
+        view.close()
+    result = plan(bank, "P01", "make a cup of tea")
+    started = [s for s in result.steps if s.get("source") == "task"]
+    assert started and not any(e.startswith("P01:task:filler") for s in started for e in s["evidence"])
+    assert {"cup", "kettle"} <= {str(s["object"]) for s in started}
+
+
+def test_a_view_reads_its_tasks_again_after_a_consolidation_and_bad_steps_name_the_task(tea_bank):
+    import polars as pl
+
+    from memora_graph.errors import BankError
+    from memora_graph.retrieve.registry import get_family
+    from memora_graph.retrieve.tasks import TaskIndex
+
+    view = get_family("memora").open(tea_bank, "P01")
+    try:
+        kept = task_match.read_tasks(view)
+        view.reload_inferred()  # what live memory does after its incremental consolidation
+        again = task_match.read_tasks(view)
+        assert again is not kept and [t["id"] for t in again] == [t["id"] for t in kept]
+    finally:
+        view.close()
+    rows = pl.DataFrame({"id": ["P01:task:good", "P01:task:bad"], "goal": ["make tea", "wash up"],
+                         "family": ["cooking", "cleanup"], "objects": [["cup"], ["knife"]],
+                         "steps": ['[{"verb": "take", "noun": "cup"}]', '[{"verb": "take", "noun": ']})
+    with pytest.raises(BankError, match="P01:task:bad"):
+        TaskIndex(rows, source="banks/p01/P01.kuzu")
