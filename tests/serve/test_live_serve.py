@@ -128,7 +128,9 @@ def test_a_writable_servers_readers_leave_the_writer_a_core_and_freeze_what_a_fi
         assert service.call("plan", {"goal": "make tea"})
         after = gc.get_freeze_count()
         service.call("ask", {"question": "where is the kettle?"})
-        assert gc.get_freeze_count() == after, "only a view's first ask and plan freeze again"
+        # only a view's first ask and plan freeze again: a freeze would add what the call built; a frozen
+        # object freed by its count (a cache entry replaced, a warnings registry cleared) leaves
+        assert gc.get_freeze_count() <= after, "only a view's first ask and plan freeze again"
     finally:
         service.close()
     assert gc.get_freeze_count() == 0, "closing the last warm view gives every frozen object back"
