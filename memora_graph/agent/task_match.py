@@ -166,8 +166,9 @@ def _closure(task: dict[str, Any], key: set[str]) -> set[str]:
 
 def focus(task: dict[str, Any], key: set[str], lex: Lexicon) -> list[dict[str, Any]]:
     """The task's steps about the key objects (see the module), without inspecting (smell, check)
-    or moving a thing aside (taken and put straight back down, nothing done to it), each (action,
-    object, where it is put) once, no place moved."""
+    or moving a thing aside (taken and put straight back down, nothing done to it; put down and
+    taken straight back up: the take alone), each (action, object, where it is put) once, no place
+    moved."""
     steps = [s for s in task["steps"] if s["verb"] not in INSPECTING]
     on_key = [bool(step_kinds(s) & key) for s in steps]
     keep = list(on_key)
@@ -180,6 +181,8 @@ def focus(task: dict[str, Any], key: set[str], lex: Lexicon) -> list[dict[str, A
         a, b = kept[i], kept[i + 1]
         if a["verb"] in vocab.TAKING and b["verb"] == "put" and a["noun"] == b["noun"] and _area(b):
             aside |= {i, i + 1}
+        elif a["verb"] == "put" and b["verb"] in vocab.TAKING and a["noun"] == b["noun"] and _area(a):
+            aside.add(i)  # put down and taken straight back: still in hand (no plan puts down what it never took)
     out, seen = [], set()
     for i, s in enumerate(kept):
         k = (s["verb"], s.get("noun") or "", "" if _area(s) else s.get("place") or "")

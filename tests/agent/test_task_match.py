@@ -177,3 +177,20 @@ def test_a_view_reads_its_tasks_again_after_a_consolidation_and_bad_steps_name_t
                          "steps": ['[{"verb": "take", "noun": "cup"}]', '[{"verb": "take", "noun": ']})
     with pytest.raises(BankError, match="P01:task:bad"):
         TaskIndex(rows, source="banks/p01/P01.kuzu")
+
+
+def test_a_plan_never_puts_down_what_it_has_not_taken():
+    """A thing put down and taken straight back up (P30's toast: "put down pitta bread", "take pitta
+    bread") was in hand before the kept steps: the plan takes it, and does not start by putting it
+    down. A thing taken and put straight back is moved aside: neither is planned."""
+    lex = Lexicon.load()
+
+    def step(verb, noun, place="counter area"):
+        return {"verb": verb, "noun": noun, "place": place, "instrument": ""}
+
+    task = {"id": "P30:task:t", "goal": "make toast", "main_object": "toaster", "segments": [],
+            "steps": [step("put", "pitta_bread"), step("take", "pitta_bread"), step("close", "cupboard"),
+                      step("insert", "pitta_bread", "toaster"), step("take", "knife"), step("put", "knife"),
+                      step("turn-on", "toaster")]}
+    kept = [(s["verb"], s["noun"]) for s in task_match.focus(task, {"pitta_bread", "toaster", "knife"}, lex)]
+    assert kept == [("take", "pitta_bread"), ("close", "cupboard"), ("insert", "pitta_bread"), ("turn-on", "toaster")]
