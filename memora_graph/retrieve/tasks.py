@@ -9,8 +9,9 @@ the steps of the one it picks (`task`). At 1,000 h a participant has 39,787 task
 steps): reading them as dicts and parsing every step list took 2.5 s, and matching one goal against
 all of them in Python 300-860 ms.
 
-The index is one columnar read of what matching needs (`queries/_task_index.cypher`), its step lists
-decoded by polars a slice at a time and then dropped; the task a plan picks is read whole by its id
+The index is one columnar read of what matching needs (`queries/_task_index.cypher`; sorted here, as
+Kùzu's sort held another copy of every step list: 550 MB more at the peak at 1,000 h, 410 unsorted),
+its step lists decoded by polars a slice at a time and then dropped; the task a plan picks is read whole by its id
 (`_task_row`). A `MemoryView` keeps its index until a consolidation replaces the tasks
 (`reload_inferred`)."""
 
@@ -100,8 +101,9 @@ class TaskIndex:
             got = store.fetch("_task_row", participant=participant, id=task_id)
             return dict(got[0]) if got else None
 
-        return cls(store.fetch_frame("_task_index", participant=participant),
-                   source=str(getattr(store, "path", "")), row_of=row_of)
+        rows = store.fetch_frame("_task_index", participant=participant) \
+            .sort("video", "t_start", "id", nulls_last=True)  # as `tasks` orders them
+        return cls(rows, source=str(getattr(store, "path", "")), row_of=row_of)
 
     def __len__(self) -> int:
         return self._rows.height

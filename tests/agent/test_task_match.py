@@ -147,7 +147,9 @@ def test_a_plan_reads_every_task_however_many_come_before_the_one_that_does_the_
     b.record_integrity("P01")
     view = get_family("memora").open(bank, "P01")
     try:
-        assert len(task_match.read_tasks(view)) == len(rows) + 1100
+        tasks = task_match.read_tasks(view)
+        assert len(tasks) == len(rows) + 1100
+        assert [t["id"] for t in tasks] == [r["id"] for r in view.fetch("_tasks_all")]  # in video and time order
         assert len(view.fetch("tasks")) == 1000  # what a plan read before
     finally:
         view.close()
