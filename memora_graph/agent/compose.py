@@ -30,12 +30,13 @@ Everything here reads typed tool results only; nothing reads a task's references
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from memora_graph.agent.claims import is_task_record
 from memora_graph.baselines.flat1d import FlatHit
 from memora_graph.baselines.graph2d import GraphNode
+from memora_graph.consolidate.vocab import FILLER
 from memora_graph.perceive.lexicon import Lexicon
 from memora_graph.retrieve.results import (
     ActivityRecord, ObjectRecord, PreferenceRecord, RoutineRecord, ToolResult, VisibleObject,
@@ -125,9 +126,12 @@ def goal_parts(goal: str, lex: Lexicon) -> list[GoalPart]:
     next one that has some ("peel, chop and fry the onion")."""
     parts: list[GoalPart] = []
     said = goal_words(goal, lex)
+    made = _makes(goal, lex)
     for c in lex.parse(goal):
         if c.negated:
             continue
+        if made and c.verb == made:  # "make porridge": no cut (EPIC files "make" under it); what, not how
+            c = replace(c, verb=None)
         # things carried; failing those, the fixtures, head noun first ("the kitchen countertop")
         objs = [n for n in c.objects() if _carried(n, lex)] or list(reversed(c.objects()))
         verb = c.verb
@@ -153,6 +157,16 @@ def goal_parts(goal: str, lex: Lexicon) -> list[GoalPart]:
     parts = [p for p in parts if p.verb or p.objects]
     specific = [p for p in parts if p.verb not in GENERIC_VERBS]
     return specific or parts  # "wash the cucumber before preparing it": the washing is the plan
+
+
+def _makes(goal: str, lex: Lexicon) -> str | None:
+    """The verb class a goal's "make" was read as ("cut": EPIC's narrations make slices), when no other
+    word of the goal says that class ("make a sandwich", not "make slices and cut the bread")."""
+    words = re.findall(r"[a-z]+", goal.lower())
+    if "make" not in words:
+        return None
+    cls = lex.verb("make")
+    return None if any(w != "make" and lex.verb(w) == cls for w in words) else cls
 
 
 def goal_words(goal: str, lex: Lexicon) -> dict[str, str]:
@@ -367,7 +381,12 @@ def compose(goal: str, calls: list[dict[str, Any]], lex: Lexicon) -> list[dict[s
                         "source": "goal", "transferred_from": None, "note": "no remembered procedure for this action"})
             continue
         steps = _trim(adapt(proc, part, theme), part, budget)
-        out.extend(with_tools(steps, part, procs, lex))
+        if part.verb is None:  # "make a sandwich": the tools of the work its steps do (a cut's knife)
+            for verb in dict.fromkeys(st["verb_class"] for st in steps if st["verb_class"] not in FILLER):
+                steps = with_tools(steps, replace(part, verb=verb), procs, lex)
+        else:
+            steps = with_tools(steps, part, procs, lex)
+        out.extend(steps)
     return _dedupe(out)[:MAX_STEPS + MAX_TOOLS + 1]
 
 

@@ -145,3 +145,24 @@ def test_memora_plan_command(small_bank):
     # a person the bank does not have: a clear error, no traceback
     r = runner.invoke(main, ["plan", str(bank), "wash the chicken", "--participant", "P99"])
     assert r.exit_code != 0 and "Traceback" not in r.output and "P99" in r.output
+
+
+def test_make_says_what_to_produce_and_the_plan_fetches_the_tools_of_the_work_its_steps_do():
+    """EPIC files "make" under cut (its narrations make slices), so "make porridge" planned "Cut the
+    porridge". A goal's "make" names no action now, unless another word of it says cut; and for a
+    goal naming no work, the tools of the work its steps do are fetched (the knife of a cut), as they
+    are for a goal that names the work."""
+    from memora_graph.agent import compose
+
+    lex = Lexicon.load()
+    assert compose.goal_parts("make porridge", lex)[0].verb is None
+    assert compose.goal_parts("make slices of the onion and cut the bread", lex)[0].verb == "cut"
+    cut_tomato = _routine("P01:routine:tomato", "cut tomato", [("take", "knife", "drawer"), ("cut", "tomato", "board")])
+    cut_onion = _routine("P01:routine:onion", "cut onion", [("take", "knife", "drawer"), ("cut", "onion", "board")])
+    porridge = compose_structured("Help P01 make porridge.", [_routines(cut_onion, cut_tomato)], lex)
+    assert not any(s["verb_class"] == "cut" for s in porridge)  # nothing remembered makes it: said so, not cut
+    sandwich = _routine("P01:routine:sw", "make sandwich", [("take", "bread", "counter"), ("cut", "cheese", "counter"),
+                                                            ("put", "cheese", "bread")], similarity=0.9)
+    steps = compose_structured("Help P01 make a cheese sandwich.", [_routines(sandwich, cut_onion, cut_tomato)], lex)
+    said = [(s["verb_class"], s["object"]) for s in steps]
+    assert ("take", "knife") in said and said.index(("take", "knife")) < said.index(("cut", "cheese"))
