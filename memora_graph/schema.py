@@ -80,12 +80,31 @@ class Table:
         file in batches, where a frame bound as $frame is held whole until the commit). Kùzu
         binds only frames as parameters, so the path is written into the statement: it must be
         absolute and hold none of the characters that could end or escape the literal."""
-        text = str(path)
-        if not Path(text).is_absolute() or any(ch in text for ch in "'\"\\`\n\r\x00"):
-            raise StoreError(f"{text}: not a path a COPY statement can name (absolute, no quotes or backslashes)")
+        text = path_literal(path, "a COPY statement")
         if self.kind == "REL" and len(self.pairs) != 1:
             raise StoreError(f"COPY {self.name} from a file needs one FROM / TO pair; it has {len(self.pairs)}")
         return f"COPY {self.name} FROM '{text}'"
+
+
+def path_literal(path: Path, what: str) -> str:
+    """A path as Kùzu's COPY / EXPORT / IMPORT statements take it: Kùzu binds only frames as
+    parameters, so the path is written into the statement; it must be absolute and hold none of the
+    characters that could end or escape the literal."""
+    text = str(path)
+    if not Path(text).is_absolute() or any(ch in text for ch in "'\"\\`\n\r\x00"):
+        raise StoreError(f"{text}: not a path {what} can name (absolute, no quotes or backslashes)")
+    return text
+
+
+def export_statement(folder: Path) -> str:
+    """EXPORT DATABASE into `folder` (every table's rows as Parquet, with the statements that make the
+    database again: `import_statement`)."""
+    return f"EXPORT DATABASE '{path_literal(folder, 'EXPORT DATABASE')}' (format='parquet')"
+
+
+def import_statement(folder: Path) -> str:
+    """IMPORT DATABASE from a folder `export_statement` wrote, into an empty database."""
+    return f"IMPORT DATABASE '{path_literal(folder, 'IMPORT DATABASE')}'"
 
 
 def _statements(text: str) -> list[str]:

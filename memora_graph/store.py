@@ -524,3 +524,46 @@ def index_names(kind: str) -> list[str]:
 
 def _strip_comments(text: str) -> str:
     return "\n".join(line for line in text.splitlines() if not line.strip().startswith("//"))
+
+
+def rebuild_from_rows(db: Path, aside: Path) -> Path:
+    """Write a database again from its rows: EXPORT DATABASE into `aside`, the file moved into
+    `aside` (kept, never deleted), IMPORT DATABASE into a new file at `db`, then the optional
+    indexes it had made again. Returns where the old file went; on failure the old file is put
+    back and the error raised.
+
+    For a database whose write-ahead log was set aside (form/intake.py) after a writer was killed
+    inside a checkpoint: the file that checkpoint left can hold a primary-key index that no longer
+    matches its rows. Kùzu 0.11.3 then refuses new keys as duplicates at COMMIT ("Found duplicated
+    primary key value P09:cup@600" for a key no row holds), so the moments the intake journal
+    re-applies were refused, and acknowledged writes were lost (the kill soak found it; the rows
+    read and written again took all 387 of that bank's)."""
+    import shutil
+
+    db, aside = Path(db), Path(aside)
+    rows = aside / "rows"
+    src = Store(db, read_only=False)
+    try:
+        have = set(src.indexes())
+        kinds = {k: bool(set(index_names(k)) & have) for k in ("fts", "hnsw")}
+        src._execute(schema.export_statement(rows))
+    finally:
+        src.close()
+    (rows / "index.cypher").unlink(missing_ok=True)  # made again below: Kùzu's import of two FTS indexes fails
+    old = aside / db.name
+    shutil.move(str(db), old)
+    try:
+        dst = Store(db, read_only=False)
+        try:
+            dst._execute(schema.import_statement(rows))
+            if any(kinds.values()):
+                dst.ensure_indexes(fts=kinds["fts"], hnsw=kinds["hnsw"])
+        finally:
+            dst.close()
+    except BaseException:
+        for f in (db, wal_path(db)):
+            f.unlink(missing_ok=True)
+        shutil.move(str(old), db)
+        raise
+    shutil.rmtree(rows, ignore_errors=True)  # the old file is kept; its rows are in the new one
+    return old

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from memora_graph.errors import BankError, MemoraError
 from memora_graph.files import RECOVERY, side_files
+from memora_graph.store import rebuild_from_rows
 
 FOLDER = ".live"  # BANK/.live/intake-<participant>.jsonl
 log = logging.getLogger("memora_graph.integrity")
@@ -127,13 +128,25 @@ def has_journal(bank: Path, participant: str) -> bool:
 
 def set_log_aside(db: Path) -> Path:
     """Move a database's write-ahead log (and shadow file) into BANK/.recovery/ (never deleted), so
-    the database opens as its last completed checkpoint left it. Returns the folder."""
+    the database opens as its last completed checkpoint left it, and write the database again from
+    its rows (`store.rebuild_from_rows`; the file as it was goes into the same folder): a writer
+    killed inside a checkpoint can leave a file whose primary-key index no longer matches its rows,
+    which refuses the journal's moments as duplicates. Returns the folder."""
     db = Path(db)
     # (not named like keep_log's copies, which it prunes to the newest few)
     dest = db.parent / RECOVERY / f"unreplayable-{db.name}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}-{os.getpid()}"
     dest.mkdir(parents=True, exist_ok=True)
     for side in side_files(db):
         shutil.move(str(side), dest / side.name)
+    _fsync_dir(db.parent)
+    t0 = time.perf_counter()
+    try:
+        rebuild_from_rows(db, dest)
+    except (MemoraError, OSError) as exc:  # the file as it was still opens: the journal re-applies against it
+        log.warning(f"{db}: could not write it again from its rows ({exc}); re-applying against the file as it is")
+    else:
+        log.warning(f"{db}: written again from its rows in {time.perf_counter() - t0:.1f} s (the file as it was is "
+                    f"in {dest})")
     _fsync_dir(db.parent)
     return dest
 
