@@ -394,7 +394,14 @@ class Store:
                 pass
             raise
         self._in_tx = False
-        self._execute("COMMIT")
+        try:
+            self._execute("COMMIT")
+        except BaseException:  # a refused COMMIT (a duplicate key Kùzu finds only then) left the transaction
+            try:               # open: the next one on this connection failed with "Write-write conflict"
+                self._execute("ROLLBACK")
+            except StoreError:
+                pass
+            raise
 
     def tables(self) -> dict[str, str]:
         """Table name -> NODE / REL, from the database's catalog."""

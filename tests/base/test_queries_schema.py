@@ -112,3 +112,24 @@ def test_store_error_messages(tmp_path):
     with Store(tmp_path / "ok.kuzu") as ro:
         with pytest.raises(StoreError, match="read-only"):
             ro.query("CREATE (:Participant {id: 'P01', participant: 'P01'})")
+
+
+def test_a_refused_commit_leaves_no_transaction_open(empty_store, monkeypatch):
+    """Kùzu checks some keys only at COMMIT (a duplicate the file's key index holds); a refused
+    COMMIT must not leave its transaction open, or the next write on the connection fails too
+    ("Write-write conflict": a live writer then lost the moments after the refused one)."""
+    real = empty_store._execute
+
+    def refuse_commit(cypher, params=None):
+        if cypher == "COMMIT":
+            raise StoreError("refused at COMMIT (injected)")
+        return real(cypher, params)
+
+    monkeypatch.setattr(empty_store, "_execute", refuse_commit)
+    with pytest.raises(StoreError, match="injected"):
+        with empty_store.transaction():
+            empty_store.query("CREATE (v:Video {id: 'P01_01', participant: 'P01'})")
+    monkeypatch.setattr(empty_store, "_execute", real)
+    with empty_store.transaction():  # the connection writes again, and the refused row is not there
+        empty_store.query("CREATE (v:Video {id: 'P01_02', participant: 'P01'})")
+    assert empty_store.query("MATCH (v:Video) RETURN v.id AS id ORDER BY id")["id"].to_list() == ["P01_02"]
