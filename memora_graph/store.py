@@ -11,6 +11,7 @@ import errno
 import hashlib
 import os
 import re
+import shutil
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
@@ -386,18 +387,11 @@ class Store:
         self._in_tx = True
         try:
             yield self
-        except BaseException:
             self._in_tx = False
-            try:
-                self._execute("ROLLBACK")
-            except StoreError:
-                pass
-            raise
-        self._in_tx = False
-        try:
             self._execute("COMMIT")
-        except BaseException:  # a refused COMMIT (a duplicate key Kùzu finds only then) left the transaction
-            try:               # open: the next one on this connection failed with "Write-write conflict"
+        except BaseException:  # the block failed, or its COMMIT was refused (a duplicate key Kùzu finds only
+            self._in_tx = False  # then), which left the transaction open: the next one failed ("Write-write conflict")
+            try:
                 self._execute("ROLLBACK")
             except StoreError:
                 pass
@@ -545,8 +539,6 @@ def rebuild_from_rows(db: Path, aside: Path) -> Path:
     primary key value P09:cup@600" for a key no row holds), so the moments the intake journal
     re-applies were refused, and acknowledged writes were lost (the kill soak found it; the rows
     read and written again took all 387 of that bank's)."""
-    import shutil
-
     db, aside = Path(db), Path(aside)
     rows = aside / "rows"
     src = Store(db, read_only=False)

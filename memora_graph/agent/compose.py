@@ -381,11 +381,11 @@ def compose(goal: str, calls: list[dict[str, Any]], lex: Lexicon) -> list[dict[s
                         "source": "goal", "transferred_from": None, "note": "no remembered procedure for this action"})
             continue
         steps = _trim(adapt(proc, part, theme), part, budget)
-        if part.verb is None:  # "make a sandwich": the tools of the work its steps do (a cut's knife)
-            for verb in dict.fromkeys(st["verb_class"] for st in steps if st["verb_class"] not in FILLER):
-                steps = with_tools(steps, replace(part, verb=verb), procs, lex)
-        else:
-            steps = with_tools(steps, part, procs, lex)
+        # the tools of the part's action; for a part naming none ("make a sandwich"), of the work its steps do
+        work = [part.verb] if part.verb else dict.fromkeys(st["verb_class"] for st in steps
+                                                           if st["verb_class"] not in FILLER)
+        for verb in work:
+            steps = with_tools(steps, replace(part, verb=verb), procs, lex)
         out.extend(steps)
     return _dedupe(out)[:MAX_STEPS + MAX_TOOLS + 1]
 
