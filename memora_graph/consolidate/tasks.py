@@ -13,6 +13,8 @@ Deterministic, from the typed steps alone (`consolidate.memory.MemoryStep`):
      task is cut before the new run, together with the steps just before it that fetch the new
      run's objects or work a fixture (turn on the tap before washing up).
    A piece shorter than `MIN_STEPS` steps joins the task before it (the first one the task after).
+   Consecutive pieces that rule 2 names by one goal, with no pause between them, are one task
+   (`join_same_goal`: "make coffee" cut where the person fetched a filter from another place).
 2. **Name** by what the task produces, when it handles a product (coffee, tea, toast, boiled water:
    `PRODUCTS`) in at least `MIN_PRODUCT` of its steps, some product in at least `PRODUCT_SHARE` of
    them, and is no wash-up or put-away: the product handled most, boiled water only when nothing
@@ -225,13 +227,8 @@ def _goal(steps: list[MemoryStep], family: str, main: str) -> str:
     return f"{verb} {display(main)}".strip()
 
 
-def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: dict | None = None) -> CompactTask:
-    """The task of `steps` (compact: its steps as tuples; `.record()` is the `Task`). `share`, if
-    given, makes equal actions and texts one object each across the calls that pass it."""
-    from memora_graph.consolidate.rules import stable_id
-
-    share = {} if share is None else share
-
+def _naming(steps: list[MemoryStep]) -> tuple[str, str, str]:
+    """(family, main object, goal) of a task's steps (rule 2)."""
     family = _family(steps)
     work = [s for s in steps if (_category(s) or "store") == family] or steps
     counts = Counter(o.kind for s in work for o in s.objects[:1] if not o.is_fixture and not _is_tool(o.category))
@@ -241,6 +238,16 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: di
     if not counts:
         counts = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     main = counts.most_common(1)[0][0] if counts else steps[0].main.kind
+    return family, main, f"clean {display(surface)}" if surface else _goal(steps, family, main)
+
+
+def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: dict | None = None) -> CompactTask:
+    """The task of `steps` (compact: its steps as tuples; `.record()` is the `Task`). `share`, if
+    given, makes equal actions and texts one object each across the calls that pass it."""
+    from memora_graph.consolidate.rules import stable_id
+
+    share = {} if share is None else share
+    family, main, goal = _naming(steps)
     stages = _stage(steps, family, _product(steps, family))
     everything = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     tools = list(dict.fromkeys(o.kind for s in steps for o in s.objects if _is_tool(o.category)))
@@ -253,7 +260,7 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: di
         out_steps.append(CompactStep(a, st, round(s.t, 2), s.segment, share.setdefault(text, text)))
     return CompactTask(
         id=stable_id(participant, "task", steps[0].video, steps[0].segment, *([nth] if nth else [])),
-        video=steps[0].video, goal=f"clean {display(surface)}" if surface else _goal(steps, family, main), family=family, main_object=main,
+        video=steps[0].video, goal=goal, family=family, main_object=main,
         t_start=round(steps[0].t, 2), t_end=round(steps[-1].t, 2), steps=out_steps,
         objects=[k for k, _ in everything.most_common()], tools=tools,
         places=list(dict.fromkeys(s.location for s in steps if s.location)),
@@ -262,11 +269,28 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: di
     )
 
 
+def join_same_goal(pieces: list[list[MemoryStep]]) -> list[list[MemoryStep]]:
+    """Rule 1, last: consecutive pieces that serve one goal are one task, when no pause of more than
+    `PAUSE` seconds lies between them ("make coffee" cut in two where the person fetched a filter
+    from another place). The joined piece is named again, as a whole."""
+    out: list[list[MemoryStep]] = []
+    goals: list[str] = []
+    for p in pieces:
+        g = _naming(p)[2]
+        if out and goals[-1] == g and p[0].t - out[-1][-1].t <= PAUSE:
+            out[-1] = out[-1] + p
+            goals[-1] = _naming(out[-1])[2]
+        else:
+            out.append(list(p))
+            goals.append(g)
+    return out
+
+
 def compact_video_tasks(participant: str, steps: list[MemoryStep], share: dict | None = None) -> list[CompactTask]:
     """A video's tasks, compact (see `make_task`)."""
     steps = sorted(steps, key=lambda s: s.t)
     out, seen = [], Counter()
-    for p in cut(steps):
+    for p in join_same_goal(cut(steps)):
         out.append(make_task(participant, p, seen[p[0].segment], share))  # a second task starting in one segment: its ordinal
         seen[p[0].segment] += 1
     return out

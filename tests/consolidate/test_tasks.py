@@ -85,6 +85,32 @@ def test_a_task_is_named_after_its_product_unless_it_washes_or_stores_it():
     assert video_tasks("P01", washing)[0].goal == "wash up cup"  # the tea handled there is not made
 
 
+def _coffee(v, t0, loc):
+    """Spoon coffee into the coffee maker and switch it on (at `loc`)."""
+    coffee, maker = ("coffee", "drinks", False), ("coffee_maker", "appliances", False)
+    return [_step(v, t0, "take", maker, loc=loc), _step(v, t0 + 1, "take", SPOON, loc=loc),
+            _step(v, t0 + 2, "scoop", coffee, SPOON, dest="coffee_maker", loc=loc),
+            _step(v, t0 + 3, "turn-on", maker, loc=loc)]
+
+
+def test_consecutive_pieces_of_one_goal_are_one_task_unless_a_pause_parts_them():
+    v = "P01_101"
+    paper = ("filter", "cleaning equipment and material", False)
+    # coffee, then a filter fetched and folded at the cupboard (a move to objects the coffee steps do
+    # not share cuts there), then coffee again: one making of coffee
+    fetch = [_step(v, 5 + i, verb, paper, loc="cabinet_area") for i, verb in enumerate(["take", "fold", "open", "put"])]
+    steps = _coffee(v, 0.0, "counter_area") + fetch + _coffee(v, 9.0, "cabinet_area")
+    assert [len(p) for p in cut(steps)] == [4, 8]  # cut at the move to the filter, each piece making coffee
+    tasks = video_tasks("P01", steps)
+    assert [t.goal for t in tasks] == ["make coffee"]
+    assert len(tasks[0].steps) == len(steps) and tasks[0].t_start == 0.0 and tasks[0].t_end == 12.0
+    assert tasks[0].places == ["counter_area", "cabinet_area"]
+    later = _coffee(v, 0.0, "counter_area") + [_step(v, s.t + PAUSE, s.verb, *[(o.kind, o.category, o.is_fixture)
+                                                                              for o in s.objects], dest=s.destination,
+                                                     loc=s.location) for s in fetch + _coffee(v, 9.0, "cabinet_area")]
+    assert [t.goal for t in video_tasks("P01", later)] == ["make coffee", "make coffee"]  # a pause parts them
+
+
 def test_putting_several_foods_away_is_putting_away_groceries():
     v = "P01_101"
     fridge = ("fridge", "fixture", True)
@@ -187,6 +213,29 @@ def test_staging_setup_carrier_and_canonical_stages():
     assert ca[("onion", "pan", "spoon")].statement.startswith("Transfers the onion into the pan with the spoon")
     can = canonical.detect(tasks)[0]
     assert can.detail["stages"]["main"][0] == "cut onion" and can.count == 2
+
+
+def test_a_step_done_in_different_stages_across_occurrences_is_still_canonical():
+    """Folding the filter is setup one morning (before the coffee) and main the next (between
+    spoonfuls): done most times, it is a canonical step, in the stage it is in most."""
+    paper = ("filter", "cleaning equipment and material", False)
+    coffee = ("coffee", "drinks", False)
+    tasks = []
+    for n, v in enumerate(("P01_101", "P01_102", "P01_103", "P01_104", "P01_105")):
+        fold = [_step(v, 0, "take", paper), _step(v, 1, "fold", paper)]
+        spoon = [_step(v, 2, "take", SPOON), _step(v, 3, "scoop", coffee, SPOON, dest="coffee_maker"),
+                 _step(v, 4, "scoop", coffee, SPOON, dest="coffee_maker")]
+        # folded first twice, between spoonfuls twice, not at all once: in 4 of 5, in no stage in half
+        steps = fold + spoon if n < 2 else spoon[:2] + fold + spoon[2:] if n < 4 else spoon + [_step(v, 5, "take", paper)]
+        steps = [_step(v, i, s.verb, *[(o.kind, o.category, o.is_fixture) for o in s.objects], dest=s.destination)
+                 for i, s in enumerate(steps)]  # times in the order given
+        tasks += video_tasks("P01", steps)
+    assert {t.goal for t in tasks} == {"make coffee"}
+    where = {t.video: next((s.stage for s in t.steps if s.action.verb == "fold"), None) for t in tasks}
+    assert where == {"P01_101": "setup", "P01_102": "setup", "P01_103": "main", "P01_104": "main", "P01_105": None}
+    can = canonical.detect(tasks)[0]
+    assert "fold filter" in can.detail["stages"]["setup"]  # a tie: the earlier stage
+    assert all("fold filter" not in can.detail["stages"][st] for st in ("main", "finish", "cleanup"))
 
 
 def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder,

@@ -1,14 +1,16 @@
 """Canonical stages and steps of a recurring task, with their variants.
 
-Rule: for each goal done at least `MIN_TASKS` times, the (verb, object) steps per stage. A step
-found in at least `MIN_SHARE` of the occurrences is canonical; those in fewer (but at least two)
-are variants. Steps are ordered by their median position (0-1) within the task. The record
-states the stages in order ("setup: open fridge, take egg; main: crack egg, stir egg; ...").
+Rule: for each goal done at least `MIN_TASKS` times, its (verb, object) steps. A step found in at
+least `MIN_SHARE` of the occurrences is canonical; those in fewer (but at least two) are variants.
+A canonical step belongs to the stage it is in most often (a filter folded before the coffee is
+spooned is setup in one morning and main in the next: one step, counted once per occurrence).
+Steps are ordered by their median position (0-1) within the task. The record states the stages
+in order ("setup: open fridge, take egg; main: crack egg, stir egg; ...").
 """
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 from statistics import median
 
 from memora_graph.consolidate import vocab
@@ -23,17 +25,22 @@ MAX_STEPS = 5  # canonical steps per stage
 
 def stages_of(ts: list[Task]) -> tuple[dict[str, list[tuple[str, str, float]]], list[tuple[str, str]]]:
     """stage -> canonical (verb, noun, median position) in order; and the variants."""
-    pos: dict[tuple[str, str, str], dict[str, float]] = defaultdict(dict)
+    pos: dict[tuple[str, str], dict[str, float]] = defaultdict(dict)
+    stage: dict[tuple[str, str], Counter] = defaultdict(Counter)
     for t in ts:
         n = max(1, len(t.steps) - 1)
         for i, s in enumerate(t.steps):
             if s.action.noun and s.action.verb not in ("hold", "move", "let-go"):
-                pos[(s.stage, s.action.verb, s.action.noun)].setdefault(t.id, i / n)
+                key = (s.action.verb, s.action.noun)
+                if t.id not in pos[key]:
+                    pos[key][t.id] = i / n
+                    stage[key][s.stage] += 1
     canon: dict[str, list[tuple[str, str, float]]] = {st: [] for st in STAGES}
     variants = []
-    for (st, v, o), by_task in pos.items():
+    for (v, o), by_task in pos.items():
         share = len(by_task) / len(ts)
         if share >= MIN_SHARE and len(by_task) >= MIN_TASKS:
+            st = max(STAGES, key=lambda x: stage[(v, o)][x])  # most often; the earlier stage on a tie
             canon[st].append((v, o, median(by_task.values())))
         elif len(by_task) >= 2:
             variants.append((v, o))
