@@ -34,7 +34,7 @@ MAX_PLAN_STEPS = 15  # what a plan answer is read to (bench.answers.extract_plan
 # docs/planning.md, "Plans from tasks"). A person's own goal (`memora plan`, the server's plan tool)
 # starts from their task that does it, when one does (`plan(..., from_task=True)`, the default).
 TASK_FIRST = False
-MAX_TASK_PLAN_STEPS = 20  # a plan from one of the person's tasks (`memora plan`): the whole task, focused
+MAX_TASK_PLAN_STEPS = 40  # a plan from one of the person's tasks (`memora plan`): the whole task, focused (P30's coffee: 37 steps)
 MAX_PREFERENCES = 6  # retrieved preferences considered for one plan
 MAX_PREFERENCE_STEPS = 4  # steps a plan may gain from them
 ROUTINES_K = 8  # routines retrieved for the whole goal

@@ -196,3 +196,22 @@ def test_a_plan_never_puts_down_what_it_has_not_taken():
                       step("turn-on", "toaster")]}
     kept = [(s["verb"], s["noun"]) for s in task_match.focus(task, {"pitta_bread", "toaster", "knife"}, lex)]
     assert kept == [("take", "pitta_bread"), ("close", "cupboard"), ("insert", "pitta_bread"), ("turn-on", "toaster")]
+
+
+def test_a_long_task_is_planned_whole_not_cut_at_the_composed_plans_length():
+    """P30's coffee is 37 focused steps (the water boiled, the filter folded, the beans ground, the
+    water poured last): a plan from it keeps them all, the last ones too, not the first 20."""
+    from memora_graph.agent.planner import MAX_PLAN_STEPS, compose_structured
+
+    lex = Lexicon.load()
+    places = ["cup", "jug", "filter", "can", "kettle", "bowl", "glass", "mug"]
+    verbs = ["pour", "insert", "empty", "scoop"]
+    steps = [{"verb": v, "noun": "coffee", "place": p, "instrument": "", "segment": f"P30_103#t{i:04d}"}
+             for i, (v, p) in enumerate((v, p) for p in places for v in verbs)]
+    steps.append({"verb": "turn-on", "noun": "coffee_maker", "place": "counter area", "instrument": "",
+                  "segment": "P30_103#t0099"})
+    task = {"id": "P30:task:c", "video": "P30_103", "goal": "make coffee", "family": "cooking",
+            "main_object": "coffee", "segments": ["P30_103#t0000"], "steps": steps}
+    out = compose_structured("make coffee", [], lex, from_task=True, tasks=[task])
+    assert len(steps) > MAX_PLAN_STEPS and len(out) == len(steps)
+    assert out[-1]["verb"].startswith("turn") and "coffee maker" in out[-1]["text"]
