@@ -4,7 +4,8 @@ An EAM-QA option about a routine or a method is often a claim about how a task i
 the order of two steps ("empties it out before washing"), a staging place ("sets it aside on the
 counter, returns to it later"), batching ("retrieves one utensil as needed" against "lays out a
 set first"), repetition ("alternates stretching and folding"), setup ("opens the containers
-before filling them") or the carrier of a transfer ("scoops it with a spoon"). Consolidation
+before filling them"), the carrier of a transfer ("scoops it with a spoon") or closing what was
+opened ("closes the cupboard after use" against "leaves it open"). Consolidation
 writes one record per pattern found (`consolidate.patterns`); `evidence` turns each into a
 `Claim`. Here every option is read for the claims it makes, and each pattern record about the
 question's subject *supports* it (+), *contradicts* it (-) or does not speak to it (0), weighted
@@ -70,6 +71,10 @@ _CUES = {
                r"\bretrieves? (?:it|them)\b|\bpicks? (?:it|them) up again\b|\bcomes? back (?:to|for)\b|\btemporar\w+\b",
     "direct": r"\bdirectly\b|\bstraight\b",
     "first": r"\bfirst\b|\bbefore\b|\bsets? up\b|\bprepares?\b|\bready\b",
+    # closing what was opened, or leaving it open
+    "close": r"\bclos(?:e|es|ed|ing)\b|\bshut\w*\b|\breseal\w*\b|\brecap\w*\b|\b(?:lid|cap) back\b",
+    "open_left": r"\b(?:leaves?|leaving|left|keeps?|keeping)\b(?:\s+[\w-]+){0,4}?\s+(?:open|ajar|uncapped|unsealed|uncovered)\b|"
+                 r"\buncapped\b|\bunsealed\b|\bopen (?:until|while|throughout)\b",
 }
 _CUE = {k: re.compile(v) for k, v in _CUES.items()}
 
@@ -78,8 +83,8 @@ _CUE = {k: re.compile(v) for k, v in _CUES.items()}
 class Claim:
     """A pattern record as the reader checks options against it."""
 
-    family: str  # order | staging | batch | repetition | setup | carrier
-    way: str  # batch: one_at_a_time | batch; repetition: alternate | repeat; else ""
+    family: str  # order | staging | batch | repetition | setup | carrier | closure
+    way: str  # batch: one_at_a_time | batch; repetition: alternate | repeat; closure: closes | leaves_open; else ""
     verbs: tuple[str | None, ...]  # the record's actions, in its order (verb classes)
     nouns: tuple[str, ...]  # the object classes it is about
     share: float  # n of m
@@ -109,11 +114,16 @@ GENERAL = frozenset({"utensil", "container", "cutlery", "food", "vegetable", "fr
 BOOKKEEPING = vocab.TAKING | vocab.RELEASING | {"hold", "move"}  # verbs that frame every task: they say nothing of its method
 
 
+def _named_objects(option: str, lex: Lexicon) -> set[str]:
+    """The particular objects an option names (not a word for a whole kind)."""
+    return {n for c in lex.parse(option) if not c.negated for n in c.objects() if n not in GENERAL}
+
+
 def _on_claim(option: str, claim: Claim, lex: Lexicon) -> bool:
     """The option is about the record's objects: it names one of them (at class or head level), or
     names no particular object ("sets it aside": the question's subject; "a utensil", "the food": a
     word for a whole category)."""
-    named = {n for c in lex.parse(option) if not c.negated for n in c.objects() if n not in GENERAL}
+    named = _named_objects(option, lex)
     return not named or _about(claim, named)
 
 
@@ -156,6 +166,11 @@ def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
                 any(_verb_at(clauses[:1], v, lex, exact=True) is not None for v in claim.verbs if v not in BOOKKEEPING):
             return 1.0
         return 0.0
+    if f == "closure":  # closes what it opened, or leaves it open: an option about the same object
+        if not _on_claim(option, claim, lex) or ("close" in cue) == ("open_left" in cue):
+            return 0.0
+        says_closed = "close" in cue
+        return 1.0 if says_closed == (claim.way == "closes") else -1.0
     if f == "carrier":  # the option names the tool that carried it ("directly" records say too little)
         if claim.way == "directly" or len(claim.nouns) < 2:
             return 0.0
@@ -170,12 +185,19 @@ def verdict(claim: Claim, option: str, cue: set[str], lex: Lexicon) -> float:
 def adjust(choices: list[str], claims: list[Claim], subject: set[str], lex: Lexicon) -> tuple[list[float], list[list[str]]]:
     """Per option, how much the pattern records about the subject move its score, and their ids."""
     shifts, ids = [0.0] * len(choices), [[] for _ in choices]
-    about = [c for c in claims if _about(c, subject)]
+    # a closure record speaks to the options that name its object, whatever the question calls it
+    # ("upper storage": the options say which cupboard)
+    about = [c for c in claims if _about(c, subject) or c.family == "closure"]
     if not about:
         return shifts, ids
     for k, option in enumerate(choices):
         cue = cues(option)
+        named = None
         for c in about:
+            if c.family == "closure" and not _about(c, subject):
+                named = _named_objects(option, lex) if named is None else named
+                if not _about(c, named):
+                    continue
             v = verdict(c, option, cue, lex)
             if v:
                 shifts[k] += WEIGHT * v * c.share

@@ -21,7 +21,7 @@ Stage = Literal["setup", "main", "finish", "cleanup"]
 TASK_ROUTINE_SOURCE = "task_routine"  # a recurring task's canonical stages, as a Routine row
 TASK_PATTERN_SOURCE = "tasks"  # how tasks are done (every other family), as a Preference row
 TASK_SOURCES = frozenset({TASK_ROUTINE_SOURCE, TASK_PATTERN_SOURCE})
-FAMILIES = ("canonical", "order", "staging", "batch", "repetition", "setup", "carrier")
+FAMILIES = ("canonical", "order", "staging", "batch", "repetition", "setup", "carrier", "closure")
 PREFERENCE_FAMILIES = FAMILIES[1:]  # every family but the canonical stages is written as a Preference row
 
 

@@ -188,3 +188,22 @@ def test_order_setup_and_carrier_records_speak_of_their_own_actions(lex):
     jar = _claim("carrier", "with", ["pour"], ["spice", "jar"])
     assert verdict(jar, "Leaves the jar open.", cues("Leaves the jar open."), lex) == 0.0
     assert verdict(jar, "Pours the spice from the jar.", cues("x"), lex) == 1.0
+
+
+def test_a_closure_record_speaks_to_options_naming_its_object_whatever_the_question_calls_it(lex):
+    """'When P01 finishes accessing upper storage, what closure pattern...': the question names no
+    cupboard, the options do. The person's record about the cupboard supports closing it and
+    contradicts leaving it open; one about the drawer says nothing of the cupboard."""
+    opts = ["Blocks it with cookware", "Leaves cupboard open", "Reopens it repeatedly", "Closes cupboard after use"]
+    closes = _claim("closure", "closes", ["open", "close"], ["cupboard"], share=0.85)
+    shifts, ids = adjust(opts, [closes], set(), lex)
+    assert shifts[3] > 0 > shifts[1] and shifts[0] == shifts[2] == 0.0
+    assert ids[3] == ["P03:pref:closure"]
+    drawer = _claim("closure", "closes", ["open", "close"], ["drawer"], share=1.0)
+    assert adjust(opts, [drawer], set(), lex)[0] == [0.0] * 4
+    # a person who leaves the bag open: the record says the opposite of the usual wording
+    bag = _claim("closure", "leaves_open", ["open", "close"], ["bag"], share=6 / 7)
+    a, b = "Leaves the bag open until the end of the task.", "Folds the bag and closes it straight after."
+    assert verdict(bag, a, cues(a), lex) == 1.0 and verdict(bag, b, cues(b), lex) == -1.0
+    both = "Leaves the inner bag open but closes the cupboard door."
+    assert verdict(bag, both, cues(both), lex) == 0.0  # says both: no verdict

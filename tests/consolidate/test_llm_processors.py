@@ -174,7 +174,8 @@ def test_scripted_replies_become_routines_and_preferences_supported_by_the_cited
     workflow = prefs["Pans are washed at the sink, then go on the hob"]
     tool = prefs["Uses a knife to cut chicken"]
     task_made = {k for k, v in prefs.items() if v["source"] == "tasks"}  # task patterns: from the typed steps, any processor
-    assert task_made and {prefs[k]["subtype"] for k in task_made} <= {"order", "staging", "batch", "repetition", "setup", "carrier"}
+    assert task_made and {prefs[k]["subtype"] for k in task_made} <= {"order", "staging", "batch", "repetition", "setup", "carrier",
+                                                                                  "closure"}
     assert knowledge.task_rows and {t.video for t in knowledge.tasks} <= set(VIDEOS)
     prefs = {k: v for k, v in prefs.items() if k not in task_made}
     assert set(prefs) == {storage["statement"], habit["statement"], workflow["statement"], tool["statement"]}

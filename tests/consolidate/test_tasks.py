@@ -9,7 +9,7 @@ import shutil
 from memora_graph.bank import Bank
 from memora_graph.consolidate import finish_participant, load_memory
 from memora_graph.consolidate.memory import MemoryStep, Obj, ParticipantMemory
-from memora_graph.consolidate.patterns import batch, canonical, carrier, detect_all, order, repetition, setup, staging
+from memora_graph.consolidate.patterns import batch, canonical, carrier, closure, detect_all, order, repetition, setup, staging
 from memora_graph.consolidate.records import StepAction
 from memora_graph.consolidate import task_rows as task_rows_module
 from memora_graph.consolidate.task_rows import TaskRows
@@ -238,6 +238,30 @@ def test_a_step_done_in_different_stages_across_occurrences_is_still_canonical()
     assert all("fold filter" not in can.detail["stages"][st] for st in ("main", "finish", "cleanup"))
 
 
+def test_what_is_opened_is_closed_again_or_left_open_and_storage_is_pooled():
+    cupboard, drawer = ("cupboard", "fixture", True), ("drawer", "fixture", True)
+    bag, cup = ("bag", "containers", False), ("cup", "crockery", False)
+    tasks = []
+    for n, v in enumerate(("P01_101", "P01_102", "P01_103")):
+        steps = [_step(v, 0, "open", cupboard, loc="cabinet_area"), _step(v, 1, "take", cup, loc="cabinet_area"),
+                 _step(v, 2, "close", cupboard, loc="cabinet_area"), _step(v, 3, "open", bag, loc="cabinet_area"),
+                 _step(v, 4, "take", cup, loc="cabinet_area"), _step(v, 5, "open", drawer, loc="cabinet_area"),
+                 _step(v, 6, "take", SPOON, loc="cabinet_area")]
+        # the drawer is closed straight away twice, once only after six more steps; the bag never
+        steps += [_step(v, 7, "close", drawer, loc="cabinet_area")] if n < 2 else \
+            [_step(v, 7 + i, "put", cup, loc="cabinet_area") for i in range(6)] + [_step(v, 13, "close", drawer, loc="cabinet_area")]
+        tasks += video_tasks("P01", steps)
+    found = {p.key: p for p in closure.detect(tasks)}
+    cup_closed = found[("cupboard", "closes")]
+    assert (cup_closed.count, cup_closed.total) == (3, 3) and cup_closed.statement.startswith("Closes the cupboard again")
+    assert found[("drawer", "closes")].detail == {"way": "closes", "closed": 3, "opened": 3, "prompt": 2}
+    left = found[("bag", "leaves_open")]
+    assert (left.count, left.total, left.exceptions) == (3, 3, []) and left.statement.startswith("Leaves the bag open")
+    pooled = found[("storage", "closes")]
+    assert set(pooled.objects) == {"cupboard", "drawer"} and (pooled.count, pooled.total) == (6, 6)
+    assert "closure" in {p.family for p in detect_all(tasks)}
+
+
 def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_stable(small_bank, tmp_path, embedder,
                                                                                  monkeypatch):
     src, _ = small_bank
@@ -255,8 +279,9 @@ def test_tasks_and_patterns_are_written_with_the_inferred_knowledge_and_kept_sta
     assert segments <= known
     assert {json.loads(r["stages"]).keys() == {"setup", "main", "finish", "cleanup"} for r in first} == {True}
     assert k.counts()["tasks"] == len(first)
-    assert {x.family for x in k.patterns} <= {"canonical", "order", "staging", "batch", "repetition", "setup", "carrier"}
-    assert any(r.get("subtype") in {"order", "staging", "batch", "repetition", "setup", "carrier"} for r in prefs) or not \
+    assert {x.family for x in k.patterns} <= {"canonical", "order", "staging", "batch", "repetition", "setup", "carrier",
+                                              "closure"}
+    assert any(r.get("subtype") in {"order", "staging", "batch", "repetition", "setup", "carrier", "closure"} for r in prefs) or not \
         [x for x in k.patterns if x.family != "canonical"]
     monkeypatch.setattr(task_rows_module, "CHUNK_TASKS", 3)  # the rows copied a few tasks at a time
     assert len(first) > 3

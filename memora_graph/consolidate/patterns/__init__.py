@@ -11,15 +11,16 @@ tasks (`consolidate.tasks`), applies its documented rule and thresholds, and ret
 | repetition | `repetition` | two actions on one object alternating, or one action repeated in passes |
 | setup | `setup` | what is done before a recurring task's main step |
 | carrier | `carrier` | the tool or container that carries a transfer (pour, scoop, fill) |
+| closure | `closure` | what is opened (cupboard, drawer, jar, bag) closed again within the task, or left open |
 """
 
 from __future__ import annotations
 
-from memora_graph.consolidate.patterns import batch, canonical, carrier, order, repetition, setup, staging
+from memora_graph.consolidate.patterns import batch, canonical, carrier, closure, order, repetition, setup, staging
 from memora_graph.consolidate.task_records import Task, TaskPattern
 
 DETECTORS = {"canonical": canonical.detect, "order": order.detect, "staging": staging.detect, "batch": batch.detect,
-             "repetition": repetition.detect, "setup": setup.detect, "carrier": carrier.detect}
+             "repetition": repetition.detect, "setup": setup.detect, "carrier": carrier.detect, "closure": closure.detect}
 
 
 def detect_all(tasks: list[Task]) -> list[TaskPattern]:
