@@ -187,17 +187,15 @@ def adjust(choices: list[str], claims: list[Claim], subject: set[str], lex: Lexi
     shifts, ids = [0.0] * len(choices), [[] for _ in choices]
     # a closure record speaks to the options that name its object, whatever the question calls it
     # ("upper storage": the options say which cupboard)
-    about = [c for c in claims if _about(c, subject) or c.family == "closure"]
+    about = [(c, on) for c in claims if (on := _about(c, subject)) or c.family == "closure"]
     if not about:
         return shifts, ids
     for k, option in enumerate(choices):
         cue = cues(option)
-        named = None
-        for c in about:
-            if c.family == "closure" and not _about(c, subject):
-                named = _named_objects(option, lex) if named is None else named
-                if not _about(c, named):
-                    continue
+        named = _named_objects(option, lex) if not all(on for _, on in about) else set()
+        for c, on_subject in about:
+            if not on_subject and not _about(c, named):
+                continue
             v = verdict(c, option, cue, lex)
             if v:
                 shifts[k] += WEIGHT * v * c.share

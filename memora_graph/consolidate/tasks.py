@@ -241,13 +241,15 @@ def _naming(steps: list[MemoryStep]) -> tuple[str, str, str]:
     return family, main, f"clean {display(surface)}" if surface else _goal(steps, family, main)
 
 
-def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: dict | None = None) -> CompactTask:
+def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: dict | None = None,
+              naming: tuple[str, str, str] | None = None) -> CompactTask:
     """The task of `steps` (compact: its steps as tuples; `.record()` is the `Task`). `share`, if
-    given, makes equal actions and texts one object each across the calls that pass it."""
+    given, makes equal actions and texts one object each across the calls that pass it; `naming`,
+    the steps' `_naming` when already computed (`join_same_goal`)."""
     from memora_graph.consolidate.rules import stable_id
 
     share = {} if share is None else share
-    family, main, goal = _naming(steps)
+    family, main, goal = naming or _naming(steps)
     stages = _stage(steps, family, _product(steps, family))
     everything = Counter(o.kind for s in steps for o in s.objects if not o.is_fixture)
     tools = list(dict.fromkeys(o.kind for s in steps for o in s.objects if _is_tool(o.category)))
@@ -269,20 +271,20 @@ def make_task(participant: str, steps: list[MemoryStep], nth: int = 0, share: di
     )
 
 
-def join_same_goal(pieces: list[list[MemoryStep]]) -> list[list[MemoryStep]]:
+def join_same_goal(pieces: list[list[MemoryStep]]) -> list[tuple[list[MemoryStep], tuple[str, str, str]]]:
     """Rule 1, last: consecutive pieces that serve one goal are one task, when no pause of more than
     `PAUSE` seconds lies between them ("make coffee" cut in two where the person fetched a filter
-    from another place). The joined piece is named again, as a whole."""
-    out: list[list[MemoryStep]] = []
-    goals: list[str] = []
+    from another place). The joined piece is named again, as a whole. Each piece comes with its
+    `_naming` (family, main object, goal), which `make_task` takes as it is."""
+    out: list[tuple[list[MemoryStep], tuple[str, str, str]]] = []
     for p in pieces:
-        g = _naming(p)[2]
-        if out and goals[-1] == g and p[0].t - out[-1][-1].t <= PAUSE:
-            out[-1] = out[-1] + p
-            goals[-1] = _naming(out[-1])[2]
+        naming = _naming(p)
+        if out and out[-1][1][2] == naming[2] and p[0].t - out[-1][0][-1].t <= PAUSE:
+            joined = out[-1][0]
+            joined.extend(p)
+            out[-1] = (joined, _naming(joined))
         else:
-            out.append(list(p))
-            goals.append(g)
+            out.append((list(p), naming))
     return out
 
 
@@ -290,8 +292,8 @@ def compact_video_tasks(participant: str, steps: list[MemoryStep], share: dict |
     """A video's tasks, compact (see `make_task`)."""
     steps = sorted(steps, key=lambda s: s.t)
     out, seen = [], Counter()
-    for p in join_same_goal(cut(steps)):
-        out.append(make_task(participant, p, seen[p[0].segment], share))  # a second task starting in one segment: its ordinal
+    for p, naming in join_same_goal(cut(steps)):
+        out.append(make_task(participant, p, seen[p[0].segment], share, naming))  # a second task starting in one segment: its ordinal
         seen[p[0].segment] += 1
     return out
 
